@@ -1,0 +1,9 @@
+#!/usr/bin/env bash
+# Create .venv at the repo root, install everything (service, training, dev tools, client SDK)
+# and run the whole test suite. Extra arguments go to pytest.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+[ -x .venv/bin/python ] || python3 -m venv .venv
+.venv/bin/python -m pip install -q --upgrade pip
+.venv/bin/python -m pip install -q -e ".[train,dev]" -e clients/python
+exec .venv/bin/python -m pytest "$@"
