@@ -1,0 +1,1 @@
+"""planar-pose runtime: preprocessing, onnxruntime inference and the HTTP service (no torch)."""

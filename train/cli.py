@@ -1,0 +1,16 @@
+"""The `planar-pose` command: one sub-command (group) per step of the pipeline.
+
+Each step lives in its own module and is registered here. Command modules must not import
+torch at import time (the service install has no torch): import it inside the command.
+"""
+
+from __future__ import annotations
+
+import typer
+
+app = typer.Typer(
+    name="planar-pose",
+    help="Coarse camera pose region of a planar object: data, train, evaluate, export, serve.",
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+)
