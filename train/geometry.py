@@ -1,0 +1,218 @@
+"""Pose geometry of a planar object (SPEC sections 2-5, 7), as small pure numpy functions.
+
+Frames and units:
+
+* World frame = object frame: origin at the centre of the rectangle, the object in z = 0,
+  x along its width, y towards the top of its texture, z towards the side that shows the
+  texture (the viewer). Units: cm.
+* Camera frame: x right, y down (image rows), z forward along the optical axis. A pose is
+  (R, t) with X_cam = R @ X_world + t; R is world -> camera, t in cm.
+* Image: pixels (u, v), u to the right, v down, origin at the top-left pixel's centre.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+FloatArray = NDArray[np.float64]
+
+#: Pinhole intrinsics (fx, fy, u0, v0) in pixels for 160x120 images (SPEC section 2).
+SPEC_FOCAL_160: tuple[float, float, float, float] = (206.0358, 205.1238, 80.0534, 49.8627)
+
+
+def intrinsics(size: tuple[int, int], focal_scale: float = 1.0) -> FloatArray:
+    """Intrinsic matrix A (3, 3) for an image of `size` = (W, H) pixels.
+
+    The SPEC values for 160x120 scaled by W / 160 (halved for 80x60); `focal_scale` further
+    multiplies fx and fy (a longer or shorter lens with the same principal point).
+    """
+    w, _ = size
+    s = w / 160.0
+    fx, fy, u0, v0 = SPEC_FOCAL_160
+    return np.array(
+        [[fx * s * focal_scale, 0.0, u0 * s], [0.0, fy * s * focal_scale, v0 * s], [0, 0, 1.0]]
+    )
+
+
+@dataclass(frozen=True)
+class RegionGeometry:
+    """Where cameras may be and how their centres map to classes (SPEC sections 3-4), cm.
+
+    The x/y split is at 0; `z_split_cm` separates near (class 1-4) from far (class 5-8);
+    camera centres live in the axis-aligned box [box_min, box_max].
+    """
+
+    z_split_cm: float = 60.0
+    box_min: tuple[float, float, float] = (-36.86, -36.86, 10.68)
+    box_max: tuple[float, float, float] = (36.86, 36.86, 92.40)
+
+    def contains(self, points: ArrayLike) -> NDArray[np.bool_]:
+        """Which of `points` (N, 3) lie inside the box (borders included) -> bool (N,)."""
+        p = np.asarray(points, dtype=float).reshape(-1, 3)
+        lo, hi = np.asarray(self.box_min), np.asarray(self.box_max)
+        return np.all((p >= lo) & (p <= hi), axis=1)
+
+
+def pose_class(c: ArrayLike, z_split_cm: float) -> NDArray[np.int64]:
+    """Class 1..8 of camera centre(s) `c` (..., 3) in the object frame (SPEC section 3).
+
+    Quadrant 1: x >= 0, y >= 0; 2: x < 0, y >= 0; 3: x < 0, y < 0; 4: x >= 0, y < 0.
+    Near (z < z_split) keeps the quadrant, far (z >= z_split) adds 4.
+    """
+    p = np.asarray(c, dtype=float)
+    x, y, z = p[..., 0], p[..., 1], p[..., 2]
+    quadrant = np.where(y >= 0, np.where(x >= 0, 1, 2), np.where(x < 0, 3, 4)).astype(np.int64)
+    return quadrant + np.where(z >= z_split_cm, 4, 0).astype(np.int64)
+
+
+def look_at(c: ArrayLike, t: ArrayLike, roll_rad: float = 0.0) -> FloatArray:
+    """World -> camera rotation R (3, 3) of a camera at `c` looking at `t` (cm), SPEC section 5.
+
+    Rows of R are the camera axes in world coordinates: zC = (t - c) / |t - c|; xC horizontal
+    (zero z component) and orthogonal to zC; yC = zC x xC with a negative z component, so the
+    camera is level and world +z points up in the image. When zC is vertical, xC = (1, 0, 0).
+    `roll_rad` then turns the camera about its optical axis: the image content rotates by
+    +roll_rad (counter-clockwise as displayed, image y pointing down).
+    """
+    c = np.asarray(c, dtype=float)
+    d = np.asarray(t, dtype=float) - c
+    norm = np.linalg.norm(d)
+    if norm == 0:
+        raise ValueError("camera centre and target coincide")
+    z_c = d / norm
+    horizontal = np.array([z_c[1], -z_c[0], 0.0])
+    h_norm = np.linalg.norm(horizontal)
+    if h_norm < 1e-12:
+        x_c = np.array([1.0, 0.0, 0.0])
+    else:
+        x_c = horizontal / h_norm
+        if np.cross(z_c, x_c)[2] > 0:
+            x_c = -x_c
+    y_c = np.cross(z_c, x_c)
+    level = np.stack([x_c, y_c, z_c])
+    if roll_rad == 0.0:
+        return level
+    cr, sr = np.cos(roll_rad), np.sin(roll_rad)
+    # Camera axes turned by -roll about zC, so the image content turns by +roll.
+    roll = np.array([[cr, sr, 0.0], [-sr, cr, 0.0], [0.0, 0.0, 1.0]])
+    return roll @ level
+
+
+def translation(R: ArrayLike, c: ArrayLike) -> FloatArray:
+    """Translation t = -R c (cm) of a camera with rotation R (3, 3) and centre c (3,)."""
+    return -np.asarray(R, dtype=float) @ np.asarray(c, dtype=float)
+
+
+def camera_centre(R: ArrayLike, t: ArrayLike) -> FloatArray:
+    """Camera centre c = -R^T t (cm, world frame) of the pose (R, t)."""
+    return -np.asarray(R, dtype=float).T @ np.asarray(t, dtype=float)
+
+
+def project_points(A: ArrayLike, R: ArrayLike, t: ArrayLike, X: ArrayLike) -> FloatArray:
+    """Project world points X (N, 3) cm to pixels (N, 2) through A (3, 3) and the pose (R, t)."""
+    Xc = np.asarray(X, dtype=float).reshape(-1, 3) @ np.asarray(R, dtype=float).T + t
+    uvw = Xc @ np.asarray(A, dtype=float).T
+    return uvw[:, :2] / uvw[:, 2:3]
+
+
+def homography_from_pose(A: ArrayLike, R: ArrayLike, t: ArrayLike) -> FloatArray:
+    """Homography H = A [r1 r2 t] (3, 3): object plane point (x, y) cm -> pixel (u, v)."""
+    R = np.asarray(R, dtype=float)
+    H = np.asarray(A, dtype=float) @ np.column_stack([R[:, 0], R[:, 1], t])
+    return H / H[2, 2]
+
+
+def apply_homography(H: ArrayLike, pts: ArrayLike) -> FloatArray:
+    """Map points (N, 2) through the homography H (3, 3) -> (N, 2)."""
+    p = np.asarray(pts, dtype=float).reshape(-1, 2)
+    q = np.column_stack([p, np.ones(len(p))]) @ np.asarray(H, dtype=float).T
+    return q[:, :2] / q[:, 2:3]
+
+
+def _normalising_transform(p: FloatArray) -> FloatArray:
+    """Similarity T (3, 3) moving points (N, 2) to zero mean and mean distance sqrt(2)."""
+    mean = p.mean(axis=0)
+    dist = np.linalg.norm(p - mean, axis=1).mean()
+    if dist == 0:
+        raise ValueError("degenerate points: all coincide")
+    s = np.sqrt(2.0) / dist
+    return np.array([[s, 0.0, -s * mean[0]], [0.0, s, -s * mean[1]], [0.0, 0.0, 1.0]])
+
+
+def dlt_homography(src: ArrayLike, dst: ArrayLike) -> FloatArray:
+    """Homography H (3, 3), dst ~ H src, from N >= 4 point pairs (N, 2) by normalised DLT.
+
+    Hartley normalisation of both point sets, the 2N x 9 DLT system solved by SVD, then
+    denormalised and scaled so that H[2, 2] = 1 (or |H| = 1 if H[2, 2] vanishes).
+    """
+    s = np.asarray(src, dtype=float).reshape(-1, 2)
+    d = np.asarray(dst, dtype=float).reshape(-1, 2)
+    if len(s) != len(d) or len(s) < 4:
+        raise ValueError(f"need >= 4 point pairs of equal count, got {len(s)} and {len(d)}")
+    Ts, Td = _normalising_transform(s), _normalising_transform(d)
+    sn = apply_homography(Ts, s)
+    dn = apply_homography(Td, d)
+    rows = []
+    for (x, y), (u, v) in zip(sn, dn, strict=True):
+        rows.append([-x, -y, -1.0, 0.0, 0.0, 0.0, u * x, u * y, u])
+        rows.append([0.0, 0.0, 0.0, -x, -y, -1.0, v * x, v * y, v])
+    _, sv, vt = np.linalg.svd(np.asarray(rows))
+    if sv[-2] < 1e-12 * sv[0]:
+        raise ValueError("degenerate point configuration (collinear points?)")
+    H = np.linalg.inv(Td) @ vt[-1].reshape(3, 3) @ Ts
+    return H / H[2, 2] if abs(H[2, 2]) > 1e-12 else H / np.linalg.norm(H)
+
+
+def pose_from_homography(H: ArrayLike, A: ArrayLike) -> tuple[FloatArray, FloatArray]:
+    """Pose (R (3, 3), t (3,) cm) from an object-plane homography H and intrinsics A.
+
+    M = A^-1 H = lambda [r1 r2 t]; lambda from the mean norm of the first two columns, the
+    sign chosen so the object lies in front of the camera (t_z > 0); R = [r1 r2 r1 x r2]
+    projected onto the nearest rotation by SVD.
+    """
+    M = np.linalg.solve(np.asarray(A, dtype=float), np.asarray(H, dtype=float))
+    scale = 2.0 / (np.linalg.norm(M[:, 0]) + np.linalg.norm(M[:, 1]))
+    if M[2, 2] < 0:
+        scale = -scale
+    r1, r2, t = M[:, 0] * scale, M[:, 1] * scale, M[:, 2] * scale
+    U, _, Vt = np.linalg.svd(np.column_stack([r1, r2, np.cross(r1, r2)]))
+    R = U @ Vt
+    if np.linalg.det(R) < 0:
+        R = U @ np.diag([1.0, 1.0, -1.0]) @ Vt
+    return R, t
+
+
+def fibonacci_hemisphere(n: int, radius: float, centre_z: float = 0.0) -> FloatArray:
+    """`n` points (n, 3) spread with equal area over the upper hemisphere (z >= centre_z).
+
+    Fibonacci lattice: equal steps in height (equal area on a sphere) and golden-angle steps
+    in azimuth. Centre (0, 0, centre_z), radius in cm.
+    """
+    if n < 1 or radius <= 0:
+        raise ValueError(f"need n >= 1 and radius > 0, got n={n}, radius={radius}")
+    i = np.arange(n)
+    z = (i + 0.5) / n
+    phi = i * np.pi * (3.0 - np.sqrt(5.0))
+    r_xy = np.sqrt(1.0 - z**2)
+    pts = np.column_stack([r_xy * np.cos(phi), r_xy * np.sin(phi), z]) * radius
+    pts[:, 2] += centre_z
+    return pts
+
+
+def camera_lattice(
+    geometry: RegionGeometry,
+    radii: Iterable[float],
+    heights: Iterable[float],
+    n_per_hemisphere: int,
+) -> FloatArray:
+    """Camera centres (M, 3) cm: hemispheres of each radius centred at (0, 0, h) for each h,
+    kept inside the geometry's box (SPEC section 4)."""
+    parts = [fibonacci_hemisphere(n_per_hemisphere, r, h) for r in radii for h in heights]
+    if not parts:
+        raise ValueError("need at least one radius and one height")
+    pts = np.concatenate(parts)
+    return pts[geometry.contains(pts)]
