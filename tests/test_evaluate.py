@@ -1,0 +1,88 @@
+"""SPEC 10 metrics on hand-made confusions (exact values) and the report writer."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from train.evaluate import compute_metrics, confusion_matrix, predict_all
+from train.report import write_report
+
+
+def test_metrics_of_a_hand_made_confusion():
+    # class 0: 4 images, 3 right, 1 called 5; class 1: 2 images, both called 5;
+    # class 5: 3 images, all right; class 2: never seen, predicted once (from class 7).
+    y_true = [0, 0, 0, 0, 1, 1, 5, 5, 5, 7]
+    y_pred = [0, 0, 0, 5, 5, 5, 5, 5, 5, 2]
+    m = compute_metrics(np.array(y_true), np.array(y_pred), ms_per_image=1.5)
+    assert m["count"] == 10
+    assert m["accuracy"] == pytest.approx(0.6)
+    cm = np.array(m["confusion"])
+    assert cm[0, 0] == 3 and cm[0, 5] == 1 and cm[1, 5] == 2 and cm[7, 2] == 1
+    assert cm.sum() == 10
+    assert m["per_class_accuracy"][0] == pytest.approx(0.75)
+    assert m["per_class_accuracy"][1] == 0.0
+    assert m["per_class_accuracy"][3] is None  # class 3 absent from the ground truth
+    assert m["recall"] == m["per_class_accuracy"]
+    assert m["precision"][0] == 1.0
+    assert m["precision"][5] == pytest.approx(0.5)  # 3 right of 6 predicted
+    assert m["precision"][2] == 0.0
+    assert m["precision"][3] is None  # never predicted
+    assert m["f1"][0] == pytest.approx(2 * 0.75 / 1.75)
+    assert m["f1"][5] == pytest.approx(2 * 0.5 * 1.0 / 1.5)
+    assert m["f1"][1] == 0.0
+    assert m["f1"][2] == 0.0  # predicted once, never true
+    assert m["f1"][3] is None  # neither true nor predicted
+    assert m["ms_per_image"] == 1.5
+
+
+def test_perfect_predictions():
+    y = np.arange(9).repeat(3)
+    m = compute_metrics(y, y, 0.1)
+    assert m["accuracy"] == 1.0
+    assert m["f1"] == [1.0] * 9
+    assert np.array_equal(np.array(m["confusion"]), 3 * np.eye(9, dtype=int))
+
+
+def test_bad_inputs_are_refused():
+    with pytest.raises(ValueError, match="2 labels but 3 predictions"):
+        confusion_matrix(np.array([0, 1]), np.array([0, 1, 2]))
+    with pytest.raises(ValueError, match="0..8"):
+        confusion_matrix(np.array([0, 9]), np.array([0, 1]))
+    with pytest.raises(ValueError, match="no samples"):
+        compute_metrics(np.array([], int), np.array([], int), 0.0)
+
+
+def test_predict_all_batches_and_times():
+    calls = []
+
+    def predict(images):
+        calls.append(len(images))
+        p = np.zeros((len(images), 9), np.float32)
+        p[:, 4] = 1
+        return p
+
+    probs, ms = predict_all(predict, np.zeros((70, 6, 8, 3), np.uint8), batch=32)
+    assert calls == [32, 32, 6]
+    assert probs.shape == (70, 9) and (probs.argmax(1) == 4).all()
+    assert ms >= 0
+
+
+def test_report_writes_json_markdown_and_plots(tmp_path):
+    rng = np.random.default_rng(0)
+    y = rng.integers(0, 9, 50)
+    results = {
+        "net-a": {"set1": compute_metrics(y, y, 1.0), "set2": compute_metrics(y, y[::-1], 2.0)},
+        "net-b": {"set1": compute_metrics(y, np.zeros_like(y), 0.5)},
+    }
+    md = write_report(results, tmp_path / "out", tmp_path / "docs" / "results.md", "T", ["hi"])
+    doc = json.loads((tmp_path / "out" / "metrics.json").read_text())
+    assert doc["results"]["net-a"]["set1"]["accuracy"] == 1.0
+    assert len(doc["results"]["net-a"]["set2"]["confusion"]) == 9
+    text = md.read_text()
+    assert "| net-a | 100.0 |" in text
+    assert "](../out/plots/grid.png)" in text
+    pngs = sorted(p.name for p in (tmp_path / "out" / "plots").glob("*.png"))
+    assert pngs == ["grid.png", "net-a__set1.png", "net-a__set2.png", "net-b__set1.png"]

@@ -1,0 +1,152 @@
+"""Evaluation (SPEC section 10): classifier predictions on a data set and the metrics on them.
+
+`compute_metrics` is the one place where accuracy, per-class precision / recall / F-measure and
+the confusion matrix are computed; `train.report.write_report` turns its results into
+metrics.json, Markdown and plots. Both are shared with the feature baseline.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from service.preprocess import to_network_input
+from service.regions import NUM_CLASSES
+
+#: A classifier: RGB uint8 images [N, H, W, 3] -> probabilities float32 [N, 9].
+Predictor = Callable[[np.ndarray], np.ndarray]
+
+
+def _ratio(num: float, den: float) -> float | None:
+    """num / den, or None when den is 0 (undefined, written as null in JSON)."""
+    return None if den == 0 else float(num) / float(den)
+
+
+def confusion_matrix(y_true: np.ndarray, y_pred: np.ndarray) -> np.ndarray:
+    """Confusion matrix int64 [9, 9]: rows are ground-truth classes, columns predictions."""
+    y_true = np.asarray(y_true, dtype=np.int64).ravel()
+    y_pred = np.asarray(y_pred, dtype=np.int64).ravel()
+    if y_true.shape != y_pred.shape:
+        raise ValueError(f"{y_true.size} labels but {y_pred.size} predictions")
+    for name, y in (("labels", y_true), ("predictions", y_pred)):
+        if y.size and (y.min() < 0 or y.max() >= NUM_CLASSES):
+            raise ValueError(f"{name} must be class ids in 0..{NUM_CLASSES - 1}")
+    flat = np.bincount(y_true * NUM_CLASSES + y_pred, minlength=NUM_CLASSES * NUM_CLASSES)
+    return flat.reshape(NUM_CLASSES, NUM_CLASSES)
+
+
+def compute_metrics(y_true: np.ndarray, y_pred: np.ndarray, ms_per_image: float) -> dict:
+    """SPEC 10 metrics of predicted classes `y_pred` against `y_true` (both int [N], 0..8).
+
+    Returns a JSON-ready dict: `count`, `accuracy` (global, in [0, 1]), `per_class_accuracy`,
+    `precision`, `recall`, `f1` (9 values each), `confusion` (9x9 counts, rows = ground
+    truth), `ms_per_image`. Per-class accuracy is the share of a class's images classified
+    correctly (the confusion diagonal over its row, like recall). A value whose denominator is
+    zero is None: precision of a class never predicted, recall of a class absent from the
+    ground truth, F1 of a class absent from both.
+    """
+    cm = confusion_matrix(y_true, y_pred)
+    total = int(cm.sum())
+    if total == 0:
+        raise ValueError("no samples to evaluate")
+    diag = np.diag(cm)
+    rows, cols = cm.sum(axis=1), cm.sum(axis=0)
+    recall = [_ratio(diag[k], rows[k]) for k in range(NUM_CLASSES)]
+    precision = [_ratio(diag[k], cols[k]) for k in range(NUM_CLASSES)]
+    # F1 = 2 TP / (2 TP + FP + FN): 0 when the class is missed or only wrongly predicted.
+    f1 = [_ratio(2 * diag[k], rows[k] + cols[k]) for k in range(NUM_CLASSES)]
+    return {
+        "count": total,
+        "accuracy": float(diag.sum()) / total,
+        "per_class_accuracy": recall,
+        "precision": precision,
+        "recall": recall,
+        "f1": f1,
+        "confusion": cm.tolist(),
+        "ms_per_image": float(ms_per_image),
+    }
+
+
+def network_batch(images: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """RGB uint8 [N, H0, W0, 3] -> float32 [N, 3, H, W] in [0, 1] via the service preprocessing."""
+    return np.stack([to_network_input(img, size) for img in images])
+
+
+def onnx_predictor(path: Path, threads: int = 0) -> tuple[Predictor, tuple[int, int], dict]:
+    """Load an exported model with onnxruntime -> (predictor, input size (W, H), model card)."""
+    import json
+
+    import onnxruntime as ort
+
+    options = ort.SessionOptions()
+    options.intra_op_num_threads = threads
+    session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+    meta = session.get_modelmeta().custom_metadata_map
+    shape = session.get_inputs()[0].shape
+    if not (isinstance(shape[2], int) and isinstance(shape[3], int)):
+        raise ValueError(f"{path}: input shape {shape} has no fixed height and width")
+    size = (int(shape[3]), int(shape[2]))
+    input_name = session.get_inputs()[0].name
+    card = json.loads(meta["model_card"]) if "model_card" in meta else {}
+
+    def predict(images: np.ndarray) -> np.ndarray:
+        return session.run(None, {input_name: network_batch(images, size)})[0]
+
+    return predict, size, card
+
+
+def checkpoint_predictor(path: Path) -> tuple[Predictor, tuple[int, int], dict]:
+    """Load a training checkpoint with PyTorch -> (predictor, input size (W, H), its config)."""
+    import torch
+
+    from train.fit import load_network
+
+    net, checkpoint = load_network(path)
+    net.eval()
+
+    def predict(images: np.ndarray) -> np.ndarray:
+        with torch.no_grad():
+            x = torch.from_numpy(network_batch(images, net.size))
+            return torch.exp(net(x)).numpy()
+
+    return predict, net.size, checkpoint.get("config", {})
+
+
+def load_predictor(path: Path) -> tuple[Predictor, tuple[int, int], dict]:
+    """A model file (.onnx, or a .pt training checkpoint) -> (predictor, size (W, H), info)."""
+    if not path.is_file():
+        raise FileNotFoundError(f"model not found: {path}")
+    if path.suffix == ".onnx":
+        return onnx_predictor(path)
+    if path.suffix == ".pt":
+        return checkpoint_predictor(path)
+    raise ValueError(f"{path}: a model is an .onnx file or a .pt training checkpoint")
+
+
+def predict_all(
+    predict: Predictor, images: np.ndarray, batch: int = 64, progress: Callable | None = None
+) -> tuple[np.ndarray, float]:
+    """Run `predict` over images [N, H, W, 3] in batches -> (probabilities [N, 9], ms / image).
+
+    The time covers preprocessing and inference, measured with a wall clock.
+    """
+    out = []
+    start = time.perf_counter()
+    for i in range(0, len(images), batch):
+        out.append(predict(images[i : i + batch]))
+        if progress is not None:
+            progress(min(batch, len(images) - i))
+    elapsed = time.perf_counter() - start
+    probs = np.concatenate(out) if out else np.zeros((0, NUM_CLASSES), np.float32)
+    return probs, 1000.0 * elapsed / max(len(images), 1)
+
+
+def evaluate_predictor(
+    predict: Predictor, images: np.ndarray, labels: np.ndarray, progress: Callable | None = None
+) -> dict:
+    """Metrics (see `compute_metrics`) of a predictor on images [N, H, W, 3] with labels [N]."""
+    probs, ms = predict_all(predict, images, progress=progress)
+    return compute_metrics(labels, probs.argmax(axis=1), ms)

@@ -1,0 +1,182 @@
+"""Evaluation reports: metrics.json, a Markdown page and matplotlib plots (SPEC section 10).
+
+`results` everywhere is {model name: {data set name: metrics}}, where metrics is the dict of
+`train.evaluate.compute_metrics`. One model is a grid with one row; the thesis-style table has
+models as rows and data sets as columns.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+from datetime import UTC, datetime
+from pathlib import Path
+
+import numpy as np
+
+from service.regions import NUM_CLASSES, region_of_class
+
+CLASS_LABELS = [region_of_class(k)["label"] for k in range(NUM_CLASSES)]
+
+
+def _slug(name: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("_") or "x"
+
+
+def _pct(value: float | None) -> str:
+    return "-" if value is None else f"{100 * value:.1f}"
+
+
+def plot_cell(metrics: dict, title: str, path: Path) -> None:
+    """One PNG: the confusion heat map (rows = truth) and per-class accuracy/precision/F1 bars."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cm = np.asarray(metrics["confusion"], dtype=float)
+    rows = cm.sum(axis=1, keepdims=True)
+    share = np.divide(cm, rows, out=np.zeros_like(cm), where=rows > 0)
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10, 4), dpi=72)
+    ax1.imshow(share, cmap="Blues", vmin=0, vmax=1)
+    for i in range(NUM_CLASSES):
+        for j in range(NUM_CLASSES):
+            if cm[i, j]:
+                colour = "white" if share[i, j] > 0.5 else "black"
+                ax1.text(j, i, f"{int(cm[i, j])}", ha="center", va="center", fontsize=7, c=colour)
+    ax1.set_xticks(range(NUM_CLASSES))
+    ax1.set_yticks(range(NUM_CLASSES))
+    ax1.set_xlabel("predicted class")
+    ax1.set_ylabel("true class")
+    ax1.set_title("confusion (counts; colour = row share)", fontsize=9)
+    x = np.arange(NUM_CLASSES)
+    for offset, key in ((-0.27, "per_class_accuracy"), (0.0, "precision"), (0.27, "f1")):
+        values = [np.nan if v is None else 100 * v for v in metrics[key]]
+        ax2.bar(x + offset, values, width=0.27, label=key.replace("_", " "))
+    ax2.set_xticks(x)
+    ax2.set_ylim(0, 100)
+    ax2.set_xlabel("class")
+    ax2.set_ylabel("%")
+    ax2.legend(fontsize=7, loc="lower right")
+    ax2.set_title("per class", fontsize=9)
+    fig.suptitle(f"{title}: accuracy {_pct(metrics['accuracy'])} %", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def plot_grid(results: dict[str, dict[str, dict]], path: Path) -> None:
+    """Heat map of global accuracy (%), models as rows, data sets as columns."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    models = list(results)
+    datasets = list(dict.fromkeys(d for m in models for d in results[m]))
+    acc = np.full((len(models), len(datasets)), np.nan)
+    for i, m in enumerate(models):
+        for j, d in enumerate(datasets):
+            if d in results[m]:
+                acc[i, j] = 100 * results[m][d]["accuracy"]
+    fig, ax = plt.subplots(figsize=(1.2 + 0.7 * len(datasets), 1.2 + 0.45 * len(models)), dpi=72)
+    ax.imshow(acc, cmap="RdYlGn", vmin=50, vmax=100, aspect="auto")
+    for i in range(len(models)):
+        for j in range(len(datasets)):
+            if not np.isnan(acc[i, j]):
+                ax.text(j, i, f"{acc[i, j]:.1f}", ha="center", va="center", fontsize=7)
+    ax.set_xticks(range(len(datasets)), datasets, rotation=60, ha="right", fontsize=7)
+    ax.set_yticks(range(len(models)), models, fontsize=7)
+    ax.set_title("accuracy (%)", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def grid_table(results: dict[str, dict[str, dict]], key: str = "accuracy") -> list[str]:
+    """Markdown table of one metric, models as rows, data sets as columns.
+
+    "accuracy" is shown in %, "ms_per_image" in ms.
+    """
+    datasets = list(dict.fromkeys(d for m in results for d in results[m]))
+    lines = ["| model | " + " | ".join(datasets) + " |", "|---" * (len(datasets) + 1) + "|"]
+    for model, row in results.items():
+        cells = [
+            "" if d not in row else _pct(row[d][key]) if key == "accuracy" else f"{row[d][key]:.2f}"
+            for d in datasets
+        ]
+        lines.append(f"| {model} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def cell_section(model: str, dataset: str, metrics: dict, image: str) -> list[str]:
+    """Markdown details of one (model, data set): summary, per-class table, plot."""
+    lines = [
+        f"### {model} on {dataset}",
+        "",
+        f"{metrics['count']} images, accuracy {_pct(metrics['accuracy'])} %, class 0 accuracy "
+        f"{_pct(metrics['per_class_accuracy'][0])} %, {metrics['ms_per_image']:.2f} ms / image.",
+        "",
+        "| class | region | accuracy % | precision % | recall % | F1 % |",
+        "|---|---|---|---|---|---|",
+    ]
+    for k in range(NUM_CLASSES):
+        lines.append(
+            f"| {k} | {CLASS_LABELS[k]} | {_pct(metrics['per_class_accuracy'][k])} | "
+            f"{_pct(metrics['precision'][k])} | {_pct(metrics['recall'][k])} | "
+            f"{_pct(metrics['f1'][k])} |"
+        )
+    lines += ["", f"![{model} on {dataset}]({image})", ""]
+    return lines
+
+
+def write_report(
+    results: dict[str, dict[str, dict]],
+    out_dir: Path,
+    markdown: Path | None = None,
+    title: str = "Evaluation",
+    notes: list[str] | None = None,
+    sources: dict[str, str] | None = None,
+) -> Path:
+    """Write out_dir/metrics.json, the PNG plots and a Markdown report; return the report path.
+
+    `markdown` defaults to out_dir/report.md (image links are made relative to it); `notes`
+    are paragraphs placed under the title; `sources` maps model / data set names to paths.
+    """
+    out_dir.mkdir(parents=True, exist_ok=True)
+    markdown = markdown or out_dir / "report.md"
+    markdown.parent.mkdir(parents=True, exist_ok=True)
+    plots = out_dir / "plots"
+    plots.mkdir(exist_ok=True)
+    document = {
+        "title": title,
+        "date": datetime.now(UTC).isoformat(timespec="seconds"),
+        "classes": CLASS_LABELS,
+        "sources": sources or {},
+        "results": results,
+    }
+    (out_dir / "metrics.json").write_text(json.dumps(document, indent=1) + "\n")
+
+    def link(path: Path) -> str:
+        return Path(os.path.relpath(path, markdown.parent)).as_posix()
+
+    lines = [f"# {title}", ""]
+    for note in notes or []:
+        lines += [note, ""]
+    lines += ["## Accuracy (%), models x data sets", ""] + grid_table(results) + [""]
+    n_cells = sum(len(row) for row in results.values())
+    if n_cells > 1:
+        grid_png = plots / "grid.png"
+        plot_grid(results, grid_png)
+        lines += [f"![accuracy grid]({link(grid_png)})", ""]
+    lines += ["## Details", ""]
+    for model, row in results.items():
+        for dataset, metrics in row.items():
+            png = plots / f"{_slug(model)}__{_slug(dataset)}.png"
+            plot_cell(metrics, f"{model} on {dataset}", png)
+            lines += cell_section(model, dataset, metrics, link(png))
+    lines += ["## Time per image (ms, preprocessing + inference, batch 64)", ""]
+    lines += grid_table(results, "ms_per_image")
+    markdown.write_text("\n".join(lines) + "\n")
+    return markdown
