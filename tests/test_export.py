@@ -1,0 +1,85 @@
+"""ONNX export: PyTorch vs onnxruntime parity, dynamic batch, the model card."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import onnx
+import onnxruntime as ort
+import pytest
+import torch
+
+from service.preprocess import to_network_input
+from train.export import export
+from train.fit import CHECKPOINT_FORMAT
+from train.model import PoseNet
+from train.realset import read_rgb
+
+REAL = Path(__file__).resolve().parent.parent / "train" / "real" / "chessboard-stereo"
+
+
+def _checkpoint(tmp_path: Path, size: tuple[int, int]) -> tuple[Path, PoseNet]:
+    torch.manual_seed(1)
+    net = PoseNet(size)
+    net.set_normalisation(torch.tensor([0.4, 0.5, 0.6]), torch.tensor([0.2, 0.25, 0.3]))
+    path = tmp_path / "best.pt"
+    torch.save(
+        {
+            "format": CHECKPOINT_FORMAT,
+            "size": list(size),
+            "model": net.state_dict(),
+            "config": {"seed": 7, "epochs": 3},
+            "data": [{"path": "data/x", "split": "train", "count": 10, "blur": 0}],
+            "profile": {"name": "test", "width_cm": 25.0, "height_cm": 17.5, "z_split_cm": 30.0},
+            "epoch": 3,
+            "best": {"epoch": 2, "val_accuracy": 0.5, "val_loss": 1.0},
+        },
+        path,
+    )
+    return path, net.eval()
+
+
+@pytest.mark.parametrize("size", [(80, 60), (160, 120)])
+def test_onnx_matches_pytorch_on_random_and_real_inputs(tmp_path, size):
+    ckpt, net = _checkpoint(tmp_path, size)
+    path, card = export(ckpt, "m", tmp_path / "models")
+    session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    rng = np.random.default_rng(0)
+    photos = sorted(REAL.glob("*.jpg"))[:17]
+    real = np.stack([to_network_input(read_rgb(p), size) for p in photos])
+    for batch in (1, 17):
+        random = rng.random((batch, 3, size[1], size[0]), dtype=np.float32)
+        for x in (random, real[:batch]):
+            got = session.run(["probabilities"], {"image": x})[0]
+            with torch.no_grad():
+                want = torch.softmax(net.logits(torch.from_numpy(x)), 1).numpy()
+            assert got.shape == (batch, 9) and got.dtype == np.float32
+            assert np.abs(got - want).max() < 1e-5
+            np.testing.assert_allclose(got.sum(1), 1.0, atol=1e-5)
+
+
+def test_card_is_in_the_metadata_and_beside_the_file(tmp_path):
+    ckpt, _ = _checkpoint(tmp_path, (80, 60))
+    path, card = export(ckpt, "tiny", tmp_path, version="0.3.0", notes="a test")
+    model = onnx.load(str(path))
+    onnx.checker.check_model(model)
+    meta = {p.key: p.value for p in model.metadata_props}
+    assert json.loads(meta["model_card"]) == card
+    assert json.loads((tmp_path / "tiny.json").read_text()) == card
+    assert card["name"] == "tiny" and card["version"] == "0.3.0" and card["notes"] == "a test"
+    assert card["input"] == [80, 60]
+    assert [c["id"] for c in card["classes"]] == list(range(9))
+    assert card["classes"][7]["label"] == "far, x-, y-"
+    assert "z >= 30 cm" in card["classes"][7]["description"]
+    assert card["profile"]["z_split_cm"] == 30.0
+    assert card["training"]["seed"] == 7
+    graph_inputs = model.graph.input[0].type.tensor_type.shape.dim
+    assert graph_inputs[0].dim_param == "N" and [d.dim_value for d in graph_inputs[1:]] == [
+        3,
+        60,
+        80,
+    ]
+    assert model.graph.output[0].name == "probabilities"
+    assert path.stat().st_size < 2_000_000

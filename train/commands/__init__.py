@@ -1,0 +1,1 @@
+"""Sub-commands of the `planar-pose` CLI, one module per pipeline step."""

@@ -1,0 +1,219 @@
+"""CLI of the model steps: `train`, `evaluate`, `export` and `realset` (real photos -> data set).
+
+torch is imported inside the commands only (the service install has no torch).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+from rich.console import Console
+
+err = Console(stderr=True)
+out = Console()
+
+SPLITS = ("train", "val", "test", "all")
+
+
+def _fail(message: str, code: int = 1) -> typer.Exit:
+    err.print(f"[bold red]error:[/] {message}")
+    return typer.Exit(code)
+
+
+def _guard(body: Callable[[], Any]) -> Any:
+    """Run a command body, turning the expected input errors into a message and exit code 1."""
+    try:
+        return body()
+    except (FileNotFoundError, ValueError, KeyError, OSError) as exc:
+        message = str(exc) if not isinstance(exc, KeyError) else f"missing field {exc}"
+        raise _fail(message) from None
+
+
+def _check_split(split: str) -> str:
+    if split not in SPLITS:
+        raise _fail(f"--split must be one of {', '.join(SPLITS)}, got {split!r}", code=2)
+    return split
+
+
+def train(
+    datasets: Annotated[list[Path], typer.Argument(help="Data set folder(s), same image size.")],
+    out_dir: Annotated[Path, typer.Option("--out", help="Run folder (checkpoints, log.jsonl).")],
+    epochs: Annotated[int, typer.Option(min=1)] = 30,
+    batch_size: Annotated[int, typer.Option(min=1)] = 32,
+    optimizer: Annotated[str, typer.Option(help="sgd (with momentum) or adam.")] = "sgd",
+    lr: Annotated[float, typer.Option(min=0.0)] = 0.02,
+    momentum: Annotated[float, typer.Option(min=0.0, max=1.0)] = 0.9,
+    weight_decay: Annotated[float, typer.Option(min=0.0)] = 1e-4,
+    schedule: Annotated[str, typer.Option(help="cosine, step or constant.")] = "cosine",
+    patience: Annotated[int, typer.Option(min=0, help="Early stop after N flat epochs.")] = 10,
+    seed: int = 0,
+    augment: Annotated[bool, typer.Option(help="On-the-fly blur + photometric jitter.")] = True,
+    init: Annotated[
+        Path | None, typer.Option(help="Checkpoint to start from (fine-tuning).")
+    ] = None,
+    resume: Annotated[bool, typer.Option(help="Continue OUT/last.pt.")] = False,
+    threads: Annotated[int, typer.Option(min=0, help="Torch threads, 0 = default.")] = 0,
+) -> None:
+    """Train (or with --init fine-tune) the pose network on the train split; keep the best val."""
+    from train.fit import FitConfig, TrainingError, fit
+
+    for path in datasets:
+        if not path.is_dir():
+            raise _fail(f"data set not found: {path}")
+    if init is not None and not init.is_file():
+        raise _fail(f"--init checkpoint not found: {init}")
+    if resume and not (out_dir / "last.pt").is_file():
+        raise _fail(f"--resume: no checkpoint {out_dir / 'last.pt'} to continue")
+    config = FitConfig(
+        datasets=datasets,
+        out=out_dir,
+        epochs=epochs,
+        batch_size=batch_size,
+        optimizer=optimizer,
+        lr=lr,
+        momentum=momentum,
+        weight_decay=weight_decay,
+        schedule=schedule,
+        patience=patience,
+        seed=seed,
+        augment=augment,
+        init=init,
+        threads=threads,
+    )
+    try:
+        summary = fit(config, resume=resume)
+    except TrainingError as exc:
+        raise _fail(str(exc)) from None
+    best = summary["best"]
+    out.print(
+        f"[green]done[/]: {summary['epochs_run']} epochs, best epoch {best['epoch']} "
+        f"(val accuracy {100 * best['val_accuracy']:.2f} %), "
+        f"{summary['ms_per_image']:.2f} ms / image (forward + backward + augmentation); "
+        f"best weights in {out_dir / 'best.pt'}"
+    )
+
+
+def evaluate(
+    paths: Annotated[
+        list[Path],
+        typer.Argument(help="Model(s) (.onnx or .pt checkpoint) then data set folder(s)."),
+    ],
+    out_dir: Annotated[Path, typer.Option("--out", help="Folder for metrics.json and plots.")],
+    split: Annotated[str, typer.Option(help="train, val, test or all.")] = "test",
+    markdown: Annotated[
+        Path | None, typer.Option(help="Markdown report path (default OUT/report.md).")
+    ] = None,
+    title: str = "Evaluation",
+    note: Annotated[list[str] | None, typer.Option(help="Paragraph under the title.")] = None,
+) -> None:
+    """Evaluate model(s) on data set(s): metrics.json, Markdown, plots (grid if several)."""
+    from tqdm import tqdm
+
+    from train.datasets import load_dataset
+    from train.evaluate import evaluate_predictor, load_predictor
+    from train.report import write_report
+
+    _check_split(split)
+    models = [p for p in paths if p.suffix in (".onnx", ".pt")]
+    datasets = [p for p in paths if p not in models]
+    if not models:
+        raise _fail("give at least one model (.onnx or .pt) before the data sets", code=2)
+    if not datasets:
+        raise _fail("give at least one data set folder after the model(s)", code=2)
+    for path in datasets:
+        if not (path / "labels.csv").is_file():
+            raise _fail(f"not a data set (no labels.csv): {path}")
+
+    def body() -> Path:
+        loaded = {p: load_predictor(p) for p in models}
+        names = {p: _model_name(p, info) for p, (_, _, info) in loaded.items()}
+        results: dict[str, dict[str, dict]] = {names[p]: {} for p in models}
+        for ds in datasets:
+            data = load_dataset(ds, split=None if split == "all" else split)
+            if len(data.labels) == 0:
+                raise ValueError(f"{ds} has no images in split {split!r}")
+            for model in models:
+                predict = loaded[model][0]
+                with tqdm(total=len(data.labels), desc=f"{names[model]} on {ds.name}") as bar:
+                    metrics = evaluate_predictor(predict, data.images, data.labels, bar.update)
+                results[names[model]][ds.name] = metrics
+                tqdm.write(f"{names[model]} on {ds.name}: {100 * metrics['accuracy']:.2f} %")
+        sources = {names[p]: str(p) for p in models} | {d.name: str(d) for d in datasets}
+        notes = [f"Split: `{split}`. Written by `planar-pose evaluate`."] + list(note or [])
+        return write_report(results, out_dir, markdown, title, notes, sources)
+
+    report = _guard(body)
+    out.print(f"[green]done[/]: {out_dir / 'metrics.json'}, {report}")
+
+
+def _model_name(path: Path, info: dict) -> str:
+    """Display name of a model: its card name, else the run folder / file stem."""
+    if isinstance(info.get("name"), str):
+        return info["name"]
+    return path.parent.name if path.suffix == ".pt" else path.stem
+
+
+def export(
+    checkpoint: Annotated[Path, typer.Argument(help="A checkpoint written by train (best.pt).")],
+    name: Annotated[str, typer.Option(help="Model name: writes OUT_DIR/NAME.onnx and .json.")],
+    out_dir: Annotated[Path, typer.Option(help="Where to write the model.")] = Path("models"),
+    eval_data: Annotated[
+        list[Path] | None,
+        typer.Option("--eval", help="Data set(s) whose accuracy goes in the card."),
+    ] = None,
+    split: Annotated[str, typer.Option(help="Split measured for the card.")] = "test",
+    version: str = "1.0.0",
+    notes: Annotated[str, typer.Option(help="Free text for the card (how it was made).")] = "",
+) -> None:
+    """Export a checkpoint to ONNX (probabilities, dynamic batch) with its model card."""
+    import re
+
+    from train.export import export as run_export
+
+    _check_split(split)
+    if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.-]*", name):
+        raise _fail(f"--name {name!r}: use letters, digits, '.', '_' or '-'", code=2)
+    if not checkpoint.is_file():
+        raise _fail(f"checkpoint not found: {checkpoint}")
+    for path in eval_data or []:
+        if not (path / "labels.csv").is_file():
+            raise _fail(f"not a data set (no labels.csv): {path}")
+    path, card = _guard(
+        lambda: run_export(checkpoint, name, out_dir, eval_data, split, version, notes)
+    )
+    out.print(f"[green]wrote[/] {path} ({path.stat().st_size / 1e6:.2f} MB) and {name}.json")
+    for ds, acc in card["accuracy"].items():
+        out.print(f"  {ds} ({acc['split']}, {acc['count']} images): {100 * acc['accuracy']:.2f} %")
+
+
+def realset(
+    source: Annotated[Path, typer.Argument(help="Folder of real photos with labels.csv.")],
+    out_dir: Annotated[Path, typer.Argument(help="New data set folder.")],
+    size: Annotated[int, typer.Option(help="1 = 80x60, 2 = 160x120.")] = 1,
+    blur: Annotated[int, typer.Option(help="SPEC blur level 0..3.")] = 0,
+    profile: Annotated[str, typer.Option(help="Profile name or path (z split).")] = "chessboard",
+    seed: Annotated[int, typer.Option(help="Seed of the train/val/test split.")] = 0,
+) -> None:
+    """Turn real photos with camera centres into a data set (split by stereo moment)."""
+    from train.realset import build_real_dataset
+
+    if size not in (1, 2):
+        raise _fail(f"--size must be 1 (80x60) or 2 (160x120), got {size}", code=2)
+    if not 0 <= blur <= 3:
+        raise _fail(f"--blur must be in 0..3, got {blur}", code=2)
+    if not (source / "labels.csv").is_file():
+        raise _fail(f"no labels.csv in {source}")
+    manifest = _guard(lambda: build_real_dataset(source, out_dir, size, blur, profile, seed))
+    out.print(f"[green]wrote[/] {out_dir}: {json.dumps(manifest['counts'])}")
+
+
+def register(app: typer.Typer) -> None:
+    """Add the model commands to the `planar-pose` app."""
+    app.command()(train)
+    app.command()(evaluate)
+    app.command()(export)
+    app.command()(realset)

@@ -1,0 +1,194 @@
+"""Export a training checkpoint to ONNX with its model card (SPEC section 8, DESIGN "flow").
+
+The graph takes `image` float32 [N, 3, H, W], RGB in [0, 1] (dynamic N; the normalisation is
+inside) and returns `probabilities` float32 [N, 9] (softmax). The model card (JSON) is stored
+in the ONNX `metadata_props` under `model_card` and written next to it as `<name>.json`.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import warnings
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from service.regions import NUM_CLASSES, class_descriptions, region_of_class
+
+OPSET = 17
+INPUT_NAME = "image"
+OUTPUT_NAME = "probabilities"
+REPO_ROOT = Path(__file__).resolve().parent.parent
+
+
+def onnx_bytes(net: Any) -> bytes:
+    """Serialise a PoseNet (eval mode) to ONNX bytes: softmax output, dynamic batch."""
+    import torch
+
+    from train.model import Probabilities
+
+    w, h = net.size
+    wrapper = Probabilities(net).eval()
+    buf = io.BytesIO()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        torch.onnx.export(
+            wrapper,
+            (torch.rand(1, 3, h, w),),
+            buf,
+            dynamo=False,
+            input_names=[INPUT_NAME],
+            output_names=[OUTPUT_NAME],
+            dynamic_axes={INPUT_NAME: {0: "N"}, OUTPUT_NAME: {0: "N"}},
+            opset_version=OPSET,
+        )
+    return buf.getvalue()
+
+
+def profile_card(profile: dict[str, Any]) -> dict[str, Any]:
+    """The object profile part of the card from a data set manifest's profile (+ its file).
+
+    Adds the camera box and roll range from the profile definition when it can be loaded;
+    `texture` is given relative to the repository root when it lies inside it.
+    """
+    card = dict(profile)
+    try:
+        from train.profile import load_profile
+
+        full = load_profile(profile["name"])
+        card.setdefault("box_min_cm", list(full.geometry.box_min))
+        card.setdefault("box_max_cm", list(full.geometry.box_max))
+        card.setdefault("roll_max_deg", float(full.roll_max_deg))
+    except (ImportError, KeyError, FileNotFoundError, ValueError, AttributeError):
+        pass  # the manifest's own fields stay; the card says what is known
+    texture = card.get("texture")
+    if texture:
+        path = Path(texture)
+        path = path if path.is_absolute() else (REPO_ROOT / path)
+        try:
+            card["texture"] = path.resolve().relative_to(REPO_ROOT).as_posix()
+        except ValueError:
+            card["texture"] = str(texture)
+    return card
+
+
+def _data_summary(data: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    keys = ("path", "split", "count", "variant", "size", "blur", "seed", "real")
+    return [{k: d[k] for k in keys if k in d} for d in data]
+
+
+def build_card(
+    name: str,
+    checkpoint: dict[str, Any],
+    accuracy: dict[str, dict[str, Any]],
+    version: str,
+    notes: str,
+) -> dict[str, Any]:
+    """The model card dict (see module doc) from a checkpoint written by `train.fit`."""
+    profile = profile_card(checkpoint.get("profile", {}))
+    z_split = float(profile.get("z_split_cm", 60.0))
+    descriptions = class_descriptions(z_split)
+    training: dict[str, Any] = {
+        "data": _data_summary(checkpoint.get("data", [])),
+        "seed": checkpoint["config"].get("seed"),
+        "epochs_run": checkpoint.get("epoch"),
+        "best_epoch": checkpoint.get("best", {}),
+        "config": {
+            k: checkpoint["config"].get(k)
+            for k in ("epochs", "batch_size", "optimizer", "lr", "schedule", "augment")
+        },
+    }
+    parent = checkpoint.get("parent")
+    if parent:
+        training["fine_tuned_from"] = {
+            "data": _data_summary(parent.get("data", [])),
+            "seed": parent.get("config", {}).get("seed"),
+            "epochs": parent.get("config", {}).get("epochs"),
+            "best_epoch": parent.get("best", {}),
+        }
+    return {
+        "name": name,
+        "version": version,
+        "date": datetime.now(UTC).isoformat(timespec="seconds"),
+        "input": list(checkpoint["size"]),
+        "input_format": "image: float32 [N, 3, H, W], RGB, values in [0, 1] (resize with area)",
+        "output": "probabilities: float32 [N, 9] (softmax), index = class id",
+        "classes": [
+            {"id": k, "label": region_of_class(k)["label"], "description": descriptions[k]}
+            for k in range(NUM_CLASSES)
+        ],
+        "profile": profile,
+        "training": training,
+        "accuracy": accuracy,
+        "notes": notes,
+    }
+
+
+def with_card(model_bytes: bytes, card: dict[str, Any]) -> bytes:
+    """ONNX bytes with `model_card` = card JSON set in metadata_props."""
+    import onnx
+
+    model = onnx.load_from_string(model_bytes)
+    del model.metadata_props[:]
+    entry = model.metadata_props.add()
+    entry.key, entry.value = "model_card", json.dumps(card)
+    model.producer_name = "planar-pose"
+    return model.SerializeToString()
+
+
+def accuracy_on(predict: Any, datasets: list[Path], split: str) -> dict[str, dict[str, Any]]:
+    """{data set folder name: {accuracy, class0_accuracy, count, split}} of a predictor."""
+    from train.datasets import load_dataset
+    from train.evaluate import evaluate_predictor
+
+    out: dict[str, dict[str, Any]] = {}
+    for path in datasets:
+        data = load_dataset(path, split=None if split == "all" else split)
+        if len(data.labels) == 0:
+            raise ValueError(f"{path} has no images in split {split!r}")
+        m = evaluate_predictor(predict, data.images, data.labels)
+        out[path.name] = {
+            "split": split,
+            "count": m["count"],
+            "accuracy": round(m["accuracy"], 4),
+            "class0_accuracy": m["per_class_accuracy"][0],
+        }
+    return out
+
+
+def export(
+    checkpoint_path: Path,
+    name: str,
+    out_dir: Path,
+    eval_datasets: list[Path] | None = None,
+    split: str = "test",
+    version: str = "1.0.0",
+    notes: str = "",
+) -> tuple[Path, dict[str, Any]]:
+    """Write out_dir/<name>.onnx and out_dir/<name>.json -> (onnx path, card).
+
+    Accuracy on `eval_datasets` is measured with onnxruntime on the exported graph itself.
+    """
+    import onnxruntime as ort
+
+    from train.evaluate import network_batch
+    from train.fit import load_network
+
+    net, checkpoint = load_network(checkpoint_path)
+    net.eval()
+    raw = onnx_bytes(net)
+    session = ort.InferenceSession(raw, providers=["CPUExecutionProvider"])
+
+    def predict(images: np.ndarray) -> np.ndarray:
+        return session.run(None, {INPUT_NAME: network_batch(images, net.size)})[0]
+
+    accuracy = accuracy_on(predict, eval_datasets, split) if eval_datasets else {}
+    card = build_card(name, checkpoint, accuracy, version, notes)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    onnx_path = out_dir / f"{name}.onnx"
+    onnx_path.write_bytes(with_card(raw, card))
+    (out_dir / f"{name}.json").write_text(json.dumps(card, indent=1) + "\n")
+    return onnx_path, card

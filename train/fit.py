@@ -1,0 +1,379 @@
+"""Training and fine-tuning of the pose network (SPEC section 8), readable top to bottom.
+
+`fit(config)` trains `PoseNet` on the `train` split of one or more data sets (same image
+size), keeps the best epoch by accuracy on their `val` split, stops early when it stops
+improving and writes into `config.out`:
+
+* `last.pt`   the state after the last finished epoch (what `resume` continues from);
+* `best.pt`   the weights of the best validation epoch (what `export` takes);
+* `log.jsonl` one JSON line per epoch (loss, accuracy, learning rate, time).
+
+With `init`, the weights (and the input normalisation) come from a checkpoint: fine-tuning,
+e.g. on a real data set. A run is deterministic on CPU for a seed: batches and augmentation
+draw from generators seeded by (seed, epoch), so a resumed run ends where an uninterrupted
+one does.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from tqdm import tqdm
+
+from train.model import PoseNet, channel_stats, check_size
+
+CHECKPOINT_FORMAT = "planar-pose-checkpoint/1"
+
+
+class TrainingError(ValueError):
+    """Bad training input (data set, checkpoint, options), with a message for the user."""
+
+
+@dataclass
+class FitConfig:
+    """Options of a training run. Paths are data set folders / checkpoint files."""
+
+    datasets: list[Path]
+    out: Path
+    epochs: int = 30
+    batch_size: int = 32
+    optimizer: str = "sgd"  # "sgd" (momentum) or "adam"
+    lr: float = 0.02
+    momentum: float = 0.9
+    weight_decay: float = 1e-4
+    schedule: str = "cosine"  # "cosine", "step" (x0.1 at 2/3 of the epochs) or "constant"
+    patience: int = 10  # epochs without validation improvement before stopping; 0 = never
+    seed: int = 0
+    augment: bool = True
+    init: Path | None = None
+    threads: int = 0  # torch intra-op threads; 0 = torch default
+    progress: bool = True
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def to_json(self) -> dict[str, Any]:
+        """JSON-ready copy (paths as strings)."""
+        out = asdict(self)
+        out["datasets"] = [str(p) for p in self.datasets]
+        out["out"] = str(self.out)
+        out["init"] = None if self.init is None else str(self.init)
+        return out
+
+
+@dataclass
+class Split:
+    """Images uint8 [N, H, W, 3] (RGB) and labels int64 [N] of one split, all data sets."""
+
+    images: np.ndarray
+    labels: np.ndarray
+    blur: np.ndarray  # int [N], the data set's blur level of each image
+
+
+def load_split(paths: list[Path], split: str) -> tuple[Split, list[dict[str, Any]]]:
+    """Concatenate `split` of data sets at `paths` -> (Split, their manifests + counts).
+
+    Raises TrainingError for a missing folder, mixed image sizes or an empty split.
+    """
+    from train.datasets import load_dataset
+
+    images, labels, blurs, infos = [], [], [], []
+    for path in paths:
+        if not (path / "labels.csv").is_file():
+            raise TrainingError(f"not a data set (no labels.csv): {path}")
+        data = load_dataset(path, split=split)
+        manifest = json.loads((path / "manifest.json").read_text())
+        images.append(data.images)
+        labels.append(data.labels)
+        blurs.append(np.full(len(data.labels), int(manifest.get("blur", 0))))
+        infos.append({"path": str(path), "split": split, "count": len(data.labels), **manifest})
+    sizes = {im.shape[1:3] for im in images if len(im)}
+    if len(sizes) > 1:
+        raise TrainingError(f"data sets have different image sizes (H, W): {sorted(sizes)}")
+    out = Split(
+        np.concatenate(images), np.concatenate(labels).astype(np.int64), np.concatenate(blurs)
+    )
+    return out, infos
+
+
+class Augmenter:
+    """On-the-fly augmentation of a training batch, RGB uint8 [B, H, W, 3] -> same shape.
+
+    * blur: an image of a blur-0 data set gets, with probability `p_blur`, a SPEC blur level
+      drawn from 1..3 (the same kernels as the data sets, `train.blur`), so that one network
+      sees all levels;
+    * photometric: contrast x U(0.7, 1.3), brightness + U(-25, 25), per-channel gain
+      U(0.9, 1.1), grey level with probability `p_grey` (real photos may be grey), Gaussian
+      noise with sigma U(0, 6) grey levels.
+
+    No geometric change: a mirror or a large shift would change the pose class.
+    """
+
+    def __init__(self, size: tuple[int, int], p_blur: float = 0.5, p_grey: float = 0.2) -> None:
+        self.size = size
+        self.p_blur = p_blur
+        self.p_grey = p_grey
+
+    def __call__(
+        self, images: np.ndarray, blur: np.ndarray, rng: np.random.Generator
+    ) -> np.ndarray:
+        from train.blur import blur_image
+
+        n = len(images)
+        out = images.copy()
+        levels = np.where(
+            (blur == 0) & (rng.random(n) < self.p_blur), rng.integers(1, 4, size=n), 0
+        )
+        for i in np.flatnonzero(levels):
+            out[i] = blur_image(out[i], int(levels[i]), self.size)
+        x = out.astype(np.float32)
+        grey = rng.random(n) < self.p_grey
+        x[grey] = x[grey].mean(axis=3, keepdims=True)
+        gain = rng.uniform(0.7, 1.3, (n, 1, 1, 1)) * rng.uniform(0.9, 1.1, (n, 1, 1, 3))
+        mean = x.mean(axis=(1, 2, 3), keepdims=True)
+        x = (x - mean) * gain + mean + rng.uniform(-25, 25, (n, 1, 1, 1))
+        x += rng.standard_normal(x.shape, dtype=np.float32) * rng.uniform(0, 6, (n, 1, 1, 1))
+        return np.clip(x, 0, 255).astype(np.uint8)
+
+
+def load_network(path: Path) -> tuple[PoseNet, dict[str, Any]]:
+    """A checkpoint written by `fit` -> (PoseNet with its weights, the checkpoint dict)."""
+    if not Path(path).is_file():
+        raise TrainingError(f"checkpoint not found: {path}")
+    try:
+        checkpoint = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as exc:  # torch raises several types for a file that is not a checkpoint
+        raise TrainingError(f"{path} is not a readable PyTorch checkpoint: {exc}") from exc
+    if not isinstance(checkpoint, dict) or checkpoint.get("format") != CHECKPOINT_FORMAT:
+        raise TrainingError(f"{path} is not a planar-pose training checkpoint")
+    net = PoseNet(tuple(checkpoint["size"]))
+    net.load_state_dict(checkpoint["model"])
+    return net, checkpoint
+
+
+def _optimiser(config: FitConfig, net: PoseNet) -> torch.optim.Optimizer:
+    if config.optimizer == "sgd":
+        return torch.optim.SGD(
+            net.parameters(),
+            lr=config.lr,
+            momentum=config.momentum,
+            weight_decay=config.weight_decay,
+        )
+    if config.optimizer == "adam":
+        return torch.optim.Adam(net.parameters(), lr=config.lr, weight_decay=config.weight_decay)
+    raise TrainingError(f"unknown optimiser {config.optimizer!r} (sgd or adam)")
+
+
+def _schedule(
+    config: FitConfig, opt: torch.optim.Optimizer
+) -> torch.optim.lr_scheduler.LRScheduler:
+    if config.schedule == "cosine":
+        return torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(config.epochs, 1))
+    if config.schedule == "step":
+        step = max(1, round(2 * config.epochs / 3))
+        return torch.optim.lr_scheduler.StepLR(opt, step_size=step, gamma=0.1)
+    if config.schedule == "constant":
+        return torch.optim.lr_scheduler.ConstantLR(opt, factor=1.0, total_iters=0)
+    raise TrainingError(f"unknown schedule {config.schedule!r} (cosine, step or constant)")
+
+
+def to_input(images: np.ndarray) -> torch.Tensor:
+    """RGB uint8 [N, H, W, 3] -> float32 [N, 3, H, W] in [0, 1], channels-last in memory."""
+    x = torch.from_numpy(images).permute(0, 3, 1, 2).float().div_(255.0)
+    return x.contiguous(memory_format=torch.channels_last)
+
+
+@torch.no_grad()
+def evaluate_split(net: PoseNet, split: Split, batch: int = 256) -> tuple[float, float]:
+    """(mean NLL loss, accuracy) of `net` on a split, no augmentation."""
+    net.eval()
+    loss, correct = 0.0, 0
+    for i in range(0, len(split.labels), batch):
+        y = torch.from_numpy(split.labels[i : i + batch])
+        out = net(to_input(split.images[i : i + batch]))
+        loss += F.nll_loss(out, y, reduction="sum").item()
+        correct += int((out.argmax(1) == y).sum())
+    n = max(len(split.labels), 1)
+    return loss / n, correct / n
+
+
+def _save(path: Path, payload: dict[str, Any]) -> None:
+    tmp = path.with_suffix(".tmp")
+    torch.save(payload, tmp)
+    tmp.replace(path)
+
+
+def fit(config: FitConfig, resume: bool = False) -> dict[str, Any]:
+    """Train as `config` says; return the summary (best epoch, accuracies, ms / image)."""
+    if config.epochs < 1 or config.batch_size < 1:
+        raise TrainingError("epochs and batch size must be >= 1")
+    if config.threads:
+        torch.set_num_threads(config.threads)
+    train, train_info = load_split(config.datasets, "train")
+    val, _ = load_split(config.datasets, "val")
+    if len(train.labels) == 0:
+        raise TrainingError(f"no 'train' split images in {[str(p) for p in config.datasets]}")
+    size = (train.images.shape[2], train.images.shape[1])
+    try:
+        check_size(size)
+    except ValueError as exc:
+        raise TrainingError(f"training images: {exc}") from exc
+
+    torch.manual_seed(config.seed)
+    net = PoseNet(size).to(memory_format=torch.channels_last)
+    parent: dict[str, Any] | None = None
+    if config.init is not None:
+        init_net, parent = load_network(config.init)
+        if init_net.size != size:
+            raise TrainingError(
+                f"--init checkpoint {config.init} takes {init_net.size[0]}x{init_net.size[1]} "
+                f"images but the data sets are {size[0]}x{size[1]}"
+            )
+        net.load_state_dict(init_net.state_dict())
+    else:
+        mean, std = channel_stats(torch.from_numpy(train.images))
+        net.set_normalisation(mean, std)
+    opt = _optimiser(config, net)
+    sched = _schedule(config, opt)
+    augmenter = Augmenter(size) if config.augment else None
+
+    config.out.mkdir(parents=True, exist_ok=True)
+    log_path = config.out / "log.jsonl"
+    state: dict[str, Any] = {
+        "format": CHECKPOINT_FORMAT,
+        "size": list(size),
+        "config": config.to_json(),
+        "data": train_info,
+        "profile": train_info[0].get("profile", {}),
+        "parent": None if parent is None else _provenance(parent, config.init),
+        "epoch": 0,
+        "best": {"epoch": 0, "val_accuracy": -1.0, "val_loss": math.inf},
+        "bad_epochs": 0,
+        "history": [],
+    }
+    if resume:
+        last = config.out / "last.pt"
+        _, saved = load_network(last)
+        if tuple(saved["size"]) != size:
+            raise TrainingError(f"{last} was trained on other image sizes than these data sets")
+        net.load_state_dict(saved["model"])
+        opt.load_state_dict(saved["optimizer"])
+        sched.load_state_dict(saved["scheduler"])
+        state.update({k: saved[k] for k in ("epoch", "best", "bad_epochs", "history", "parent")})
+    elif log_path.exists():
+        log_path.unlink()
+
+    for epoch in range(state["epoch"] + 1, config.epochs + 1):
+        if config.patience and state["bad_epochs"] >= config.patience:
+            break
+        row = _train_epoch(net, opt, train, config, epoch, augmenter)
+        sched.step()
+        row["val_loss"], row["val_accuracy"] = (
+            evaluate_split(net, val)
+            if len(val.labels)
+            else (
+                row["train_loss"],
+                row["train_accuracy"],
+            )
+        )
+        best = state["best"]
+        improved = (row["val_accuracy"], -row["val_loss"]) > (
+            best["val_accuracy"],
+            -best["val_loss"],
+        )
+        if improved:
+            state["best"] = {k: row[k] for k in ("epoch", "val_accuracy", "val_loss")}
+            state["bad_epochs"] = 0
+        else:
+            state["bad_epochs"] += 1
+        state["epoch"] = epoch
+        state["history"].append(row)
+        with log_path.open("a") as fh:
+            fh.write(json.dumps(row) + "\n")
+        payload = {**state, "model": net.state_dict()}
+        if improved:
+            _save(config.out / "best.pt", payload)
+        _save(
+            config.out / "last.pt",
+            {**payload, "optimizer": opt.state_dict(), "scheduler": sched.state_dict()},
+        )
+        if config.progress:
+            tqdm.write(
+                f"epoch {epoch}: train loss {row['train_loss']:.4f} acc {row['train_accuracy']:.3f}"
+                f" | val loss {row['val_loss']:.4f} acc {row['val_accuracy']:.3f}"
+                f" | {row['ms_per_image']:.2f} ms/image"
+            )
+    history = state["history"]
+    return {
+        "out": str(config.out),
+        "epochs_run": state["epoch"],
+        "best": state["best"],
+        "stopped_early": state["epoch"] < config.epochs,
+        "ms_per_image": float(np.mean([r["ms_per_image"] for r in history])) if history else None,
+    }
+
+
+def _train_epoch(
+    net: PoseNet,
+    opt: torch.optim.Optimizer,
+    train: Split,
+    config: FitConfig,
+    epoch: int,
+    augmenter: Augmenter | None,
+) -> dict[str, Any]:
+    """One pass over the training split in a seeded order -> the epoch's log row."""
+    net.train()
+    gen = torch.Generator().manual_seed(config.seed * 100_003 + epoch)
+    rng = np.random.default_rng([config.seed, epoch])
+    order = torch.randperm(len(train.labels), generator=gen).numpy()
+    loss_sum, correct, seen = 0.0, 0, 0
+    lr = opt.param_groups[0]["lr"]
+    start = time.perf_counter()
+    bar = tqdm(
+        range(0, len(order), config.batch_size),
+        desc=f"epoch {epoch}/{config.epochs}",
+        leave=False,
+        disable=not config.progress,
+    )
+    for i in bar:
+        idx = np.sort(order[i : i + config.batch_size])
+        images = train.images[idx]
+        if augmenter is not None:
+            images = augmenter(images, train.blur[idx], rng)
+        x = to_input(images)
+        y = torch.from_numpy(train.labels[idx])
+        out = net(x)
+        loss = F.nll_loss(out, y)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        loss_sum += loss.item() * len(idx)
+        correct += int((out.argmax(1) == y).sum())
+        seen += len(idx)
+        bar.set_postfix(loss=f"{loss_sum / seen:.3f}", acc=f"{correct / seen:.3f}")
+    elapsed = time.perf_counter() - start
+    return {
+        "epoch": epoch,
+        "lr": lr,
+        "train_loss": loss_sum / seen,
+        "train_accuracy": correct / seen,
+        "seconds": elapsed,
+        "ms_per_image": 1000.0 * elapsed / seen,
+    }
+
+
+def _provenance(parent: dict[str, Any], path: Path | None) -> dict[str, Any]:
+    """What a fine-tuned model inherits: the parent's data, config and best epoch."""
+    return {
+        "checkpoint": str(path),
+        "data": parent.get("data", []),
+        "config": parent.get("config", {}),
+        "best": parent.get("best", {}),
+        "parent": parent.get("parent"),
+    }

@@ -1,0 +1,153 @@
+"""Real photographs with known camera centres -> a data set on disk (SPEC section 7).
+
+The source folder has images and a labels.csv with at least `file, cam_x, cam_y, cam_z` (the
+camera centre in the object frame, cm) and, optionally, OpenCV `rvec0..2` (object -> camera
+rotation) used to find where the optical axis meets the object plane (the "target").
+Each image is read, turned to RGB, resized to the network size with the service's area
+resize, blurred with a SPEC level (`train.blur`) and saved as PNG; its class comes from
+`train.geometry.pose_class` with the profile's z split.
+
+Stereo pairs (`leftNN` / `rightNN`) are taken at the same moment: the train / val / test split
+(60 / 20 / 20 %, seeded) is drawn over moments, never separating a pair.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import re
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from service.preprocess import resize_rgb
+from train.geometry import pose_class
+
+SIZES = {1: (80, 60), 2: (160, 120)}
+SPLITS = ("train", "val", "test")
+LABEL_COLUMNS = [
+    "file",
+    "class",
+    "cam_x",
+    "cam_y",
+    "cam_z",
+    "target_x",
+    "target_y",
+    "target_z",
+    "blur",
+    "split",
+]
+
+
+def moment_of(file: str) -> str:
+    """Key of the moment a photo was taken: the name without a left/right camera prefix."""
+    stem = Path(file).stem
+    return re.sub(r"^(left|right|l|r)[_-]?", "", stem, flags=re.IGNORECASE) or stem
+
+
+def split_moments(moments: list[str], seed: int) -> dict[str, str]:
+    """Assign each distinct moment to train / val / test (about 60 / 20 / 20 %), seeded.
+
+    val and test get round(20 %) of the moments each, at least one when there are >= 3.
+    """
+    distinct = sorted(set(moments))
+    order = np.random.default_rng(seed).permutation(len(distinct))
+    n = len(distinct)
+    n_hold = max(1, round(0.2 * n)) if n >= 3 else 0
+    names = ["test"] * n_hold + ["val"] * n_hold + ["train"] * (n - 2 * n_hold)
+    return {distinct[i]: names[k] for k, i in enumerate(order)}
+
+
+def optical_axis_target(cam: np.ndarray, rvec: np.ndarray | None) -> np.ndarray:
+    """Where the optical axis of a camera at `cam` (3,) meets the plane z = 0 (cm).
+
+    `rvec` is the OpenCV Rodrigues vector of the object -> camera rotation; without it, or if
+    the axis does not reach the plane in front of the camera, the object centre (0, 0, 0).
+    """
+    if rvec is None:
+        return np.zeros(3)
+    rot, _ = cv2.Rodrigues(np.asarray(rvec, dtype=np.float64).reshape(3, 1))
+    axis = rot.T @ np.array([0.0, 0.0, 1.0])  # optical axis in the object frame
+    if axis[2] >= -1e-9:
+        return np.zeros(3)
+    return cam + (-cam[2] / axis[2]) * axis
+
+
+def read_rgb(path: Path) -> np.ndarray:
+    """Image file -> RGB uint8 [H, W, 3] (grey images get three equal channels)."""
+    bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if bgr is None:
+        raise ValueError(f"cannot read image {path}")
+    return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+
+
+def build_real_dataset(
+    source: Path, out: Path, size: int, blur: int, profile: str, seed: int
+) -> dict[str, Any]:
+    """Write out/ (PNG images, labels.csv, manifest.json) from `source`; return the manifest."""
+    from train.blur import blur_image
+    from train.profile import load_profile
+
+    prof = load_profile(profile)
+    z_split = float(prof.geometry.z_split_cm)
+    wh = SIZES[size]
+    with (source / "labels.csv").open(newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    if not rows:
+        raise ValueError(f"{source / 'labels.csv'} has no rows")
+    missing = {"file", "cam_x", "cam_y", "cam_z"} - set(rows[0])
+    if missing:
+        raise ValueError(f"{source / 'labels.csv'} lacks columns {sorted(missing)}")
+    assignment = split_moments([moment_of(r["file"]) for r in rows], seed)
+
+    out.mkdir(parents=True, exist_ok=True)
+    labels = []
+    for row in rows:
+        cam = np.array([float(row[k]) for k in ("cam_x", "cam_y", "cam_z")])
+        rvec = np.array([float(row[f"rvec{i}"]) for i in range(3)]) if "rvec0" in row else None
+        target = optical_axis_target(cam, rvec)
+        image = blur_image(resize_rgb(read_rgb(source / row["file"]), wh), blur, wh)
+        name = f"{Path(row['file']).stem}.png"
+        cv2.imwrite(str(out / name), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
+        labels.append(
+            {
+                "file": name,
+                "class": int(pose_class(cam, z_split)),
+                **{f"cam_{a}": f"{v:.4f}" for a, v in zip("xyz", cam, strict=True)},
+                **{f"target_{a}": f"{v:.4f}" for a, v in zip("xyz", target, strict=True)},
+                "blur": blur,
+                "split": assignment[moment_of(row["file"])],
+            }
+        )
+    with (out / "labels.csv").open("w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=LABEL_COLUMNS)
+        writer.writeheader()
+        writer.writerows(labels)
+    counts = {s: sum(r["split"] == s for r in labels) for s in SPLITS}
+    classes = np.bincount([r["class"] for r in labels], minlength=9).tolist()
+    manifest = {
+        "generator": "planar-pose realset",
+        "variant": "real",
+        "real": True,
+        "source": _repo_relative(source),
+        "profile": prof.manifest_entry(),
+        "size": list(wh),
+        "blur": blur,
+        "seed": seed,
+        "count": len(labels),
+        "counts": counts,
+        "class_counts": classes,
+        "split_by": "moment (stereo pairs stay together)",
+    }
+    (out / "manifest.json").write_text(json.dumps(manifest, indent=1) + "\n")
+    return manifest
+
+
+def _repo_relative(path: Path) -> str:
+    root = Path(__file__).resolve().parent.parent
+    try:
+        return path.resolve().relative_to(root).as_posix()
+    except ValueError:
+        return str(path)
