@@ -8,9 +8,13 @@ from __future__ import annotations
 
 import typer
 
+from train.commands import model as model_commands
+
 app = typer.Typer(
     name="planar-pose",
     help="Coarse camera pose region of a planar object: data, train, evaluate, export, serve.",
     no_args_is_help=True,
     pretty_exceptions_enable=False,
 )
+
+app.add_typer(model_commands.app)  # train, evaluate, export, realset

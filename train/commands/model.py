@@ -211,9 +211,9 @@ def realset(
     out.print(f"[green]wrote[/] {out_dir}: {json.dumps(manifest['counts'])}")
 
 
-def register(app: typer.Typer) -> None:
-    """Add the model commands to the `planar-pose` app."""
-    app.command()(train)
-    app.command()(evaluate)
-    app.command()(export)
-    app.command()(realset)
+#: The model commands; `train.cli` merges them into the `planar-pose` app.
+app = typer.Typer()
+app.command()(train)
+app.command()(evaluate)
+app.command()(export)
+app.command()(realset)
