@@ -1,0 +1,180 @@
+"""`PoseClient` (blocking) and `AsyncPoseClient` (asyncio): the same methods, the same
+behaviour; everything but sending and sleeping lives in `_core.ClientCore`.
+
+    with PoseClient("http://127.0.0.1:8000") as client:
+        pred = client.predict("photo.jpg")
+        print(pred.label, pred.confidence)
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from collections.abc import Iterable
+from typing import Any
+
+import httpx
+
+from ._core import DEFAULT_TIMEOUT_S, ClientCore, RetryPolicy
+from .errors import PoseError
+from .images import ImageInput
+from .models import Mode, ModelCard, Prediction
+
+_CLIENT_DOC = """
+    base_url: where the service listens, e.g. "http://127.0.0.1:8000".
+    api_key: sent as `Authorization: Bearer <key>` when the service requires one.
+    timeout: seconds per HTTP request (or an httpx.Timeout).
+    retries: extra attempts after a connection failure or a 502/503/504 answer (never on other
+        errors); backoff / backoff_max: first wait and cap in seconds, doubled per retry, with
+        jitter. Use it as a context manager (or call close) to release its connections.
+"""
+
+
+class PoseClient:
+    __doc__ = "Blocking client of the planar-pose service.\n" + _CLIENT_DOC
+
+    def __init__(
+        self,
+        base_url: str = "http://127.0.0.1:8000",
+        api_key: str | None = None,
+        *,
+        timeout: float | httpx.Timeout = DEFAULT_TIMEOUT_S,
+        retries: int = 2,
+        backoff: float = 0.25,
+        backoff_max: float = 5.0,
+    ) -> None:
+        retry = RetryPolicy(retries, backoff, backoff_max)
+        self._core = ClientCore(base_url, api_key, timeout, retry)
+        self._http = httpx.Client(**self._core.http_options())
+
+    @property
+    def base_url(self) -> str:
+        return self._core.base_url
+
+    def predict(self, image: ImageInput, mode: Mode = "whole") -> Prediction:
+        """Pose region of one image (path, bytes, binary file object or numpy array)."""
+        return self.predict_many([image], mode)[0]
+
+    def predict_many(self, images: Iterable[ImageInput], mode: Mode = "whole") -> list[Prediction]:
+        """Pose regions of several images in one request; results in the order given."""
+        request = self._core.predict_request(images, mode)
+        return self._core.parse_predictions(self._send(**request), len(request["files"]))
+
+    def model_info(self) -> ModelCard:
+        """The served model's card (GET /v1/model)."""
+        return self._core.parse_model_card(self._send("GET", "/v1/model"))
+
+    def health(self) -> bool:
+        """Liveness (GET /healthz, one attempt): False when unreachable or answering an error."""
+        return self._probe("/healthz")
+
+    def ready(self) -> bool:
+        """Readiness (GET /readyz, one attempt): True once the model is loaded."""
+        return self._probe("/readyz")
+
+    def close(self) -> None:
+        self._http.close()
+
+    def __enter__(self) -> PoseClient:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+    def _probe(self, path: str) -> bool:
+        try:
+            self._send("GET", path, retries=0)
+        except PoseError:
+            return False
+        return True
+
+    def _send(self, method: str, url: str, retries: int | None = None, **kw: Any) -> httpx.Response:
+        retry = 0
+        while True:
+            response, error = None, None
+            try:
+                response = self._http.request(method, url, **kw)
+            except httpx.TransportError as exc:
+                error = exc
+            outcome = self._core.after_attempt(retry, response, error, retries)
+            if isinstance(outcome, httpx.Response):
+                return outcome
+            time.sleep(outcome)
+            retry += 1
+
+
+class AsyncPoseClient:
+    __doc__ = "Asyncio client of the planar-pose service (methods are coroutines).\n" + _CLIENT_DOC
+
+    def __init__(
+        self,
+        base_url: str = "http://127.0.0.1:8000",
+        api_key: str | None = None,
+        *,
+        timeout: float | httpx.Timeout = DEFAULT_TIMEOUT_S,
+        retries: int = 2,
+        backoff: float = 0.25,
+        backoff_max: float = 5.0,
+    ) -> None:
+        retry = RetryPolicy(retries, backoff, backoff_max)
+        self._core = ClientCore(base_url, api_key, timeout, retry)
+        self._http = httpx.AsyncClient(**self._core.http_options())
+
+    @property
+    def base_url(self) -> str:
+        return self._core.base_url
+
+    async def predict(self, image: ImageInput, mode: Mode = "whole") -> Prediction:
+        """Pose region of one image (path, bytes, binary file object or numpy array)."""
+        return (await self.predict_many([image], mode))[0]
+
+    async def predict_many(
+        self, images: Iterable[ImageInput], mode: Mode = "whole"
+    ) -> list[Prediction]:
+        """Pose regions of several images in one request; results in the order given."""
+        request = self._core.predict_request(images, mode)
+        return self._core.parse_predictions(await self._send(**request), len(request["files"]))
+
+    async def model_info(self) -> ModelCard:
+        """The served model's card (GET /v1/model)."""
+        return self._core.parse_model_card(await self._send("GET", "/v1/model"))
+
+    async def health(self) -> bool:
+        """Liveness (GET /healthz, one attempt): False when unreachable or answering an error."""
+        return await self._probe("/healthz")
+
+    async def ready(self) -> bool:
+        """Readiness (GET /readyz, one attempt): True once the model is loaded."""
+        return await self._probe("/readyz")
+
+    async def aclose(self) -> None:
+        await self._http.aclose()
+
+    async def __aenter__(self) -> AsyncPoseClient:
+        return self
+
+    async def __aexit__(self, *exc_info: object) -> None:
+        await self.aclose()
+
+    async def _probe(self, path: str) -> bool:
+        try:
+            await self._send("GET", path, retries=0)
+        except PoseError:
+            return False
+        return True
+
+    async def _send(
+        self, method: str, url: str, retries: int | None = None, **kw: Any
+    ) -> httpx.Response:
+        retry = 0
+        while True:
+            response, error = None, None
+            try:
+                response = await self._http.request(method, url, **kw)
+            except httpx.TransportError as exc:
+                error = exc
+            outcome = self._core.after_attempt(retry, response, error, retries)
+            if isinstance(outcome, httpx.Response):
+                return outcome
+            await asyncio.sleep(outcome)
+            retry += 1

@@ -1,0 +1,86 @@
+"""Typed answers of the service (pydantic), mirroring its JSON.
+
+Classes (docs/SPEC.md section 3): 0 = the object is not in view; 1-8 = the camera centre lies in
+one octant around the object, in the object frame (origin at its centre, x along its width,
+y towards the top of its texture, z towards the viewer): near/far, x side, y side.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+Mode = Literal["whole", "sliding"]
+
+
+class _Answer(BaseModel):
+    """Read-only; fields the service adds later are ignored, not an error."""
+
+    model_config = ConfigDict(frozen=True, extra="ignore")
+
+
+class Region(_Answer):
+    """A class in words. For class 0 (`present` False) depth, x and y are None."""
+
+    present: bool
+    depth: Literal["near", "far"] | None
+    x: Literal["+", "-"] | None
+    y: Literal["+", "-"] | None
+    label: str = Field(description='e.g. "near, x+, y-" or "object not in view"')
+
+
+class Box(_Answer):
+    """Where the object was found (sliding mode), in pixels of the original image: top-left
+    corner (x, y), width w and height h."""
+
+    x: int
+    y: int
+    w: int
+    h: int
+
+
+class Prediction(_Answer):
+    """The answer for one image."""
+
+    filename: str | None = Field(description="the upload's file name (None for a raw body)")
+    class_id: int = Field(ge=0, le=8, description="0 = not in view, 1..8 = octant")
+    region: Region
+    probabilities: list[float] = Field(min_length=9, max_length=9, description="classes 0..8")
+    confidence: float = Field(ge=0.0, le=1.0, description="probability of class_id")
+    box: Box | None = Field(description="sliding mode: the window chosen; whole mode: None")
+    elapsed_ms: float = Field(ge=0.0, description="time the service spent on this image")
+
+    @property
+    def present(self) -> bool:
+        """True when the object is in view (class 1..8)."""
+        return self.region.present
+
+    @property
+    def label(self) -> str:
+        """The region in words, e.g. "far, x-, y+"."""
+        return self.region.label
+
+
+class PredictResponse(_Answer):
+    """The whole answer of POST /v1/predict: one result per image, in the order sent."""
+
+    model: str
+    mode: Mode
+    results: list[Prediction]
+
+
+class ModelCard(BaseModel):
+    """GET /v1/model. Named fields are the ones every card has; any other field the service
+    sends is kept as an extra attribute (see `model_extra`)."""
+
+    model_config = ConfigDict(frozen=True, extra="allow", protected_namespaces=())
+
+    name: str
+    version: str
+    input: tuple[int, int] = Field(description="network input size (W, H) in pixels")
+    classes: list[str] | list[dict[str, object]] = Field(description="classes 0..8 in words")
+    profile: dict[str, object] | str | None = None
+    training: dict[str, object] | str | None = None
+    accuracy: dict[str, object] | float | None = None
+    date: str | None = None
