@@ -106,7 +106,7 @@ class ClientCore:
             raise PoseConnectionError(
                 f"cannot reach {self.base_url}: {_describe(error)} "
                 f"({attempts} attempt{'s' if attempts > 1 else ''})",
-                code="connection_failed",
+                attempts=attempts,
             ) from error
         if response.is_success:
             return response

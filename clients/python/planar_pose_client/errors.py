@@ -62,7 +62,12 @@ class ServiceUnavailable(PoseError):
 
 
 class PoseConnectionError(PoseError):
-    """No HTTP answer: connection refused, name not resolved, timeout or connection dropped."""
+    """No HTTP answer: connection refused, name not resolved, timeout or connection dropped.
+    `attempts` is how many times the call was tried."""
+
+    def __init__(self, message: str, *, attempts: int, code: str = "connection_failed") -> None:
+        super().__init__(message, status=None, code=code)
+        self.attempts = attempts
 
 
 _BY_STATUS: dict[int, type[PoseError]] = {
