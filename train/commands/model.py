@@ -57,6 +57,9 @@ def train(
     ] = None,
     resume: Annotated[bool, typer.Option(help="Continue OUT/last.pt.")] = False,
     threads: Annotated[int, typer.Option(min=0, help="Torch threads, 0 = default.")] = 0,
+    compile_step: Annotated[
+        bool, typer.Option("--compile/--no-compile", help="torch.compile the training step.")
+    ] = True,
 ) -> None:
     """Train (or with --init fine-tune) the pose network on the train split; keep the best val."""
     from train.fit import FitConfig, TrainingError, fit
@@ -83,6 +86,7 @@ def train(
         augment=augment,
         init=init,
         threads=threads,
+        compile=compile_step,
     )
     try:
         summary = fit(config, resume=resume)
