@@ -49,7 +49,9 @@ class ExitCode(IntEnum):
     USAGE = 2
     UNREACHABLE = 3  # no answer, or 503 (not ready)
     AUTH = 4  # 401: API key missing or wrong
-    BAD_INPUT = 5  # missing/unreadable file, or the service refused the image (400, 413, 415)
+    BAD_INPUT = (
+        5  # missing/unreadable file, bad URL, or the service refused the image (400, 413, 415)
+    )
 
 
 class ModeChoice(StrEnum):

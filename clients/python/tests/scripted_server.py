@@ -27,12 +27,12 @@ class Script:
             return self.answers[min(len(self.requests), len(self.answers)) - 1]
 
 
-def prediction_body(filenames: list[str], class_id: int = 6) -> dict[str, Any]:
-    """A valid POST /v1/predict answer for `filenames`, all of class `class_id` (6 = far, x-, y+)."""
+def prediction_body(filenames: list[str]) -> dict[str, Any]:
+    """A valid POST /v1/predict answer for `filenames`, all of class 6 (far, x-, y+)."""
     probabilities = [0.02] * 9
-    probabilities[class_id] = 0.84
+    probabilities[6] = 0.84
     result = {
-        "class_id": class_id,
+        "class_id": 6,
         "region": {"present": True, "depth": "far", "x": "-", "y": "+", "label": "far, x-, y+"},
         "probabilities": probabilities,
         "confidence": 0.84,

@@ -10,7 +10,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-
 from planar_pose_client import PoseClient, encode_png
 from planar_pose_client.images import sniff_type, to_upload
 

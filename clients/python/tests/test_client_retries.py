@@ -7,8 +7,6 @@ import socket
 from pathlib import Path
 
 import pytest
-from scripted_server import Script, error_body, prediction_body, serve
-
 from planar_pose_client import (
     AsyncPoseClient,
     BadImageError,
@@ -17,6 +15,7 @@ from planar_pose_client import (
     RetryPolicy,
     ServiceUnavailable,
 )
+from scripted_server import Script, error_body, prediction_body, serve
 
 PHOTO = Path(__file__).resolve().parents[3] / "train/real/chessboard-stereo/left01.jpg"
 NOT_READY = (503, error_body("not_ready", "model is loading"))
@@ -48,9 +47,12 @@ def test_async_503_twice_then_success_is_retried():
 
 def test_503_beyond_the_retries_raises_service_unavailable():
     script = Script([NOT_READY])
-    with serve(script) as url, PoseClient(url, retries=1, **FAST) as client:
-        with pytest.raises(ServiceUnavailable) as info:
-            client.model_info()
+    with (
+        serve(script) as url,
+        PoseClient(url, retries=1, **FAST) as client,
+        pytest.raises(ServiceUnavailable) as info,
+    ):
+        client.model_info()
     assert len(script.requests) == 2
     assert info.value.status == 503 and info.value.code == "not_ready"
     assert str(info.value) == "HTTP 503 not_ready: model is loading"
@@ -58,9 +60,12 @@ def test_503_beyond_the_retries_raises_service_unavailable():
 
 def test_400_is_not_retried():
     script = Script([(400, error_body("bad_image", "cannot decode")), NOT_READY])
-    with serve(script) as url, PoseClient(url, retries=5, **FAST) as client:
-        with pytest.raises(BadImageError, match="cannot decode"):
-            client.predict(b"not an image")
+    with (
+        serve(script) as url,
+        PoseClient(url, retries=5, **FAST) as client,
+        pytest.raises(BadImageError, match="cannot decode"),
+    ):
+        client.predict(b"not an image")
     assert len(script.requests) == 1
 
 

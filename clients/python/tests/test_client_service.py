@@ -1,0 +1,181 @@
+"""Every method of both clients against the real service, with auth off and on, and every error
+status produced for real and mapped to its exception."""
+
+from __future__ import annotations
+
+import asyncio
+import io
+import struct
+import zlib
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from conftest import API_KEY
+from planar_pose_client import (
+    AsyncPoseClient,
+    AuthError,
+    BadImageError,
+    InvalidRequestError,
+    ModelCard,
+    PoseClient,
+    Prediction,
+    TooLargeError,
+)
+
+# The region of each class in words (docs/SPEC.md section 3), written out independently.
+LABELS = ["object not in view"] + [
+    f"{depth}, x{x}, y{y}"
+    for depth in ("near", "far")
+    for x, y in (("+", "+"), ("-", "+"), ("-", "-"), ("+", "-"))
+]
+
+
+def check_prediction(p: Prediction, filename: str | None) -> None:
+    """A prediction is internally consistent: label of its class, confidence = top probability."""
+    assert p.filename == filename
+    assert p.label == LABELS[p.class_id] and p.present == (p.class_id != 0)
+    assert (p.region.depth is None) == (p.class_id == 0)
+    assert abs(sum(p.probabilities) - 1.0) < 1e-4
+    assert p.probabilities[p.class_id] == max(p.probabilities)
+    assert p.confidence == pytest.approx(p.probabilities[p.class_id], abs=1e-6)
+    assert p.elapsed_ms >= 0.0
+
+
+def check_card(card: ModelCard) -> None:
+    assert card.name and card.version
+    assert len(card.input) == 2 and all(n > 0 for n in card.input)
+    assert len(card.classes) == 9
+
+
+def huge_header_png(width: int = 50_000, height: int = 50_000) -> bytes:
+    """A valid-looking 1 kB PNG whose header claims width x height RGB pixels (a
+    decompression bomb): the service must refuse it from the header, not decode it."""
+
+    def chunk(kind: bytes, body: bytes) -> bytes:
+        return (
+            struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+        )
+
+    header = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
+    rows = zlib.compress(b"\x00" * (1 + 3 * width) * 4)
+    return (
+        b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", rows) + chunk(b"IEND", b"")
+    )
+
+
+def test_sync_client_every_method(service_url, photos):
+    with PoseClient(service_url) as client:
+        assert client.health() and client.ready()
+        check_card(client.model_info())
+        one = client.predict(photos[0])
+        check_prediction(one, photos[0].name)
+        assert one.box is None
+        many = client.predict_many(photos)
+    assert [p.filename for p in many] == [p.name for p in photos]
+    for p in many:
+        check_prediction(p, p.filename)
+    np.testing.assert_allclose(many[0].probabilities, one.probabilities, atol=1e-6)
+
+
+def test_every_kind_of_image_input_gives_the_same_answer(service_url, photos):
+    path = photos[1]
+    rgb = cv2.cvtColor(cv2.imread(str(path)), cv2.COLOR_BGR2RGB)
+    with PoseClient(service_url) as client, path.open("rb") as file:
+        by_path = client.predict(path)
+        others = client.predict_many([str(path), path.read_bytes(), file, rgb, rgb[:, :, 0]])
+    assert [p.filename for p in others] == [
+        path.name,
+        "image-1.jpg",
+        path.name,
+        "array-3.png",
+        "array-4.png",
+    ]
+    for p in others:  # the grey photo decodes to the same pixels in every form
+        assert p.class_id == by_path.class_id
+        np.testing.assert_allclose(p.probabilities, by_path.probabilities, atol=1e-5)
+
+
+def test_sliding_mode_returns_a_box_inside_the_image(service_url, photos):
+    with PoseClient(service_url) as client:
+        predictions = client.predict_many(photos[:2], mode="sliding")
+    for p in predictions:
+        check_prediction(p, p.filename)
+        if p.present:
+            assert p.box is not None
+            assert p.box.x >= 0 and p.box.y >= 0 and p.box.w > 0 and p.box.h > 0
+            assert p.box.x + p.box.w <= 640 and p.box.y + p.box.h <= 480
+
+
+def test_async_client_every_method(service_url, photos):
+    async def run():
+        async with AsyncPoseClient(service_url) as client:
+            alive, ready, card = await asyncio.gather(
+                client.health(), client.ready(), client.model_info()
+            )
+            singles = await asyncio.gather(*(client.predict(p) for p in photos))
+            many = await client.predict_many(photos, mode="whole")
+            return alive, ready, card, singles, many
+
+    alive, ready, card, singles, many = asyncio.run(run())
+    assert alive and ready
+    check_card(card)
+    for single, batched, path in zip(singles, many, photos, strict=True):
+        check_prediction(single, path.name)
+        np.testing.assert_allclose(single.probabilities, batched.probabilities, atol=1e-6)
+    with PoseClient(service_url) as client:
+        assert client.model_info() == card
+
+
+def test_errors_map_to_exceptions(service_url, photos):
+    with PoseClient(service_url, retries=0) as client:
+        with pytest.raises(BadImageError) as bad:
+            client.predict(b"this is not an image at all")
+        assert bad.value.status == 400 and bad.value.code and bad.value.message
+        assert str(bad.value).startswith("HTTP 400 ")
+
+        with pytest.raises(InvalidRequestError) as invalid:
+            client.predict(photos[0], mode="diagonal")  # type: ignore[arg-type]
+        assert invalid.value.status == 422
+
+        with pytest.raises(TooLargeError) as bomb:
+            client.predict(io.BytesIO(huge_header_png()))
+        assert bomb.value.status == 413
+
+
+def test_too_many_images_is_refused(service_url, photos):
+    with PoseClient(service_url, retries=0) as client, pytest.raises(TooLargeError) as too_many:
+        client.predict_many(photos[:1] * 200)
+    assert too_many.value.status == 413
+
+
+def test_auth_on(secured_url, photos):
+    with PoseClient(secured_url, retries=0) as anonymous:
+        assert anonymous.health()  # probes stay open for orchestrators
+        with pytest.raises(AuthError) as missing:
+            anonymous.predict(photos[0])
+        assert missing.value.status == 401
+        with pytest.raises(AuthError):
+            anonymous.model_info()
+    with PoseClient(secured_url, api_key="wrong", retries=0) as wrong, pytest.raises(AuthError):
+        wrong.predict(photos[0])
+    with PoseClient(secured_url, api_key=API_KEY) as client:
+        check_card(client.model_info())
+        check_prediction(client.predict(photos[0]), photos[0].name)
+
+    async def run_async():
+        async with AsyncPoseClient(secured_url, api_key="wrong", retries=0) as wrong_async:
+            with pytest.raises(AuthError):
+                await wrong_async.predict(photos[0])
+        async with AsyncPoseClient(secured_url, api_key=API_KEY) as right_async:
+            return await right_async.predict_many(photos)
+
+    assert len(asyncio.run(run_async())) == len(photos)
+
+
+def test_the_same_photo_as_a_path_file_gives_its_own_name(service_url, tmp_path: Path, photos):
+    copy = tmp_path / "renamed photo.jpg"
+    copy.write_bytes(photos[0].read_bytes())
+    with PoseClient(service_url) as client:
+        assert client.predict(copy).filename == "renamed photo.jpg"
