@@ -22,12 +22,13 @@ from .errors import (
     UnsupportedMediaError,
 )
 from .images import ImageInput, encode_png
-from .models import Box, Mode, ModelCard, Prediction, PredictResponse, Region
+from .models import Box, ClassInfo, Mode, ModelCard, Prediction, PredictResponse, Region
 
 __all__ = [
     "AsyncPoseClient",
     "AuthError",
     "BadImageError",
+    "ClassInfo",
     "Box",
     "ImageInput",
     "InvalidRequestError",

@@ -194,12 +194,12 @@ def _card_table(card: ModelCard) -> Table:
     table.add_column("value")
     table.add_row("version", card.version)
     table.add_row("input", f"{card.input[0]}x{card.input[1]} px (W x H)")
-    for field in ("date", "accuracy", "profile", "training"):
+    for field in ("date", "notes", "accuracy", "profile", "training"):
         value = getattr(card, field)
-        if value is not None:
+        if value:
             table.add_row(field, _short(value))
-    for class_id, description in enumerate(card.classes):
-        table.add_row(f"class {class_id}", _short(description))
+    for info in card.classes:
+        table.add_row(f"class {info.id}", _short(info.description or info.label))
     return table
 
 

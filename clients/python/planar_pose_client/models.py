@@ -7,7 +7,7 @@ y towards the top of its texture, z towards the viewer): near/far, x side, y sid
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -70,17 +70,26 @@ class PredictResponse(_Answer):
     results: list[Prediction]
 
 
+class ClassInfo(_Answer):
+    """One of the 9 classes on the model card."""
+
+    id: int = Field(ge=0, le=8)
+    label: str = Field(description='the region in words, e.g. "near, x+, y-"')
+    description: str = Field("", description="where the camera centre is, in the object frame")
+
+
 class ModelCard(BaseModel):
-    """GET /v1/model. Named fields are the ones every card has; any other field the service
-    sends is kept as an extra attribute (see `model_extra`)."""
+    """GET /v1/model: the served model's card. Named fields are the ones every card has; any
+    other field the service sends is kept as an extra attribute (see `model_extra`)."""
 
     model_config = ConfigDict(frozen=True, extra="allow", protected_namespaces=())
 
     name: str
     version: str
+    date: str | None = Field(None, description="export time, ISO 8601")
     input: tuple[int, int] = Field(description="network input size (W, H) in pixels")
-    classes: list[str] | list[dict[str, object]] = Field(description="classes 0..8 in words")
-    profile: dict[str, object] | str | None = None
-    training: dict[str, object] | str | None = None
-    accuracy: dict[str, object] | float | None = None
-    date: str | None = None
+    classes: list[ClassInfo] = Field(min_length=9, max_length=9)
+    profile: dict[str, Any] = Field(default_factory=dict, description="the object it knows")
+    training: dict[str, Any] = Field(default_factory=dict, description="data, seed, epochs")
+    accuracy: dict[str, Any] = Field(default_factory=dict, description="measured, per data set")
+    notes: str = ""
