@@ -46,7 +46,7 @@ class FitConfig:
     epochs: int = 30
     batch_size: int = 32
     optimizer: str = "sgd"  # "sgd" (momentum) or "adam"
-    lr: float = 0.02
+    lr: float = 0.001
     momentum: float = 0.9
     weight_decay: float = 1e-4
     schedule: str = "cosine"  # "cosine", "step" (x0.1 at 2/3 of the epochs) or "constant"
