@@ -1,0 +1,338 @@
+"""Labelling real photographs (SPEC section 7): corners -> homography -> pose -> class.
+
+For each photograph: the object is found automatically (`train.corners`: the chessboard
+detector for a chessboard profile, SIFT matching to the profile texture otherwise) or taken
+from a CSV of clicked corners; the points are undistorted with the camera's calibration; the
+object-plane -> image homography comes from the normalised DLT over all points
+(`train.geometry.dlt_homography`), the pose from `pose_from_homography`, the camera centre
+c = -R^T t (cm, object frame) and the class from `pose_class` with the profile's z split.
+
+Output folder (the data set layout of SPEC section 7, readable by `planar-pose realset`):
+the images (copied), labels.csv (data set columns + image size, intrinsics, distortion,
+OpenCV rvec/tvec, the four object corners in raw pixels, method, reprojection RMS),
+manifest.json, failed.txt and overlays/<stem>.png with the projected outline and axes.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import shutil
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from train.calibration import Calibration, Camera, default_camera
+from train.corners import ChessboardPattern, Correspondences, TextureMatcher, detect_chessboard
+from train.geometry import camera_centre, dlt_homography, pose_class, pose_from_homography
+from train.realset import LABEL_COLUMNS, moment_of, optical_axis_target, split_moments
+
+IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".webp", ".tif", ".tiff")
+CORNER_COLUMNS = [f"corner_{a}{i}" for i in range(4) for a in "xy"]
+EXTRA_COLUMNS = (
+    ["width", "height", "fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3"]
+    + [f"rvec{i}" for i in range(3)]
+    + [f"tvec{i}" for i in range(3)]
+    + CORNER_COLUMNS
+    + ["method", "points", "reproj_rms_px"]
+)
+#: Chessboard of the shipped "chessboard" profile: 9 x 6 inner corners, 10 x 7 squares.
+CHESSBOARD_INNER = (9, 6)
+
+
+@dataclass(frozen=True)
+class Label:
+    """The pose found for one photograph.
+
+    R (3, 3), t (3,) cm: object -> camera; `centre` (3,) cm in the object frame; `corners`
+    (4, 2) raw pixels of the object corners (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y); `rms` the
+    reprojection RMS (px, undistorted) of the points used; `points` how many were used.
+    """
+
+    R: np.ndarray
+    t: np.ndarray
+    centre: np.ndarray
+    label: int
+    corners: np.ndarray
+    camera: Camera
+    method: str
+    points: int
+    rms: float
+
+
+class ObjectFinder:
+    """Finds a profile's object in photographs: chessboard corners or texture matching."""
+
+    def __init__(self, profile: Any) -> None:
+        self.width_cm, self.height_cm = float(profile.width_cm), float(profile.height_cm)
+        self.z_split = float(profile.geometry.z_split_cm)
+        self.pattern = chessboard_pattern(profile)
+        self.matcher: TextureMatcher | None = None
+        if self.pattern is None:
+            texture = cv2.imread(str(profile.texture), cv2.IMREAD_COLOR)
+            if texture is None:
+                raise ValueError(f"cannot read the profile texture {profile.texture}")
+            self.matcher = TextureMatcher(
+                cv2.cvtColor(texture, cv2.COLOR_BGR2RGB), self.width_cm, self.height_cm, "sift"
+            )
+
+    def corners_xy(self) -> np.ndarray:
+        """Object corners (4, 2) cm: (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y)."""
+        w, h = self.width_cm / 2, self.height_cm / 2
+        return np.array([[-w, -h], [w, -h], [w, h], [-w, h]])
+
+    def find(self, rgb: np.ndarray, camera: Camera) -> Correspondences | None:
+        """Object-plane <-> raw-pixel correspondences in `rgb`, or None when not found."""
+        if self.pattern is not None:
+            return detect_chessboard(rgb, self.pattern, camera.undistort, camera.K)
+        assert self.matcher is not None
+        result = self.matcher.match(rgb)
+        if result.H is None or result.inlier_xy is None or result.inlier_uv is None:
+            return None
+        return Correspondences(result.inlier_xy, result.inlier_uv, "sift")
+
+
+def chessboard_pattern(profile: Any) -> ChessboardPattern | None:
+    """The chessboard of a profile, or None for a general textured object.
+
+    A profile may say so itself (a `chessboard` attribute holding a `ChessboardPattern` or
+    (cols, rows) inner corners); the shipped "chessboard" profile is the 10 x 7-square board
+    of the real photographs: 9 x 6 inner corners, square = width / 10.
+    """
+    own = getattr(profile, "chessboard", None)
+    if isinstance(own, ChessboardPattern):
+        return own
+    if own is not None:
+        cols, rows = own
+    elif profile.name == "chessboard":
+        cols, rows = CHESSBOARD_INNER
+    else:
+        return None
+    return ChessboardPattern(int(cols), int(rows), float(profile.width_cm) / (int(cols) + 1))
+
+
+def label_from_points(
+    corr: Correspondences, camera: Camera, corners_xy: np.ndarray, z_split: float
+) -> Label:
+    """Pose and class from correspondences: undistort, normalised DLT, pose from homography."""
+    ideal = camera.undistort(corr.image_uv)
+    H = dlt_homography(corr.object_xy, ideal)
+    R, t = pose_from_homography(H, camera.K)
+    centre = camera_centre(R, t)
+    if centre[2] <= 0:
+        raise ValueError("the points put the camera behind the object (mirrored corner order?)")
+    obj3 = np.column_stack([corr.object_xy, np.zeros(len(corr.object_xy))])
+    reproj = project(obj3, R, t, camera.K, None)
+    rms = float(np.sqrt(np.mean(np.sum((reproj - ideal) ** 2, axis=1))))
+    corners = project(np.column_stack([corners_xy, np.zeros(4)]), R, t, camera.K, camera.dist)
+    return Label(
+        R, t, centre, int(pose_class(centre, z_split)), corners, camera, corr.method,
+        len(ideal), rms,
+    )  # fmt: skip
+
+
+def project(
+    X: np.ndarray, R: np.ndarray, t: np.ndarray, K: np.ndarray, dist: np.ndarray | None
+) -> np.ndarray:
+    """Object points X (N, 3) cm -> raw pixels (N, 2) through the pose and the camera."""
+    rvec, _ = cv2.Rodrigues(R)
+    uv, _ = cv2.projectPoints(np.asarray(X, np.float64), rvec, np.asarray(t, np.float64), K, dist)
+    return uv.reshape(-1, 2)
+
+
+def draw_overlay(rgb: np.ndarray, label: Label, width_cm: float, height_cm: float) -> np.ndarray:
+    """BGR image with the object's outline (yellow, distortion followed), its axes (x red,
+    y green, z blue, half the shorter side long), the corner numbers and the class."""
+    bgr = cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)
+    thick = max(1, round(max(rgb.shape[:2]) / 400))
+    w, h = width_cm / 2, height_cm / 2
+    s = np.linspace(0, 1, 25)[:, None]
+    corners = np.array([[-w, -h], [w, -h], [w, h], [-w, h], [-w, -h]])
+    edge = np.concatenate([(1 - s) * corners[i] + s * corners[i + 1] for i in range(4)])
+    cam = label.camera
+    outline = project(
+        np.column_stack([edge, np.zeros(len(edge))]), label.R, label.t, cam.K, cam.dist
+    )
+    cv2.polylines(bgr, [np.round(outline).astype(np.int32)], True, (0, 220, 255), thick)
+    a = min(w, h)
+    axes = project(
+        np.array([[0, 0, 0], [a, 0, 0], [0, a, 0], [0, 0, a]]), label.R, label.t, cam.K, cam.dist
+    )
+    o = tuple(np.round(axes[0]).astype(int))
+    for k, colour in ((1, (0, 0, 255)), (2, (0, 200, 0)), (3, (255, 80, 0))):
+        cv2.arrowedLine(bgr, o, tuple(np.round(axes[k]).astype(int)), colour, thick + 1)
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    scale = max(0.4, max(rgb.shape[:2]) / 1200)
+    for i, p in enumerate(label.corners):
+        cv2.putText(bgr, str(i), tuple(np.round(p).astype(int)), font, scale, (255, 0, 255), thick)
+    c = label.centre
+    text = f"class {label.label}  c=({c[0]:.1f}, {c[1]:.1f}, {c[2]:.1f}) cm  {label.method}"
+    cv2.putText(bgr, text, (5, int(20 * scale / 0.5)), font, scale, (0, 0, 0), thick + 2)
+    cv2.putText(bgr, text, (5, int(20 * scale / 0.5)), font, scale, (255, 255, 255), thick)
+    return bgr
+
+
+def read_corner_csv(path: Path) -> dict[str, np.ndarray]:
+    """Clicked corners: file name -> (4, 2) raw pixels, order (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y).
+
+    Columns `file, corner_x0, corner_y0, ..., corner_x3, corner_y3` (others are ignored).
+    """
+    if not path.is_file():
+        raise FileNotFoundError(f"corners CSV not found: {path}")
+    with path.open(newline="") as fh:
+        reader = csv.DictReader(fh)
+        missing = [c for c in ["file", *CORNER_COLUMNS] if c not in (reader.fieldnames or [])]
+        if missing:
+            raise ValueError(f"{path}: missing column(s) {', '.join(missing)}")
+        out: dict[str, np.ndarray] = {}
+        for line, row in enumerate(reader, start=2):
+            try:
+                pts = np.array([float(row[c]) for c in CORNER_COLUMNS]).reshape(4, 2)
+            except (TypeError, ValueError):
+                raise ValueError(f"{path} line {line}: corner values must be numbers") from None
+            if not np.all(np.isfinite(pts)):
+                raise ValueError(f"{path} line {line}: corner values must be finite")
+            if row["file"] in out:
+                raise ValueError(f"{path} line {line}: {row['file']} given twice")
+            out[row["file"]] = pts
+    return out
+
+
+def list_images(folder: Path) -> list[Path]:
+    """The image files directly in `folder`, sorted by name."""
+    if not folder.is_dir():
+        raise FileNotFoundError(f"image folder not found: {folder}")
+    images = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+    if not images:
+        raise ValueError(f"no images ({', '.join(IMAGE_SUFFIXES)}) in {folder}")
+    return images
+
+
+def _row(file: str, lab: Label, size: tuple[int, int], split: str) -> dict[str, Any]:
+    rvec, _ = cv2.Rodrigues(lab.R)
+    target = optical_axis_target(lab.centre, rvec.ravel())
+    K, d = lab.camera.K, np.resize(lab.camera.dist, 5) if lab.camera.dist.size else np.zeros(5)
+    row: dict[str, Any] = {"file": file, "class": lab.label, "blur": 0, "split": split}
+    row |= {f"cam_{a}": f"{v:.4f}" for a, v in zip("xyz", lab.centre, strict=True)}
+    row |= {f"target_{a}": f"{v:.4f}" for a, v in zip("xyz", target, strict=True)}
+    row |= {"width": size[0], "height": size[1]}
+    intr = K[[0, 1, 0, 1], [0, 1, 2, 2]]
+    row |= {k: f"{v:.6f}" for k, v in zip(("fx", "fy", "cx", "cy"), intr, strict=True)}
+    row |= {k: f"{v:.6g}" for k, v in zip(("k1", "k2", "p1", "p2", "k3"), d, strict=True)}
+    row |= {f"rvec{i}": f"{v:.6f}" for i, v in enumerate(rvec.ravel())}
+    row |= {f"tvec{i}": f"{v:.4f}" for i, v in enumerate(lab.t)}
+    row |= {c: f"{v:.3f}" for c, v in zip(CORNER_COLUMNS, lab.corners.ravel(), strict=True)}
+    row |= {"method": lab.method, "points": lab.points, "reproj_rms_px": f"{lab.rms:.4f}"}
+    return row
+
+
+def label_folder(
+    images_dir: Path,
+    out: Path,
+    profile: Any,
+    calibration: Calibration | None = None,
+    corners: dict[str, np.ndarray] | None = None,
+    seed: int = 0,
+    progress: Callable[[Iterable[Path]], Iterable[Path]] = iter,
+) -> dict[str, Any]:
+    """Label every image of `images_dir` into `out`; return the manifest (with a summary).
+
+    Images with clicked `corners` use them (4 points); the others are detected automatically.
+    The profile's texture, if it lies in `images_dir`, is not a photograph and is skipped.
+    Failures (unreadable image, object not found, degenerate points) go to failed.txt.
+    """
+    texture = Path(profile.texture)
+    paths = [p for p in list_images(images_dir) if not (texture.exists() and p.samefile(texture))]
+    if not paths:
+        raise ValueError(f"no images in {images_dir} besides the profile texture")
+    corners = corners or {}
+    unknown = sorted(set(corners) - {p.name for p in paths})
+    if unknown:
+        raise ValueError(f"the corners CSV names images not in {images_dir}: {unknown[:5]}")
+    finder = ObjectFinder(profile)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "overlays").mkdir(exist_ok=True)
+    labelled: list[tuple[str, Label, tuple[int, int]]] = []
+    failed: list[str] = []
+    for path in progress(paths):
+        bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
+        if bgr is None:
+            failed.append(f"{path.name}: unreadable image")
+            continue
+        rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+        size = (rgb.shape[1], rgb.shape[0])
+        try:
+            camera = calibration.for_image(path.name, size) if calibration else default_camera(size)
+        except ValueError as exc:
+            failed.append(f"{path.name}: {exc}")
+            continue
+        if path.name in corners:
+            corr = Correspondences(finder.corners_xy(), corners[path.name], "clicked")
+        else:
+            corr = finder.find(rgb, camera)
+        if corr is None:
+            failed.append(f"{path.name}: object not found")
+            continue
+        try:
+            lab = label_from_points(corr, camera, finder.corners_xy(), finder.z_split)
+        except ValueError as exc:
+            failed.append(f"{path.name}: {exc}")
+            continue
+        if out.resolve() != images_dir.resolve():
+            shutil.copy2(path, out / path.name)
+        overlay = draw_overlay(rgb, lab, finder.width_cm, finder.height_cm)
+        cv2.imwrite(str(out / "overlays" / f"{path.stem}.png"), overlay)
+        labelled.append((path.name, lab, size))
+
+    splits = split_moments([moment_of(f) for f, _, _ in labelled], seed)
+    rows = [_row(f, lab, size, splits[moment_of(f)]) for f, lab, size in labelled]
+    with (out / "labels.csv").open("w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=LABEL_COLUMNS + EXTRA_COLUMNS)
+        writer.writeheader()
+        writer.writerows(rows)
+    (out / "failed.txt").write_text("".join(f"{line}\n" for line in failed))
+    manifest = {
+        "generator": "planar-pose label",
+        "variant": "real",
+        "real": True,
+        "source": str(images_dir),
+        "profile": profile.manifest_entry() if hasattr(profile, "manifest_entry") else profile.name,
+        "intrinsics": calibration.source
+        if calibration
+        else "default guess (SPEC field of view, centred)",
+        "seed": seed,
+        "count": len(rows),
+        "counts": {s: sum(r["split"] == s for r in rows) for s in ("train", "val", "test")},
+        "class_counts": np.bincount([r["class"] for r in rows], minlength=9).tolist(),
+        "failed": len(failed),
+        "methods": {m: sum(r["method"] == m for r in rows) for m in {r["method"] for r in rows}},
+        "mean_reproj_rms_px": float(np.mean([lab.rms for _, lab, _ in labelled])) if rows else None,
+    }
+    (out / "manifest.json").write_text(json.dumps(manifest, indent=1) + "\n")
+    return manifest | {"failed_files": failed}
+
+
+def compare_to_truth(out: Path, truth_csv: Path, z_split: float) -> dict[str, Any]:
+    """Camera centre error (cm) and class agreement of out/labels.csv against a ground truth
+    labels.csv with `file, cam_x, cam_y, cam_z` (matched by file name)."""
+    with truth_csv.open(newline="") as fh:
+        truth = {r["file"]: r for r in csv.DictReader(fh)}
+    with (out / "labels.csv").open(newline="") as fh:
+        ours = [r for r in csv.DictReader(fh) if r["file"] in truth]
+    if not ours:
+        raise ValueError(f"no labelled image of {out} is in {truth_csv}")
+    keys = ("cam_x", "cam_y", "cam_z")
+    ct = np.array([[float(truth[r["file"]][k]) for k in keys] for r in ours])
+    co = np.array([[float(r[k]) for k in keys] for r in ours])
+    err = np.linalg.norm(co - ct, axis=1)
+    agree = pose_class(co, z_split) == pose_class(ct, z_split)
+    return {
+        "count": len(ours),
+        "centre_error_cm_mean": float(err.mean()),
+        "centre_error_cm_max": float(err.max()),
+        "class_agreement": float(agree.mean()),
+    }
