@@ -113,6 +113,9 @@ def evaluate(
     ] = None,
     title: str = "Evaluation",
     note: Annotated[list[str] | None, typer.Option(help="Paragraph under the title.")] = None,
+    same_size: Annotated[
+        bool, typer.Option(help="Skip model / data set pairs of different image sizes.")
+    ] = False,
 ) -> None:
     """Evaluate model(s) on data set(s): metrics.json, Markdown, plots (grid if several)."""
     from tqdm import tqdm
@@ -141,7 +144,9 @@ def evaluate(
             if len(data.labels) == 0:
                 raise ValueError(f"{ds} has no images in split {split!r}")
             for model in models:
-                predict = loaded[model][0]
+                predict, size = loaded[model][:2]
+                if same_size and data.images.shape[1:3] != (size[1], size[0]):
+                    continue
                 with tqdm(total=len(data.labels), desc=f"{names[model]} on {ds.name}") as bar:
                     metrics = evaluate_predictor(predict, data.images, data.labels, bar.update)
                 results[names[model]][ds.name] = metrics
