@@ -147,17 +147,22 @@ class MatchResult:
     """Outcome of matching one image to the texture.
 
     `H` (3, 3) maps object-plane cm to image pixels (None when no usable homography was
-    found), `matches` is the number of ratio-test survivors, `inliers` the RANSAC inliers,
-    `reason` says why H is None.
+    found), `matches` the number of ratio-test survivors, `inliers` the RANSAC inliers,
+    `reason` why H is None; `inlier_xy` (inliers, 2) cm and `inlier_uv` (inliers, 2) px are
+    the inlier correspondences (object plane, image as given).
     """
 
     H: np.ndarray | None
     matches: int
     inliers: int
     reason: str = ""
+    inlier_xy: np.ndarray | None = None
+    inlier_uv: np.ndarray | None = None
 
 
-def texture_to_object(texture_size: tuple[int, int], width_cm: float, height_cm: float):
+def texture_to_object(
+    texture_size: tuple[int, int], width_cm: float, height_cm: float
+) -> np.ndarray:
     """Affine map (3, 3) from texture pixels (u, v) to object-plane cm (x, y).
 
     The texture covers the object rectangle front-on, +y up: pixel centres are at integer
