@@ -2,30 +2,192 @@
 
 The network input is float32 [3, H, W], RGB, values in [0, 1]; mean/std normalisation is
 inside the network (and the exported ONNX graph), not here.
+
+Decoding is guarded: the header is read first (PNG IHDR, JPEG SOF, WebP VP8/VP8L/VP8X, BMP,
+GIF) so that a decompression bomb is refused before any pixel is allocated, and a JPEG much
+larger than needed is decoded at 1/2, 1/4 or 1/8 scale by libjpeg (DCT scaling).
 """
 
 from __future__ import annotations
 
+import struct
+from dataclasses import dataclass
+from typing import Literal
+
 import cv2
 import numpy as np
+
+ImageFormat = Literal["jpeg", "png", "webp", "bmp", "gif"]
+
+SUPPORTED_FORMATS = "JPEG, PNG, WebP, BMP or GIF"
+
+# JPEG start-of-frame markers (baseline, progressive, lossless, arithmetic...): not C4/C8/CC.
+_JPEG_SOF = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
+_JPEG_SOS, _JPEG_EOI = 0xDA, 0xD9  # start of scan, end of image
+# libjpeg DCT scaling: reduction factor -> imdecode flags (output stays RGB, 3 channels).
+_REDUCED_RGB = {
+    2: cv2.IMREAD_REDUCED_GRAYSCALE_2 | cv2.IMREAD_COLOR_RGB,
+    4: cv2.IMREAD_REDUCED_GRAYSCALE_4 | cv2.IMREAD_COLOR_RGB,
+    8: cv2.IMREAD_REDUCED_GRAYSCALE_8 | cv2.IMREAD_COLOR_RGB,
+}
 
 
 class ImageDecodeError(ValueError):
     """The bytes are not an image OpenCV can decode."""
 
 
-def decode_image(data: bytes) -> np.ndarray:
-    """Decode image bytes (JPEG, PNG, WebP, BMP, ...) to RGB uint8 [H, W, 3].
+class ImageTooLargeError(ImageDecodeError):
+    """The image header announces more pixels than allowed (decompression bomb guard)."""
 
-    EXIF orientation is applied; grey, alpha and 16-bit images become 8-bit RGB.
+
+@dataclass(frozen=True)
+class ImageHeader:
+    """What the file header says, before decoding: stored size in pixels (before EXIF rotation)."""
+
+    format: ImageFormat
+    width: int
+    height: int
+
+
+@dataclass(frozen=True)
+class DecodedImage:
+    """A decoded image, possibly at reduced scale.
+
+    `rgb` is uint8 [h, w, 3]; `width` x `height` is the full-resolution size in pixels after
+    EXIF orientation, the frame in which boxes are reported (h/height == w/width up to rounding).
+    """
+
+    rgb: np.ndarray
+    width: int
+    height: int
+
+
+def _u16be(data: bytes, at: int) -> int:
+    return int.from_bytes(data[at : at + 2], "big")
+
+
+def _jpeg_header(data: bytes) -> tuple[int, int]:
+    """(width, height) from the first SOF segment (segments are walked up to the first scan)."""
+    i, size = 2, None
+    while i + 4 <= len(data):
+        if data[i] != 0xFF:
+            raise ImageDecodeError("corrupt JPEG: bad marker structure")
+        marker = data[i + 1]
+        if marker == 0xFF:  # fill byte
+            i += 1
+            continue
+        if marker == 0x01 or 0xD0 <= marker <= 0xD7:  # stand-alone markers
+            i += 2
+            continue
+        if marker == _JPEG_EOI:
+            break
+        length = _u16be(data, i + 2)
+        if length < 2:
+            raise ImageDecodeError("corrupt JPEG: bad segment length")
+        if marker in _JPEG_SOF:
+            if i + 9 > len(data):
+                break
+            size = (_u16be(data, i + 7), _u16be(data, i + 5))
+        if marker == _JPEG_SOS:
+            if size is None:
+                raise ImageDecodeError("corrupt JPEG: scan before frame header")
+            return size
+        i += 2 + length
+    raise ImageDecodeError("truncated JPEG: no complete frame header and scan")
+
+
+def _webp_header(data: bytes) -> tuple[int, int]:
+    chunk = data[12:16]
+    if chunk == b"VP8X" and len(data) >= 30:
+        return 1 + int.from_bytes(data[24:27], "little"), 1 + int.from_bytes(data[27:30], "little")
+    if chunk == b"VP8L" and len(data) >= 25 and data[20] == 0x2F:
+        bits = int.from_bytes(data[21:25], "little")
+        return (bits & 0x3FFF) + 1, ((bits >> 14) & 0x3FFF) + 1
+    if chunk == b"VP8 " and len(data) >= 30 and data[23:26] == b"\x9d\x01\x2a":
+        w, h = struct.unpack("<HH", data[26:30])
+        return w & 0x3FFF, h & 0x3FFF
+    raise ImageDecodeError("truncated or corrupt WebP header")
+
+
+def _bmp_header(data: bytes) -> tuple[int, int]:
+    if len(data) >= 22 and int.from_bytes(data[14:18], "little") == 12:  # OS/2 core header
+        w, h = struct.unpack("<HH", data[18:22])
+        return w, h
+    if len(data) < 26:
+        raise ImageDecodeError("truncated BMP header")
+    w, h = struct.unpack("<ii", data[18:26])
+    return w, abs(h)  # negative height = top-down rows
+
+
+def image_header(data: bytes) -> ImageHeader:
+    """Format and stored size (pixels) from the first bytes, without decoding.
+
+    Raises ImageDecodeError for an unknown format or a truncated/corrupt header.
     """
     if not data:
         raise ImageDecodeError("empty image")
-    buf = np.frombuffer(data, dtype=np.uint8)
-    bgr = cv2.imdecode(buf, cv2.IMREAD_COLOR)
-    if bgr is None:
-        raise ImageDecodeError("could not decode the image (not a supported image format?)")
-    return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+    fmt: ImageFormat
+    if data.startswith(b"\x89PNG\r\n\x1a\n"):
+        if len(data) < 24 or data[12:16] != b"IHDR":
+            raise ImageDecodeError("truncated or corrupt PNG header")
+        fmt, (w, h) = "png", struct.unpack(">II", data[16:24])
+    elif data.startswith(b"\xff\xd8"):
+        fmt, (w, h) = "jpeg", _jpeg_header(data)
+    elif data[:4] == b"RIFF" and data[8:12] == b"WEBP":
+        fmt, (w, h) = "webp", _webp_header(data)
+    elif data[:2] == b"BM":
+        fmt, (w, h) = "bmp", _bmp_header(data)
+    elif data[:6] in (b"GIF87a", b"GIF89a") and len(data) >= 10:
+        fmt, (w, h) = "gif", struct.unpack("<HH", data[6:10])
+    else:
+        raise ImageDecodeError(f"not an image in a supported format ({SUPPORTED_FORMATS})")
+    if w <= 0 or h <= 0:
+        raise ImageDecodeError(f"{fmt.upper()} header gives an empty size {w}x{h}")
+    return ImageHeader(fmt, w, h)
+
+
+def _jpeg_reduction(header: ImageHeader, min_size: tuple[int, int]) -> int:
+    """Largest libjpeg scale-down 8/4/2 keeping both sides >= max(min_size) (any EXIF turn)."""
+    need, short = max(min_size), min(header.width, header.height)
+    return next((f for f in (8, 4, 2) if short / f >= need), 1)
+
+
+def load_image(
+    data: bytes, *, max_pixels: int | None = None, min_size: tuple[int, int] | None = None
+) -> DecodedImage:
+    """Decode image bytes to RGB uint8, refusing more than `max_pixels` before decoding.
+
+    EXIF orientation is applied; grey, alpha (dropped) and 16-bit images become 8-bit RGB.
+    With `min_size` = (W, H), a JPEG at least twice that size on its short side is decoded at
+    reduced scale (both sides stay >= max(W, H)), which is several times faster.
+    """
+    header = image_header(data)
+    pixels = header.width * header.height
+    if max_pixels is not None and pixels > max_pixels:
+        raise ImageTooLargeError(
+            f"image is {header.width}x{header.height} = {pixels} pixels, "
+            f"more than the limit of {max_pixels}"
+        )
+    factor = _jpeg_reduction(header, min_size) if header.format == "jpeg" and min_size else 1
+    flags = _REDUCED_RGB[factor] if factor > 1 else cv2.IMREAD_COLOR_RGB
+    try:
+        rgb = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), flags)
+    except cv2.error as exc:
+        raise ImageDecodeError(f"could not decode the {header.format.upper()} image") from exc
+    if rgb is None or rgb.size == 0:
+        raise ImageDecodeError(f"could not decode the {header.format.upper()} image (corrupt?)")
+    w, h = header.width, header.height
+    turned = (rgb.shape[1] > rgb.shape[0]) != (w > h) and w != h  # EXIF 90/270 degree turn
+    return DecodedImage(rgb, *((h, w) if turned else (w, h)))
+
+
+def decode_image(data: bytes, max_pixels: int | None = None) -> np.ndarray:
+    """Decode image bytes (JPEG, PNG, WebP, BMP, GIF) to RGB uint8 [H, W, 3] at full size.
+
+    EXIF orientation is applied; grey, alpha and 16-bit images become 8-bit RGB. Raises
+    ImageDecodeError (ImageTooLargeError above `max_pixels`) for anything else.
+    """
+    return load_image(data, max_pixels=max_pixels).rgb
 
 
 def resize_rgb(rgb: np.ndarray, size: tuple[int, int]) -> np.ndarray:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import typer
 
+from service.cli import app as service_commands
 from train.commands import model as model_commands
 
 app = typer.Typer(
@@ -18,3 +19,4 @@ app = typer.Typer(
 )
 
 app.add_typer(model_commands.app)  # train, evaluate, export, realset
+app.add_typer(service_commands)  # serve

@@ -1,0 +1,133 @@
+"""Bytes of one or many images -> per-image answers, the HTTP-free core of `/v1/predict`.
+
+Every image of a call goes through ONE batched onnxruntime run (whole mode: one input per
+image; sliding mode: all windows of all images). Thread-safe: the session is shared.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from service.model import PoseModel
+from service.preprocess import ImageDecodeError, load_image, to_network_input
+from service.regions import region_of_class
+from service.schemas import Box, Detection, ImageResult, Mode, RegionOut
+from service.settings import Settings
+from service.sliding import (
+    BoxGenerator,
+    SlidingWindows,
+    best_window,
+    window_batch,
+    working_copy,
+    working_min_size,
+)
+
+#: (filename or None, encoded image bytes)
+ImageInput = tuple[str | None, bytes]
+
+
+@dataclass(frozen=True)
+class Prediction:
+    results: list[ImageResult]
+    inference_s: float  # the batched onnxruntime call, seconds
+
+
+def _box(box: tuple[int, int, int, int], scale: tuple[float, float], size: tuple[int, int]) -> Box:
+    """Working-copy box -> pixels of the full image (W, H) = `size`, clipped to it."""
+    (x, y, w, h), (sx, sy) = box, scale
+    x0, y0 = min(round(x * sx), size[0] - 1), min(round(y * sy), size[1] - 1)
+    return Box(x=x0, y=y0, w=min(round(w * sx), size[0] - x0), h=min(round(h * sy), size[1] - y0))
+
+
+def _result(
+    filename: str | None, class_id: int, probs: np.ndarray, elapsed_s: float
+) -> ImageResult:
+    return ImageResult(
+        filename=filename,
+        class_id=class_id,
+        region=RegionOut(**region_of_class(class_id)),
+        probabilities=probs.tolist(),
+        confidence=float(probs[class_id]),
+        box=None,
+        elapsed_ms=1000.0 * elapsed_s,
+    )
+
+
+class Predictor:
+    """Decode, preprocess and classify images with one model, in whole or sliding mode."""
+
+    def __init__(self, model: PoseModel, settings: Settings, boxes: BoxGenerator | None = None):
+        self.model = model
+        self.settings = settings
+        iw, ih = model.input_size
+        self.boxes = boxes or SlidingWindows(
+            aspect=iw / ih,
+            scales=tuple(settings.sliding_scales),
+            stride=settings.sliding_stride,
+            max_windows=settings.sliding_max_windows,
+        )
+
+    def _load(self, index: int, image: ImageInput, min_size: tuple[int, int]):  # noqa: ANN202
+        try:
+            return load_image(image[1], max_pixels=self.settings.max_pixels, min_size=min_size)
+        except ImageDecodeError as exc:
+            name = f"image {index + 1}" + (f" ({image[0]})" if image[0] else "")
+            raise type(exc)(f"{name}: {exc}") from None
+
+    def _infer(self, batch: np.ndarray) -> tuple[np.ndarray, float]:
+        t0 = time.perf_counter()
+        probs = self.model.predict(batch)
+        return probs, time.perf_counter() - t0
+
+    def predict(self, images: Sequence[ImageInput], mode: Mode) -> Prediction:
+        """Answer every image; raises ImageDecodeError/ImageTooLargeError naming the image."""
+        if mode == "sliding":
+            return self._sliding(images)
+        return self._whole(images)
+
+    def _whole(self, images: Sequence[ImageInput]) -> Prediction:
+        size, inputs, prep = self.model.input_size, [], []
+        for i, image in enumerate(images):
+            t0 = time.perf_counter()
+            inputs.append(to_network_input(self._load(i, image, size).rgb, size))
+            prep.append(time.perf_counter() - t0)
+        probs, infer_s = self._infer(np.stack(inputs))
+        share = infer_s / len(images)
+        results = [
+            _result(image[0], int(p.argmax()), p, t + share)
+            for image, p, t in zip(images, probs, prep, strict=True)
+        ]
+        return Prediction(results, infer_s)
+
+    def _sliding(self, images: Sequence[ImageInput]) -> Prediction:
+        size, cfg = self.model.input_size, self.settings
+        min_size = working_min_size(size, cfg.sliding_resolution)
+        staged, batches, prep = [], [], []
+        for i, image in enumerate(images):
+            t0 = time.perf_counter()
+            decoded = self._load(i, image, min_size)
+            work, scale = working_copy(decoded, size, cfg.sliding_resolution)
+            boxes = self.boxes(work)
+            batches.append(window_batch(work, boxes, size))
+            staged.append((boxes, scale, (decoded.width, decoded.height)))
+            prep.append(time.perf_counter() - t0)
+        probs, infer_s = self._infer(np.concatenate(batches))
+        total, start, results = len(probs), 0, []
+        for image, (boxes, scale, full), t in zip(images, staged, prep, strict=True):
+            answer = best_window(boxes, probs[start : start + len(boxes)], cfg.sliding_nms_iou)
+            result = _result(
+                image[0], answer.class_id, answer.probabilities, t + infer_s * len(boxes) / total
+            )
+            if answer.box is not None:
+                result.box = _box(answer.box, scale, full)
+            result.detections = [
+                Detection(class_id=c, confidence=s, box=_box(b, scale, full))
+                for b, c, s in answer.detections
+            ]
+            results.append(result)
+            start += len(boxes)
+        return Prediction(results, infer_s)

@@ -1,0 +1,74 @@
+"""Pydantic models of the HTTP answers (they are the OpenAPI documentation)."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, Field
+
+Mode = Literal["whole", "sliding"]
+
+
+class RegionOut(BaseModel):
+    """A pose class in words (service.regions); for class 0 only `present` and `label` matter."""
+
+    present: bool
+    depth: Literal["near", "far"] | None
+    x: Literal["+", "-"] | None
+    y: Literal["+", "-"] | None
+    label: str = Field(examples=["near, x+, y-"])
+
+
+class Box(BaseModel):
+    """A window in pixels of the uploaded image after EXIF orientation (origin top left)."""
+
+    x: int
+    y: int
+    w: int
+    h: int
+
+
+class Detection(BaseModel):
+    """A window kept by non-maximum suppression (sliding mode), best first."""
+
+    class_id: int = Field(ge=1, le=8)
+    confidence: float
+    box: Box
+
+
+class ImageResult(BaseModel):
+    """The answer for one image."""
+
+    filename: str | None
+    class_id: int = Field(ge=0, le=8, description="0 = object not in view, 1-8 = pose region.")
+    region: RegionOut
+    probabilities: list[float] = Field(description="9 probabilities, index = class id, sum 1.")
+    confidence: float = Field(description="The largest probability.")
+    box: Box | None = Field(description="Best window (sliding mode, object found), else null.")
+    detections: list[Detection] | None = Field(
+        None, description="Sliding mode: all windows kept by NMS, best first."
+    )
+    elapsed_ms: float = Field(
+        description="Decoding and preprocessing this image plus its share of the batched "
+        "network call (milliseconds)."
+    )
+
+
+class PredictResponse(BaseModel):
+    model: str = Field(description="Name of the model that answered.")
+    mode: Mode
+    results: list[ImageResult]
+
+
+class ErrorBody(BaseModel):
+    code: str = Field(examples=["undecodable_image"])
+    message: str
+
+
+class ErrorResponse(BaseModel):
+    error: ErrorBody
+
+
+class Status(BaseModel):
+    status: str = Field(examples=["ok"])
+    model: str | None = None

@@ -1,0 +1,83 @@
+"""Service settings from the environment (prefix `POSE_`), e.g. `POSE_API_KEY=...`.
+
+Lists accept JSON (`["a", "b"]`) or comma-separated values (`a,b`).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated, Any
+
+from pydantic import Field, SecretStr, field_validator
+from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+DEFAULT_MODEL = REPO_ROOT / "models" / "default.onnx"
+
+
+def _split_list(value: Any) -> Any:
+    if isinstance(value, str):
+        text = value.strip()
+        if text.startswith("["):
+            return json.loads(text)
+        return [item.strip() for item in text.split(",") if item.strip()]
+    return value
+
+
+class Settings(BaseSettings):
+    """Every knob of the service; defaults serve the shipped model on 127.0.0.1:8000."""
+
+    model_config = SettingsConfigDict(env_prefix="POSE_", protected_namespaces=())
+
+    model_path: Path | None = Field(
+        None, description="ONNX model; default models/default.onnx at the repo root."
+    )
+    host: str = "127.0.0.1"
+    port: int = Field(8000, ge=1, le=65535)
+    api_key: SecretStr | None = Field(
+        None, description="When set, /v1/* needs `Authorization: Bearer <key>` or `X-API-Key`."
+    )
+    max_upload_bytes: int = Field(20 * 1024 * 1024, gt=0, description="Request body limit.")
+    max_pixels: int = Field(50_000_000, gt=0, description="Per image, from its header.")
+    max_images: int = Field(16, gt=0, description="Images per request.")
+    intra_op_threads: int = Field(1, ge=0, description="onnxruntime threads per call, 0 = auto.")
+    inter_op_threads: int = Field(1, ge=0)
+    cors_origins: Annotated[list[str], NoDecode] = Field(default_factory=list)
+    sliding_scales: Annotated[list[float], NoDecode] = Field(
+        default_factory=lambda: [1.0, 0.75, 0.5],
+        description="Window sizes as fractions of the largest input-aspect window in the image.",
+    )
+    sliding_resolution: float = Field(
+        1.5,
+        gt=0,
+        description="Working copy scale: the largest window measures this many network inputs.",
+    )
+    sliding_stride: int = Field(20, ge=1, description="Window step, pixels of the working copy.")
+    sliding_nms_iou: float = Field(0.3, gt=0, le=1)
+    sliding_max_windows: int = Field(256, ge=1, description="Stride grows beyond this count.")
+    graceful_timeout_s: float = Field(20.0, ge=0, description="Drain time after SIGTERM.")
+    log_level: str = "info"
+    access_log: bool = True
+
+    @field_validator("cors_origins", "sliding_scales", mode="before")
+    @classmethod
+    def _lists(cls, value: Any) -> Any:
+        return _split_list(value)
+
+    @field_validator("sliding_scales")
+    @classmethod
+    def _scales(cls, value: list[float]) -> list[float]:
+        if not value or any(not 0 < s <= 1 for s in value):
+            raise ValueError("sliding scales must be a non-empty list of numbers in (0, 1]")
+        return value
+
+    @field_validator("api_key", mode="before")
+    @classmethod
+    def _empty_key(cls, value: Any) -> Any:
+        return None if value == "" else value
+
+    @property
+    def resolved_model_path(self) -> Path:
+        """The ONNX file to load: `model_path` or the shipped default."""
+        return self.model_path if self.model_path is not None else DEFAULT_MODEL
