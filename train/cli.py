@@ -10,6 +10,7 @@ import typer
 
 from service.cli import app as service_commands
 from train.commands import model as model_commands
+from train.commands import real as real_commands
 
 app = typer.Typer(
     name="planar-pose",
@@ -20,3 +21,4 @@ app = typer.Typer(
 
 app.add_typer(model_commands.app)  # train, evaluate, export, realset
 app.add_typer(service_commands)  # serve
+app.add_typer(real_commands.app)  # label, baseline, compare

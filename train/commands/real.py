@@ -1,0 +1,229 @@
+"""CLI of the real-photo and baseline steps: `label`, `baseline` and `compare`.
+
+No torch here: the baseline is OpenCV and the comparison runs the CNN through onnxruntime.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+err = Console(stderr=True)
+out = Console()
+
+
+def _fail(message: str, code: int = 1) -> typer.Exit:
+    err.print(f"[bold red]error:[/] {message}")
+    return typer.Exit(code)
+
+
+def _guard(body: Callable[[], Any]) -> Any:
+    """Run a command body, turning expected input errors into a message and exit code 1."""
+    try:
+        return body()
+    except (FileNotFoundError, ValueError, KeyError, OSError) as exc:
+        message = str(exc) if not isinstance(exc, KeyError) else f"missing field {exc}"
+        raise _fail(message) from None
+
+
+def _profile(name_or_path: str) -> Any:
+    """The object profile, or exit 1 with the loader's message (unknown profile, bad files)."""
+    from train.profile import load_profile
+
+    return _guard(lambda: load_profile(name_or_path))
+
+
+def label(
+    images_dir: Annotated[Path, typer.Argument(help="Folder of photographs to label.")],
+    out_dir: Annotated[Path, typer.Argument(help="Output data set folder.")],
+    profile: Annotated[str, typer.Option(help="Object profile name or folder.")] = "chessboard",
+    corners: Annotated[
+        Path | None,
+        typer.Option(help="CSV of clicked corners (file, corner_x0, corner_y0, ... corner_y3)."),
+    ] = None,
+    calibration: Annotated[
+        Path | None, typer.Option(help="Calibration JSON (K, distortion); default: a guess.")
+    ] = None,
+    truth: Annotated[
+        Path | None,
+        typer.Option(help="Ground-truth labels.csv (file, cam_x, cam_y, cam_z) to check against."),
+    ] = None,
+    seed: Annotated[int, typer.Option(help="Seed of the train/val/test split.")] = 0,
+) -> None:
+    """Label photographs: corners (found or clicked) -> DLT homography -> pose -> class.
+
+    Writes labels.csv, manifest.json, failed.txt, the images and overlays/ to check by eye.
+    """
+    from tqdm import tqdm
+
+    from train.calibration import Calibration
+    from train.label import compare_to_truth, label_folder, list_images, read_corner_csv
+
+    _guard(lambda: list_images(images_dir))
+    prof = _profile(profile)
+    cal = _guard(lambda: Calibration.load(calibration)) if calibration else None
+    clicked = _guard(lambda: read_corner_csv(corners)) if corners else None
+    if truth is not None and not truth.is_file():
+        raise _fail(f"ground truth not found: {truth}")
+
+    def progress(paths: list[Path]) -> Any:
+        return tqdm(paths, desc="labelling", unit="image")
+
+    manifest = _guard(lambda: label_folder(images_dir, out_dir, prof, cal, clicked, seed, progress))
+    out.print(
+        f"[green]labelled[/] {manifest['count']} image(s) into {out_dir} "
+        f"({', '.join(f'{m}: {n}' for m, n in manifest['methods'].items()) or 'none'}); "
+        f"class counts {manifest['class_counts']}"
+    )
+    if manifest["mean_reproj_rms_px"] is not None:
+        out.print(f"mean reprojection RMS {manifest['mean_reproj_rms_px']:.3f} px")
+    if manifest["failed_files"]:
+        err.print(f"[yellow]{len(manifest['failed_files'])} image(s) not labelled[/] (failed.txt):")
+        for line in manifest["failed_files"]:
+            err.print(f"  {line}")
+    out.print(f"check the labels by eye in {out_dir / 'overlays'}")
+    if truth is not None:
+        z_split = float(prof.geometry.z_split_cm)
+        check = _guard(lambda: compare_to_truth(out_dir, truth, z_split))
+        out.print(
+            f"against {truth}: {check['count']} images, camera centre error mean "
+            f"{check['centre_error_cm_mean']:.3f} cm, max {check['centre_error_cm_max']:.3f} cm, "
+            f"class agreement {100 * check['class_agreement']:.1f} %"
+        )
+    if manifest["count"] == 0:
+        raise _fail("no image could be labelled")
+
+
+def baseline(
+    datasets: Annotated[list[Path], typer.Argument(help="Data set folder(s).")],
+    out_dir: Annotated[Path, typer.Option("--out", help="Folder for metrics.json and plots.")],
+    features: Annotated[str, typer.Option(help="sift, orb or both.")] = "sift",
+    split: Annotated[str, typer.Option(help="Split to measure: train, val, test or all.")] = "test",
+    tune: Annotated[
+        bool, typer.Option(help="Tune ratio / RANSAC thresholds on each set's val split.")
+    ] = True,
+    profile: Annotated[
+        str | None, typer.Option(help="Profile name or folder (default: the data set's own).")
+    ] = None,
+    limit: Annotated[
+        int, typer.Option(min=0, help="Use at most N images per split (0 = all).")
+    ] = 0,
+) -> None:
+    """Feature baseline (SIFT/ORB, RANSAC, IPPE PnP) on data set(s): metrics.json + report."""
+    from train.baseline import FEATURE_CHOICES, BaselineConfig
+    from train.compare import run_baseline_on
+    from train.report import write_report
+
+    if features not in FEATURE_CHOICES:
+        raise _fail(f"--features must be one of {', '.join(FEATURE_CHOICES)}", code=2)
+    if split not in ("train", "val", "test", "all"):
+        raise _fail(f"--split must be train, val, test or all, got {split!r}", code=2)
+    for path in datasets:
+        if not (path / "labels.csv").is_file():
+            raise _fail(f"not a data set (no labels.csv): {path}")
+
+    def body() -> Path:
+        name = f"baseline-{features}"
+        results: dict[str, dict[str, dict]] = {name: {}}
+        notes = [
+            f"Split `{split}`. Written by `planar-pose baseline`; features {features}, "
+            "ratio test, RANSAC homography, IPPE PnP; no homography = class 0."
+        ]
+        for ds in datasets:
+            metrics, info = run_baseline_on(
+                ds, BaselineConfig(features=features), split, tune, profile, limit, verbose=True
+            )
+            results[name][ds.name] = metrics
+            tuned = info.get("tuning")
+            chosen = (
+                f"tuned on val: ratio {tuned['chosen']['ratio']}, RANSAC "
+                f"{tuned['chosen']['ransac_px']} px (val accuracy "
+                f"{100 * tuned['val_accuracy']:.1f} %)"
+                if tuned
+                else "default thresholds"
+            )
+            notes.append(
+                f"`{ds.name}`: {chosen}; no-pose reasons: "
+                + (", ".join(f"{k} x{v}" for k, v in info["failures"].items()) or "none")
+            )
+            out.print(
+                f"{ds.name}: accuracy {100 * metrics['accuracy']:.2f} %, "
+                f"{metrics['ms_per_image']:.1f} ms / image; {chosen}"
+            )
+        return write_report(results, out_dir, None, "Feature baseline", notes)
+
+    report = _guard(body)
+    out.print(f"[green]done[/]: {out_dir / 'metrics.json'}, {report}")
+
+
+def compare(
+    models: Annotated[
+        list[Path], typer.Option("--model", help="ONNX model(s) to compare (repeat).")
+    ],
+    datasets: Annotated[list[Path], typer.Option("--dataset", help="Data set folder(s) (repeat).")],
+    markdown: Annotated[Path, typer.Option("--out", help="Markdown report.")] = Path(
+        "docs/comparison.md"
+    ),
+    features: Annotated[str, typer.Option(help="Baseline features: sift, orb or both.")] = "sift",
+    split: Annotated[str, typer.Option(help="Split measured.")] = "test",
+    photos: Annotated[
+        Path | None,
+        typer.Option(
+            help="Folder of full-size real photos + labels.csv for whole/sliding/proposals."
+        ),
+    ] = None,
+    detection_dataset: Annotated[
+        list[Path] | None,
+        typer.Option("--detection-dataset", help="Synthetic set(s) for whole/sliding/proposals."),
+    ] = None,
+    limit: Annotated[int, typer.Option(min=0, help="At most N images per split (0 = all).")] = 0,
+    tune: Annotated[bool, typer.Option(help="Tune the baseline on each val split.")] = True,
+) -> None:
+    """CNN (onnxruntime) vs feature baseline, per data set, in one run: Markdown + plots."""
+    from train.baseline import FEATURE_CHOICES
+    from train.compare import CompareConfig, run_comparison
+
+    if features not in FEATURE_CHOICES:
+        raise _fail(f"--features must be one of {', '.join(FEATURE_CHOICES)}", code=2)
+    if split not in ("train", "val", "test", "all"):
+        raise _fail(f"--split must be train, val, test or all, got {split!r}", code=2)
+    for path in models:
+        if path.suffix != ".onnx" or not path.is_file():
+            raise _fail(f"not an ONNX model file: {path}")
+    for path in [*datasets, *(detection_dataset or [])]:
+        if not (path / "labels.csv").is_file():
+            raise _fail(f"not a data set (no labels.csv): {path}")
+    if photos is not None and not (photos / "labels.csv").is_file():
+        raise _fail(f"no labels.csv in the photo folder {photos}")
+    config = CompareConfig(
+        models=models,
+        datasets=datasets,
+        markdown=markdown,
+        features=features,
+        split=split,
+        photos=photos,
+        detection_datasets=detection_dataset or [],
+        limit=limit,
+        tune=tune,
+    )
+    summary = _guard(lambda: run_comparison(config))
+    table = Table(title="accuracy %  (ms / image)")
+    for column in ["data set", *summary["columns"]]:
+        table.add_column(column)
+    for row in summary["rows"]:
+        table.add_row(*row)
+    out.print(table)
+    out.print(f"[green]wrote[/] {markdown} and {json.dumps(summary['files'])}")
+
+
+#: The real-photo commands; `train.cli` merges them into the `planar-pose` app.
+app = typer.Typer()
+app.command()(label)
+app.command()(baseline)
+app.command()(compare)
