@@ -45,7 +45,7 @@ class Settings(BaseSettings):
     inter_op_threads: int = Field(1, ge=0)
     cors_origins: Annotated[list[str], NoDecode] = Field(default_factory=list)
     sliding_scales: Annotated[list[float], NoDecode] = Field(
-        default_factory=lambda: [1.0, 0.75, 0.5],
+        default_factory=lambda: [1.0, 0.8, 0.6],
         description="Window sizes as fractions of the largest input-aspect window in the image.",
     )
     sliding_resolution: float = Field(
