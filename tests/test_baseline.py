@@ -1,0 +1,132 @@
+"""Feature baseline: poses from distinctive textures, class 0 without a homography, tuning,
+intrinsics per data set, CLI errors."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from train.baseline import BaselineConfig, FeatureBaseline, dataset_cameras, tune
+from train.calibration import Camera
+from train.cli import app
+from train.corners import texture_to_object
+from train.geometry import homography_from_pose, intrinsics, look_at, pose_class, translation
+
+REAL = Path(__file__).resolve().parent.parent / "train" / "real" / "chessboard-stereo"
+W_CM, H_CM = 25.0, 17.5
+CENTRES = [
+    (10, 8, 30), (-10, 8, 30), (-10, -8, 30), (10, -8, 30),
+    (15, 10, 70), (-20, 10, 70), (-10, -15, 75), (10, -10, 80),
+]  # fmt: skip
+runner = CliRunner()
+
+
+def _texture(seed: int = 0) -> np.ndarray:
+    """A non-repetitive RGB texture (random discs and rectangles), 400 x 280."""
+    rng = np.random.default_rng(seed)
+    tex = np.full((280, 400, 3), 255, np.uint8)
+    for _ in range(150):
+        colour = tuple(int(v) for v in rng.integers(0, 256, 3))
+        x, y = int(rng.integers(0, 400)), int(rng.integers(0, 280))
+        if rng.random() < 0.5:
+            cv2.circle(tex, (x, y), int(rng.integers(4, 30)), colour, -1)
+        else:
+            w, h = (int(v) for v in rng.integers(5, 40, 2))
+            cv2.rectangle(tex, (x, y), (x + w, y + h), colour, -1)
+    return tex
+
+
+def _render(texture: np.ndarray, centre, size=(160, 120)) -> np.ndarray:
+    A = intrinsics(size)
+    R = look_at(np.array(centre, float), np.zeros(3))
+    H = homography_from_pose(A, R, translation(R, np.array(centre, float)))
+    H = H @ texture_to_object((texture.shape[1], texture.shape[0]), W_CM, H_CM)
+    return cv2.warpPerspective(texture, H, size, flags=cv2.INTER_AREA, borderValue=(90,) * 3)
+
+
+@pytest.fixture(scope="module")
+def texture() -> np.ndarray:
+    return _texture()
+
+
+@pytest.mark.parametrize("features", ["sift", "orb", "both"])
+def test_recovers_the_class_of_renders(texture, features):
+    baseline = FeatureBaseline(texture, W_CM, H_CM, 60.0, BaselineConfig(features=features))
+    camera = Camera(intrinsics((160, 120)), np.zeros(5))
+    right = 0
+    for centre in CENTRES:
+        pred = baseline.predict(_render(texture, centre), camera)
+        right += pred.label == int(pose_class(np.array(centre), 60.0))
+        if pred.centre is not None and features == "sift":
+            assert np.linalg.norm(pred.centre - centre) < 0.1 * np.linalg.norm(centre)
+    assert right >= (7 if features != "orb" else 5)
+
+
+def test_no_homography_means_class_zero(texture):
+    baseline = FeatureBaseline(texture, W_CM, H_CM, 60.0)
+    camera = Camera(intrinsics((160, 120)), np.zeros(5))
+    blank = baseline.predict(np.full((120, 160, 3), 90, np.uint8), camera)
+    assert blank.label == 0 and blank.centre is None and "too few" in blank.reason
+    other = baseline.predict(_render(_texture(seed=7), (10, 8, 30)), camera)
+    assert other.label == 0 and other.reason
+
+
+def test_mirrored_view_is_not_a_pose(texture):
+    baseline = FeatureBaseline(texture, W_CM, H_CM, 60.0, BaselineConfig(ratio=0.9))
+    camera = Camera(intrinsics((160, 120)), np.zeros(5))
+    mirrored = _render(texture[:, ::-1].copy(), (10, 8, 30))
+    assert baseline.predict(mirrored, camera).label == 0
+
+
+def test_tuning_uses_the_given_images_only(texture):
+    baseline = FeatureBaseline(texture, W_CM, H_CM, 60.0)
+    camera = Camera(intrinsics((160, 120)), np.zeros(5))
+    images = np.stack([_render(texture, c) for c in CENTRES[:4]])
+    labels = pose_class(np.array(CENTRES[:4], float), 60.0)
+    tuned, info = tune(baseline, images, labels, [camera] * 4)
+    assert len(info["grid"]) == 15 and info["val_accuracy"] == max(info["grid"].values())
+    assert info["chosen"]["ratio"] == tuned.config.ratio
+    assert tuned.matchers is baseline.matchers  # the texture features are shared
+
+
+def _write_set(folder: Path, rows: list[dict], manifest: dict) -> None:
+    folder.mkdir(parents=True)
+    with (folder / "labels.csv").open("w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    (folder / "manifest.json").write_text(json.dumps(manifest))
+
+
+def test_dataset_cameras(tmp_path):
+    cols = {"file": "a.png", "class": 1, "fx": 100, "fy": 101, "cx": 40, "cy": 30}
+    _write_set(tmp_path / "own", [cols], {})
+    (cam,) = dataset_cameras(tmp_path / "own", ["a.png"], (80, 60))
+    assert cam.K[0, 0] == 100 and cam.K[1, 1] == 101 and cam.K[0, 2] == 40
+
+    _write_set(tmp_path / "syn", [{"file": "a.png", "class": 1}], {"variant": "C"})
+    (cam,) = dataset_cameras(tmp_path / "syn", ["a.png"], (80, 60))
+    assert np.allclose(cam.K, intrinsics((80, 60)))
+
+    real = {"real": True, "source": "train/real/chessboard-stereo"}
+    _write_set(tmp_path / "real", [{"file": "right03.png", "class": 1}], real)
+    (cam,) = dataset_cameras(tmp_path / "real", ["right03.png"], (80, 60))
+    calibration = json.loads((REAL / "calibration.json").read_text())
+    fx_right = calibration["cameras"]["right"]["K"][0][0]
+    assert cam.K[0, 0] == pytest.approx(fx_right / 8) and np.any(cam.dist)
+
+
+def test_cli_errors(tmp_path):
+    result = runner.invoke(app, ["baseline", str(tmp_path), "--out", str(tmp_path / "o")])
+    assert result.exit_code == 1 and "no labels.csv" in result.output
+    _write_set(tmp_path / "ds", [{"file": "a.png", "class": 1}], {})
+    result = runner.invoke(
+        app, ["baseline", str(tmp_path / "ds"), "--out", str(tmp_path / "o"), "--features", "surf"]
+    )
+    assert result.exit_code == 2 and "--features" in result.output
