@@ -242,11 +242,11 @@ def label_folder(
     """Label every image of `images_dir` into `out`; return the manifest (with a summary).
 
     Images with clicked `corners` use them (4 points); the others are detected automatically.
-    The profile's texture, if it lies in `images_dir`, is not a photograph and is skipped.
+    A copy of the profile's texture image (same bytes) is not a photograph and is skipped.
     Failures (unreadable image, object not found, degenerate points) go to failed.txt.
     """
-    texture = Path(profile.texture)
-    paths = [p for p in list_images(images_dir) if not (texture.exists() and p.samefile(texture))]
+    texture = Path(profile.texture).read_bytes()
+    paths = [p for p in list_images(images_dir) if p.read_bytes() != texture]
     if not paths:
         raise ValueError(f"no images in {images_dir} besides the profile texture")
     corners = corners or {}

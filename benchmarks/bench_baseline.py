@@ -1,0 +1,96 @@
+"""Time per image of the feature baseline vs the CNN, and of the box generators, in one run.
+
+On the 26 real photographs (train/real/chessboard-stereo) resized to each network size:
+
+* the CNN: an ONNX model through `train.evaluate.onnx_predictor` (the service's
+  preprocessing + onnxruntime), batch 64 and batch 1;
+* the feature baseline (`train.baseline`, SIFT and ORB, images enlarged to 320 px wide);
+* box generation on the 640x480 photos: the service's sliding-window grid vs
+  `service.proposals.propose_boxes`.
+
+Prints ms / image and the ratios (the thesis: baseline about 10x slower than the network).
+
+    .venv/bin/python benchmarks/bench_baseline.py [--model models/default.onnx] [--repeat 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+
+from service.preprocess import resize_rgb
+from service.proposals import propose_boxes
+from service.sliding import SlidingWindows
+from train.baseline import BaselineConfig, FeatureBaseline
+from train.calibration import Calibration
+from train.evaluate import onnx_predictor, predict_all
+from train.profile import load_profile
+from train.realset import read_rgb
+
+REAL = Path(__file__).resolve().parent.parent / "train" / "real" / "chessboard-stereo"
+
+
+def best_of(repeat: int, run) -> float:  # noqa: ANN001
+    """Smallest wall-clock ms / image of `repeat` runs of `run()` (which returns ms / image)."""
+    return min(run() for _ in range(repeat))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--model", type=Path, default=Path("models/default.onnx"))
+    parser.add_argument("--repeat", type=int, default=3)
+    args = parser.parse_args()
+
+    files = sorted(p for p in REAL.glob("*.jpg"))
+    photos = [read_rgb(p) for p in files]
+    predict, size, _ = onnx_predictor(args.model, threads=1)
+    images = np.stack([resize_rgb(p, size) for p in photos])
+    profile = load_profile("chessboard")
+    calibration = Calibration.load(REAL / "calibration.json")
+    cameras = [calibration.for_image(f.name, size) for f in files]
+
+    cnn64 = best_of(args.repeat, lambda: predict_all(predict, images, batch=64)[1])
+    cnn1 = best_of(args.repeat, lambda: predict_all(predict, images, batch=1)[1])
+    print(f"{len(images)} real photos at {size[0]}x{size[1]}, best of {args.repeat} runs")
+    print(f"CNN {args.model.name}: {cnn64:.3f} ms / image (batch 64), {cnn1:.3f} (batch 1)")
+    for features in ("sift", "orb"):
+        baseline = FeatureBaseline(
+            profile.texture_rgb(), profile.width_cm, profile.height_cm,
+            profile.geometry.z_split_cm, BaselineConfig(features=features),
+        )  # fmt: skip
+
+        def run(b: FeatureBaseline = baseline) -> float:
+            start = time.perf_counter()
+            for image, camera in zip(images, cameras, strict=True):
+                b.predict(image, camera)
+            return 1000 * (time.perf_counter() - start) / len(images)
+
+        ms = best_of(args.repeat, run)
+        print(
+            f"baseline {features}: {ms:.2f} ms / image = {ms / cnn64:.1f}x the CNN (batch 64), "
+            f"{ms / cnn1:.1f}x (batch 1)"
+        )
+
+    aspect = size[0] / size[1]
+    grid = SlidingWindows(aspect=aspect, scales=(1.0, 0.8, 0.6), stride=20, max_windows=256)
+
+    def boxes_ms(generate) -> float:  # noqa: ANN001
+        start = time.perf_counter()
+        counts = [len(generate(p)) for p in photos]
+        ms = 1000 * (time.perf_counter() - start) / len(photos)
+        print(f"  ({np.mean(counts):.0f} boxes / photo on average)")
+        return ms
+
+    sliding = best_of(args.repeat, lambda: boxes_ms(grid))
+    proposals = best_of(args.repeat, lambda: boxes_ms(lambda p: propose_boxes(p, aspect, 20)))
+    print(
+        f"box generation on 640x480: sliding grid {sliding:.3f} ms, proposals {proposals:.2f} ms "
+        f"= {proposals / sliding:.0f}x"
+    )
+
+
+if __name__ == "__main__":
+    main()
