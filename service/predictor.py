@@ -40,7 +40,8 @@ def _box(box: tuple[int, int, int, int], scale: tuple[float, float], size: tuple
     """Working-copy box -> pixels of the full image (W, H) = `size`, clipped to it."""
     (x, y, w, h), (sx, sy) = box, scale
     x0, y0 = min(round(x * sx), size[0] - 1), min(round(y * sy), size[1] - 1)
-    return Box(x=x0, y=y0, w=min(round(w * sx), size[0] - x0), h=min(round(h * sy), size[1] - y0))
+    w1, h1 = max(1, min(round(w * sx), size[0] - x0)), max(1, min(round(h * sy), size[1] - y0))
+    return Box(x=x0, y=y0, w=w1, h=h1)
 
 
 def _result(
