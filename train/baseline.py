@@ -197,7 +197,7 @@ def tune(
 ) -> tuple[FeatureBaseline, dict[str, Any]]:
     """Pick the ratio and RANSAC threshold of best accuracy on validation images [N, H, W, 3]
     (features computed once per image). Returns the tuned baseline and the grid's accuracies;
-    ties keep the grid's first (strictest) setting."""
+    the baseline's own setting is tried first and kept on ties."""
     feats = []
     for image in images:
         feats.append(baseline.features(image))
@@ -205,7 +205,10 @@ def tune(
             progress(1)
     grid = {}
     best, best_acc = baseline, -1.0
-    for ratio, ransac in itertools.product(RATIO_GRID, RANSAC_GRID):
+    own = (baseline.config.ratio, baseline.config.ransac_px)
+    for ratio, ransac in [own, *itertools.product(RATIO_GRID, RANSAC_GRID)]:
+        if f"ratio={ratio},ransac_px={ransac}" in grid:
+            continue
         candidate = baseline.with_thresholds(ratio, ransac)
         pred = [candidate.predict_features(f, c).label for f, c in zip(feats, cameras, strict=True)]
         acc = float(np.mean(np.asarray(pred) == labels))

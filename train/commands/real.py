@@ -164,9 +164,12 @@ def baseline(
 
 def compare(
     models: Annotated[
-        list[Path], typer.Option("--model", help="ONNX model(s) to compare (repeat).")
+        list[Path],
+        typer.Option("--models", help="ONNX model to compare (repeat the option for more)."),
     ],
-    datasets: Annotated[list[Path], typer.Option("--dataset", help="Data set folder(s) (repeat).")],
+    datasets: Annotated[
+        list[Path], typer.Option("--datasets", help="Data set folder (repeat the option for more).")
+    ],
     markdown: Annotated[Path, typer.Option("--out", help="Markdown report.")] = Path(
         "docs/comparison.md"
     ),
