@@ -258,24 +258,31 @@ def _plot_accuracy(rows: list[dict], names: list[str], path: Path) -> None:
     import matplotlib.pyplot as plt
 
     panels = sorted({(r["kind"], r["size"]) for r in rows})
+    ncols = min(3, len(panels))
+    nrows = -(-len(panels) // ncols)
     fig, axes = plt.subplots(
-        1, len(panels), figsize=(3.6 * len(panels), 3.2), dpi=80, squeeze=False
+        nrows, ncols, figsize=(3.6 * ncols, 3.0 * nrows), dpi=80, squeeze=False
     )
-    for ax, (kind, size) in zip(axes[0], panels, strict=True):
+    for ax in axes.ravel()[len(panels) :]:
+        ax.set_visible(False)
+    handles = {}
+    for ax, (kind, size) in zip(axes.ravel(), panels, strict=False):
         sub = sorted(
             (r for r in rows if (r["kind"], r["size"]) == (kind, size)),
             key=lambda r: str(r["blur"]),
         )
-        for name in names:
+        for k, name in enumerate(names):
             pts = [(r["blur"], 100 * r["acc"][name]) for r in sub if name in r["acc"]]
             if pts:
-                ax.plot([str(b) for b, _ in pts], [a for _, a in pts], marker="o", label=name)
+                xs, ys = [str(b) for b, _ in pts], [a for _, a in pts]
+                (handles[name],) = ax.plot(xs, ys, marker="o", color=f"C{k}", label=name)
         ax.set_title(f"{kind}, {size[0]}x{size[1]}", fontsize=9)
         ax.set_xlabel("blur level")
-        ax.set_ylim(0, 100)
+        ax.set_ylim(-3, 103)
         ax.grid(alpha=0.3)
-    axes[0][0].set_ylabel("accuracy %")
-    axes[0][-1].legend(fontsize=7)
+    for row in axes:
+        row[0].set_ylabel("accuracy %")
+    axes[0][0].legend(handles.values(), handles.keys(), fontsize=7)
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
