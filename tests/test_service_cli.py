@@ -1,0 +1,63 @@
+"""service.settings and `planar-pose serve`: environment parsing, bad settings -> exit 2."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from pydantic import ValidationError
+from typer.testing import CliRunner
+
+from service.settings import DEFAULT_MODEL, Settings
+from train.cli import app
+
+
+def test_defaults_serve_the_shipped_model(monkeypatch: pytest.MonkeyPatch) -> None:
+    for key in list(Settings.model_fields):
+        monkeypatch.delenv(f"POSE_{key.upper()}", raising=False)
+    settings = Settings()
+    assert settings.resolved_model_path == DEFAULT_MODEL and DEFAULT_MODEL.is_file()
+    assert (settings.host, settings.port, settings.api_key) == ("127.0.0.1", 8000, None)
+
+
+def test_environment_lists_and_secrets(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("POSE_CORS_ORIGINS", "https://a.example, https://b.example")
+    monkeypatch.setenv("POSE_SLIDING_SCALES", "[1, 0.5]")
+    monkeypatch.setenv("POSE_API_KEY", "s3cr3t-value")
+    monkeypatch.setenv("POSE_MODEL_PATH", "/x/m.onnx")
+    settings = Settings()
+    assert settings.cors_origins == ["https://a.example", "https://b.example"]
+    assert settings.sliding_scales == [1.0, 0.5]
+    assert settings.api_key is not None and settings.api_key.get_secret_value() == "s3cr3t-value"
+    assert "s3cr3t" not in repr(settings)
+    assert settings.resolved_model_path == Path("/x/m.onnx")
+    monkeypatch.setenv("POSE_API_KEY", "")
+    assert Settings().api_key is None
+
+
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [("port", "0"), ("max_images", "0"), ("sliding_scales", "1,2"), ("sliding_nms_iou", "0")],
+)
+def test_bad_settings_rejected(field: str, value: str) -> None:
+    with pytest.raises(ValidationError):
+        Settings(**{field: value})
+
+
+runner = CliRunner()
+
+
+def test_serve_missing_model_exits_2(tmp_path: Path) -> None:
+    result = runner.invoke(app, ["serve", "--model", str(tmp_path / "none.onnx")])
+    assert result.exit_code == 2
+    assert "model file not found" in result.output
+
+
+def test_serve_bad_environment_exits_2(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("POSE_MAX_PIXELS", "lots")
+    result = runner.invoke(app, ["serve"])
+    assert result.exit_code == 2 and "max_pixels" in result.output
+
+
+def test_serve_bad_port_flag_exits_2() -> None:
+    assert runner.invoke(app, ["serve", "--port", "70000"]).exit_code == 2
