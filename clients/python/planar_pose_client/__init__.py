@@ -22,13 +22,14 @@ from .errors import (
     UnsupportedMediaError,
 )
 from .images import ImageInput, encode_png
-from .models import Box, ClassInfo, Mode, ModelCard, Prediction, PredictResponse, Region
+from .models import Box, ClassInfo, Detection, Mode, ModelCard, Prediction, PredictResponse, Region
 
 __all__ = [
     "AsyncPoseClient",
     "AuthError",
     "BadImageError",
     "ClassInfo",
+    "Detection",
     "Box",
     "ImageInput",
     "InvalidRequestError",

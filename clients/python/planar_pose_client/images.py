@@ -11,6 +11,7 @@ Everything here runs before a request is sent, so bad input fails fast with a pr
 
 from __future__ import annotations
 
+import mimetypes
 import os
 import struct
 import zlib
@@ -22,20 +23,14 @@ if TYPE_CHECKING:
 
 ImageInput = Union[str, "os.PathLike[str]", bytes, bytearray, memoryview, IO[bytes], "np.ndarray"]
 
-# Leading bytes of the formats the service decodes (docs/DESIGN.md: JPEG, PNG, WebP, BMP).
+# Leading bytes (at an offset) of the formats the service decodes: JPEG, PNG, WebP, BMP, GIF.
 _SIGNATURES: tuple[tuple[bytes, int, str, str], ...] = (
     (b"\xff\xd8\xff", 0, "image/jpeg", "jpg"),
     (b"\x89PNG\r\n\x1a\n", 0, "image/png", "png"),
     (b"WEBP", 8, "image/webp", "webp"),
     (b"BM", 0, "image/bmp", "bmp"),
+    (b"GIF8", 0, "image/gif", "gif"),
 )
-_BY_SUFFIX = {
-    ".jpg": "image/jpeg",
-    ".jpeg": "image/jpeg",
-    ".png": "image/png",
-    ".webp": "image/webp",
-    ".bmp": "image/bmp",
-}
 UNKNOWN_TYPE = "application/octet-stream"
 
 
@@ -54,6 +49,16 @@ def sniff_type(data: bytes) -> tuple[str, str]:
         if data[offset : offset + len(magic)] == magic:
             return content_type, ext
     return UNKNOWN_TYPE, "bin"
+
+
+def content_type_of(data: bytes, filename: str) -> str:
+    """The content type to send: from the bytes when they are a known image format, else
+    from the file name (so the service can tell a text file from a broken image), else
+    `application/octet-stream`."""
+    sniffed, _ = sniff_type(data)
+    if sniffed != UNKNOWN_TYPE:
+        return sniffed
+    return mimetypes.guess_type(filename, strict=False)[0] or UNKNOWN_TYPE
 
 
 def to_upload(image: ImageInput, index: int = 0) -> Upload:
@@ -87,8 +92,7 @@ def _from_path(path: Path) -> Upload:
         raise IsADirectoryError(f"is a directory, not an image file: {path}")
     data = path.read_bytes()
     _require_data(data, str(path))
-    content_type = _BY_SUFFIX.get(path.suffix.lower()) or sniff_type(data)[0]
-    return Upload(path.name, data, content_type)
+    return Upload(path.name, data, content_type_of(data, path.name))
 
 
 def _from_file_object(file: Any, index: int) -> Upload:
@@ -100,9 +104,8 @@ def _from_file_object(file: Any, index: int) -> Upload:
     name = getattr(file, "name", None)
     data = bytes(data)
     _require_data(data, str(name) if isinstance(name, str) else f"image {index} (file object)")
-    content_type, ext = sniff_type(data)
-    filename = Path(name).name if isinstance(name, str) else f"image-{index}.{ext}"
-    return Upload(filename, data, content_type)
+    filename = Path(name).name if isinstance(name, str) else f"image-{index}.{sniff_type(data)[1]}"
+    return Upload(filename, data, content_type_of(data, filename))
 
 
 def _require_data(data: bytes, what: str) -> None:

@@ -31,13 +31,21 @@ class Region(_Answer):
 
 
 class Box(_Answer):
-    """Where the object was found (sliding mode), in pixels of the original image: top-left
-    corner (x, y), width w and height h."""
+    """A window in pixels of the uploaded image (after EXIF orientation): top-left corner
+    (x, y), width w and height h."""
 
     x: int
     y: int
     w: int
     h: int
+
+
+class Detection(_Answer):
+    """A window the sliding search kept (after non-maximum suppression)."""
+
+    class_id: int = Field(ge=1, le=8)
+    confidence: float = Field(ge=0.0, le=1.0)
+    box: Box
 
 
 class Prediction(_Answer):
@@ -48,7 +56,10 @@ class Prediction(_Answer):
     region: Region
     probabilities: list[float] = Field(min_length=9, max_length=9, description="classes 0..8")
     confidence: float = Field(ge=0.0, le=1.0, description="probability of class_id")
-    box: Box | None = Field(description="sliding mode: the window chosen; whole mode: None")
+    box: Box | None = Field(description="sliding mode: the best window; else None")
+    detections: list[Detection] | None = Field(
+        None, description="sliding mode: every window kept, best first; whole mode: None"
+    )
     elapsed_ms: float = Field(ge=0.0, description="time the service spent on this image")
 
     @property

