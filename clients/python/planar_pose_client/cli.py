@@ -38,6 +38,7 @@ from .errors import (
     TooLargeError,
     UnsupportedMediaError,
 )
+from .images import check_path
 from .models import ModelCard, Prediction
 
 
@@ -99,10 +100,17 @@ def predict(
     api_key: KeyOption = None,
     timeout: TimeoutOption = 30.0,
     retries: RetriesOption = 2,
+    batch: Annotated[
+        int, typer.Option("--batch", min=1, help="Images per request (the service's limit).")
+    ] = 16,
 ) -> None:
-    """Predict the pose region of each IMAGE (one request for all of them)."""
+    """Predict the pose region of each IMAGE, sending them `--batch` at a time."""
+    predictions: list[Prediction] = []
     with _errors_as_exit_codes(), PoseClient(url, api_key, timeout=timeout, retries=retries) as c:
-        predictions = c.predict_many(images, mode=mode.value)
+        for path in images:  # all files exist before the first request
+            check_path(path)
+        for start in range(0, len(images), batch):
+            predictions += c.predict_many(images[start : start + batch], mode=mode.value)
     if as_json:
         typer.echo(json.dumps([p.model_dump(mode="json") for p in predictions], indent=2))
     else:

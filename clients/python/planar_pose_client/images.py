@@ -85,11 +85,16 @@ def to_upload(image: ImageInput, index: int = 0) -> Upload:
     )
 
 
-def _from_path(path: Path) -> Upload:
+def check_path(path: Path) -> None:
+    """Raise FileNotFoundError / IsADirectoryError unless `path` is a file."""
     if not path.exists():
         raise FileNotFoundError(f"no such image file: {path}")
     if path.is_dir():
         raise IsADirectoryError(f"is a directory, not an image file: {path}")
+
+
+def _from_path(path: Path) -> Upload:
+    check_path(path)
     data = path.read_bytes()
     _require_data(data, str(path))
     return Upload(path.name, data, content_type_of(data, path.name))

@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from conftest import API_KEY
+from conftest import API_KEY, MAX_IMAGES, REAL
 from planar_pose_client import PoseClient
 from planar_pose_client.cli import ExitCode, app
 from typer.testing import CliRunner
@@ -37,6 +37,17 @@ def test_predict_prints_a_table(service_url, photos):
         assert p.filename in result.stdout and p.label in result.stdout
         assert f"{p.confidence:.3f}" in result.stdout
     assert "3 image(s), mode whole" in result.stdout
+
+
+def test_predict_sends_batches_within_the_service_limit(service_url):
+    many = sorted(REAL.glob("*.jpg"))[: MAX_IMAGES * 2 + 1]
+    result = invoke(
+        "predict", *map(str, many), "--batch", str(MAX_IMAGES), "--json", "--url", service_url
+    )
+    assert result.exit_code == 0, result.output
+    assert [a["filename"] for a in json.loads(result.stdout)] == [p.name for p in many]
+    too_big = invoke("predict", *map(str, many), "--batch", "100", "--url", service_url)
+    assert_one_line_error(too_big, ExitCode.BAD_INPUT, "HTTP 413 too_many_images")
 
 
 def test_predict_json_matches_the_sdk(service_url, photos):
@@ -96,10 +107,14 @@ def test_bad_image_and_missing_file(service_url, tmp_path: Path):
     assert_one_line_error(
         invoke("predict", str(garbage), "--url", service_url), ExitCode.BAD_INPUT, "HTTP 400"
     )
+    # Checked before anything is sent: the good photo first does not get a result printed.
+    missing = invoke("predict", str(REAL / "left01.jpg"), str(tmp_path / "nope.jpg"))
+    assert_one_line_error(missing, ExitCode.BAD_INPUT, "no such image file")
+    assert missing.stdout == ""
     assert_one_line_error(
-        invoke("predict", str(tmp_path / "nope.jpg"), "--url", service_url),
+        invoke("predict", str(tmp_path), "--url", service_url),
         ExitCode.BAD_INPUT,
-        "no such image file",
+        "is a directory",
     )
 
 
