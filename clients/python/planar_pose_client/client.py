@@ -10,8 +10,9 @@ from __future__ import annotations
 
 import asyncio
 import time
+from abc import ABC, abstractmethod
 from collections.abc import Iterable
-from typing import Any
+from typing import Any, Generic, TypeVar
 
 import httpx
 
@@ -20,18 +21,11 @@ from .errors import PoseError
 from .images import ImageInput
 from .models import Mode, ModelCard, Prediction
 
-_CLIENT_DOC = """
-    base_url: where the service listens, e.g. "http://127.0.0.1:8000".
-    api_key: sent as `Authorization: Bearer <key>` when the service requires one.
-    timeout: seconds per HTTP request (or an httpx.Timeout).
-    retries: extra attempts after a connection failure or a 502/503/504 answer (never on other
-        errors); backoff / backoff_max: first wait and cap in seconds, doubled per retry, with
-        jitter. Use it as a context manager (or call close) to release its connections.
-"""
+H = TypeVar("H", httpx.Client, httpx.AsyncClient)
 
 
-class PoseClient:
-    __doc__ = "Blocking client of the planar-pose service.\n" + _CLIENT_DOC
+class _ClientBase(ABC, Generic[H]):
+    """Construction shared by both clients; `_connect` opens their kind of httpx client."""
 
     def __init__(
         self,
@@ -43,13 +37,34 @@ class PoseClient:
         backoff: float = 0.25,
         backoff_max: float = 5.0,
     ) -> None:
+        """
+        base_url: where the service listens, e.g. "http://127.0.0.1:8000".
+        api_key: sent as `Authorization: Bearer <key>` when the service requires one.
+        timeout: seconds per HTTP request (or an httpx.Timeout).
+        retries: extra attempts after a connection failure or a 502/503/504 answer (never on
+            other errors); backoff, backoff_max: first wait and cap in seconds, doubled per
+            retry, with jitter (see RetryPolicy).
+        Raises ValueError for a base_url that is not http(s)://host[:port].
+        """
         retry = RetryPolicy(retries, backoff, backoff_max)
         self._core = ClientCore(base_url, api_key, timeout, retry)
-        self._http = httpx.Client(**self._core.http_options())
+        self._http: H = self._connect(self._core.http_options())
+
+    @abstractmethod
+    def _connect(self, options: dict[str, Any]) -> H:
+        """An httpx client (sync or async) built with `options`."""
 
     @property
     def base_url(self) -> str:
         return self._core.base_url
+
+
+class PoseClient(_ClientBase[httpx.Client]):
+    """Blocking client of the planar-pose service. Use it as a context manager (or call
+    `close`) to release its connections."""
+
+    def _connect(self, options: dict[str, Any]) -> httpx.Client:
+        return httpx.Client(**options)
 
     def predict(self, image: ImageInput, mode: Mode = "whole") -> Prediction:
         """Pose region of one image (path, bytes, binary file object or numpy array)."""
@@ -103,26 +118,12 @@ class PoseClient:
             retry += 1
 
 
-class AsyncPoseClient:
-    __doc__ = "Asyncio client of the planar-pose service (methods are coroutines).\n" + _CLIENT_DOC
+class AsyncPoseClient(_ClientBase[httpx.AsyncClient]):
+    """Asyncio client of the planar-pose service: the methods of PoseClient as coroutines.
+    Use it with `async with` (or await `aclose`) to release its connections."""
 
-    def __init__(
-        self,
-        base_url: str = "http://127.0.0.1:8000",
-        api_key: str | None = None,
-        *,
-        timeout: float | httpx.Timeout = DEFAULT_TIMEOUT_S,
-        retries: int = 2,
-        backoff: float = 0.25,
-        backoff_max: float = 5.0,
-    ) -> None:
-        retry = RetryPolicy(retries, backoff, backoff_max)
-        self._core = ClientCore(base_url, api_key, timeout, retry)
-        self._http = httpx.AsyncClient(**self._core.http_options())
-
-    @property
-    def base_url(self) -> str:
-        return self._core.base_url
+    def _connect(self, options: dict[str, Any]) -> httpx.AsyncClient:
+        return httpx.AsyncClient(**options)
 
     async def predict(self, image: ImageInput, mode: Mode = "whole") -> Prediction:
         """Pose region of one image (path, bytes, binary file object or numpy array)."""

@@ -15,7 +15,8 @@ from typing import Any
 
 @dataclass
 class Script:
-    """Answers in order; the last one repeats. `requests` gets (method, path, headers)."""
+    """Answers in order, the last one repeating: (status, JSON-able body, or str sent as
+    text/html). `requests` gets (method, path, headers)."""
 
     answers: list[tuple[int, Any]]
     requests: list[tuple[str, str, dict[str, str]]] = field(default_factory=list)
@@ -59,9 +60,10 @@ def serve(script: Script) -> Iterator[str]:
             length = int(self.headers.get("Content-Length") or 0)
             self.rfile.read(length)
             status, body = script.next_answer(self.command, self.path, dict(self.headers))
-            data = json.dumps(body).encode()
+            is_text = isinstance(body, str)  # e.g. a proxy's HTML error page
+            data = body.encode() if is_text else json.dumps(body).encode()
             self.send_response(status)
-            self.send_header("Content-Type", "application/json")
+            self.send_header("Content-Type", "text/html" if is_text else "application/json")
             self.send_header("Content-Length", str(len(data)))
             self.end_headers()
             self.wfile.write(data)

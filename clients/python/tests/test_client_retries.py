@@ -12,6 +12,7 @@ from planar_pose_client import (
     BadImageError,
     PoseClient,
     PoseConnectionError,
+    PoseError,
     RetryPolicy,
     ServiceUnavailable,
 )
@@ -67,6 +68,35 @@ def test_400_is_not_retried():
     ):
         client.predict(b"not an image")
     assert len(script.requests) == 1
+
+
+def test_other_statuses_and_broken_answers_are_plain_pose_errors():
+    html = "<html><body>Bad gateway</body></html>\n<p>nginx</p>"
+    ok = prediction_body(["left01.jpg"])
+    script = Script(
+        [
+            (500, error_body("internal_error", "internal server error (logged)")),
+            (502, html),
+            (502, html),
+            (200, {"model": "fake", "mode": "whole", "results": []}),
+            (200, {**ok, "results": [{**ok["results"][0], "class_id": 12}]}),
+            (200, "not json"),
+        ]
+    )
+    with serve(script) as url, PoseClient(url, retries=1, **FAST) as client:
+        with pytest.raises(PoseError) as crash:
+            client.predict(PHOTO)
+        assert type(crash.value) is PoseError and crash.value.code == "internal_error"
+        assert len(script.requests) == 1  # 500 is not retried
+        with pytest.raises(PoseError) as gateway:
+            client.predict(PHOTO)
+        assert gateway.value.status == 502 and gateway.value.code == "http_502"
+        assert gateway.value.message == "<html><body>Bad gateway</body></html>"
+        assert len(script.requests) == 3  # 502 is retried once
+        for problem in (r"sent 1 image\(s\) but got 0", "results.0.class_id", "json_invalid|JSON"):
+            with pytest.raises(PoseError, match=problem) as broken:
+                client.predict(PHOTO)
+            assert broken.value.code == "invalid_response" and broken.value.status == 200
 
 
 def test_the_api_key_is_sent_as_a_bearer_token():
