@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from conftest import API_KEY, MAX_IMAGES, REAL
+from live_service import API_KEY, MAX_IMAGES, REAL
 from planar_pose_client import PoseClient
 from planar_pose_client.cli import ExitCode, app
 from typer.testing import CliRunner

@@ -12,7 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from conftest import API_KEY
+from live_service import API_KEY
 from planar_pose_client import (
     AsyncPoseClient,
     AuthError,

@@ -1,0 +1,76 @@
+"""Run the REAL service for the client tests: `uvicorn service.app:app` in a subprocess on
+127.0.0.1 with a free port and the shipped default model."""
+
+from __future__ import annotations
+
+import os
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import httpx
+import pytest
+
+REPO = Path(__file__).resolve().parents[3]
+MODEL = REPO / "models" / "default.onnx"
+REAL = REPO / "train" / "real" / "chessboard-stereo"
+API_KEY = "client-tests-key"
+MAX_IMAGES = 8  # per request, so that "too many images" is cheap to send
+STARTUP_TIMEOUT_S = 90.0  # importing onnxruntime on a loaded 2-core machine is slow
+
+
+def _free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+@contextmanager
+def run_service(**env: str) -> Iterator[str]:
+    """Start `uvicorn service.app:app` with POSE_* settings `env`; yield its URL once /readyz
+    answers 200; stop it afterwards. Fails with the server's log if it does not come up."""
+    if not MODEL.is_file():
+        pytest.fail(f"the client tests need the shipped model {MODEL.relative_to(REPO)}")
+    port = _free_port()
+    settings = {k: v for k, v in os.environ.items() if not k.startswith("POSE_")}
+    settings |= {"POSE_MODEL_PATH": str(MODEL), "POSE_MAX_IMAGES": str(MAX_IMAGES), **env}
+    command = [sys.executable, "-m", "uvicorn", "service.app:app", "--host", "127.0.0.1"]
+    with tempfile.TemporaryFile("w+") as log:
+        server = subprocess.Popen(
+            [*command, "--port", str(port), "--log-level", "warning"],
+            cwd=REPO,
+            env=settings,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+        )
+        url = f"http://127.0.0.1:{port}"
+        try:
+            _wait_ready(url, server, log)
+            yield url
+        finally:
+            server.terminate()
+            try:
+                server.wait(timeout=15)
+            except subprocess.TimeoutExpired:
+                server.kill()
+                server.wait()
+
+
+def _wait_ready(url: str, server: subprocess.Popen[bytes], log: object) -> None:
+    deadline = time.monotonic() + STARTUP_TIMEOUT_S
+    while time.monotonic() < deadline:
+        if server.poll() is not None:
+            break
+        try:
+            if httpx.get(f"{url}/readyz", timeout=2.0).status_code == 200:
+                return
+        except httpx.TransportError:
+            pass
+        time.sleep(0.2)
+    log.seek(0)  # type: ignore[attr-defined]
+    pytest.fail(f"service at {url} did not become ready; its log:\n{log.read()}")  # type: ignore[attr-defined]
