@@ -28,7 +28,7 @@ from service.schemas import ErrorResponse, Mode, PredictResponse, Status
 from service.settings import Settings
 from service.uploads import read_images
 
-log = logging.getLogger("service")
+log = logging.getLogger("uvicorn.error.pose")  # printed by uvicorn's handlers
 
 _ERRORS: dict[int | str, dict[str, Any]] = {
     code: {"model": ErrorResponse, "description": text}
@@ -108,7 +108,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             raise ApiError(503, "not_ready", state.problem)
         return state.predictor
 
-    def authorise(request: Request) -> None:
+    async def authorise(request: Request) -> None:
         if settings.api_key is None:
             return
         given = request.headers.get("x-api-key")

@@ -11,8 +11,9 @@ from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.requests import ClientDisconnect
 
-log = logging.getLogger("service")
+log = logging.getLogger("uvicorn.error.pose")  # printed by uvicorn's handlers
 
 _CODES = {
     400: "bad_request",
@@ -66,6 +67,12 @@ def install_error_handlers(app: FastAPI) -> None:
         assert isinstance(exc, RequestValidationError)
         return error_response(422, "invalid_parameters", _validation_message(exc))
 
+    async def gone(request: Request, _: Exception) -> JSONResponse:
+        log.info(
+            "client left during %s %s before sending its body", request.method, request.url.path
+        )
+        return error_response(400, "client_disconnected", "the client closed the connection")
+
     async def crash(request: Request, exc: Exception) -> JSONResponse:
         log.exception("unhandled error on %s %s", request.method, request.url.path, exc_info=exc)
         return error_response(500, "internal_error", "internal server error (logged)")
@@ -73,4 +80,5 @@ def install_error_handlers(app: FastAPI) -> None:
     app.add_exception_handler(ApiError, api_error)
     app.add_exception_handler(StarletteHTTPException, http_error)
     app.add_exception_handler(RequestValidationError, validation_error)
+    app.add_exception_handler(ClientDisconnect, gone)
     app.add_exception_handler(Exception, crash)

@@ -49,7 +49,7 @@ class Settings(BaseSettings):
         description="Window sizes as fractions of the largest input-aspect window in the image.",
     )
     sliding_resolution: float = Field(
-        1.5,
+        1.0,
         gt=0,
         description="Working copy scale: the largest window measures this many network inputs.",
     )

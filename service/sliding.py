@@ -4,11 +4,12 @@ Frames: boxes are int [K, 4] rows (x, y, w, h) in pixels of the image handed to 
 generator (the *working copy*, see `working_copy`). Any `BoxGenerator` can replace the window
 grid, e.g. an object-proposal generator for an `objectness` mode.
 
-Default cost (80x60 network, 640x480 photo): the working copy is 120x90 (the largest window
-spans `resolution` = 1.5 network inputs), windows at scales 1, 0.8 and 0.6 of it (120x90,
-96x72, 72x54; the smallest is 0.9 network input, so no window is upsampled much) every ~20
-working pixels (~107 px of the photo): 1 + 4 + 9 = 14 windows, one batched call. The window
-count, hence the cost, does not depend on the photo's size, only on its aspect.
+Default cost (80x60 network, 640x480 photo): the working copy is 80x60 (the largest window
+spans `resolution` = 1 network input, so the scale-1 window is exactly the whole-mode input),
+windows at scales 1, 0.8 and 0.6 of it (80x60, 64x48, 48x36, each resized to 80x60) every ~20
+working pixels (~160 px of the photo): 1 + 4 + 6 = 11 windows in one batched call, about 5x the
+cost of whole mode. `resolution` 1.5 (120x90 copy, 14 windows, ~7x) keeps the small windows
+sharper. The window count does not depend on the photo's size, only on its aspect.
 """
 
 from __future__ import annotations

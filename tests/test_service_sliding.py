@@ -32,11 +32,12 @@ def test_windows_lie_inside_and_keep_the_aspect(w: int, h: int) -> None:
 
 
 def test_default_grid_on_the_working_copy_of_a_4_by_3_photo() -> None:
-    boxes = boxes_for(120, 90)
-    assert len(boxes) == 1 + 4 + 9
-    assert {(int(b[2]), int(b[3])) for b in boxes} == {(120, 90), (96, 72), (72, 54)}
-    small = boxes[boxes[:, 2] == 72]
-    assert sorted(set(small[:, 0].tolist())) == [0, 24, 48]  # ~20 px steps spanning it all
+    boxes = boxes_for(80, 60)  # a 640x480 photo at the default resolution 1
+    assert len(boxes) == 1 + 4 + 6
+    assert {(int(b[2]), int(b[3])) for b in boxes} == {(80, 60), (64, 48), (48, 36)}
+    small = boxes[boxes[:, 2] == 48]
+    assert sorted(set(small[:, 0].tolist())) == [0, 16, 32]  # ~20 px steps spanning it all
+    assert len(boxes_for(120, 90)) == 1 + 4 + 9  # resolution 1.5
 
 
 def test_stride_grows_to_respect_max_windows() -> None:
