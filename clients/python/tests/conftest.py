@@ -24,6 +24,15 @@ def secured_url() -> Iterator[str]:
 
 
 @pytest.fixture(scope="session")
+def unready_url(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    """The service up but never ready: its model file is not an ONNX model."""
+    broken = tmp_path_factory.mktemp("model") / "broken.onnx"
+    broken.write_bytes(b"not an onnx model")
+    with run_service(wait_for="/healthz", POSE_MODEL_PATH=str(broken)) as url:
+        yield url
+
+
+@pytest.fixture(scope="session")
 def photos() -> list[Path]:
     """Three real photographs (640x480 grey JPEGs of a chessboard)."""
     return [REAL / name for name in ("left01.jpg", "right05.jpg", "left12.jpg")]

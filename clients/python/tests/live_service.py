@@ -12,6 +12,7 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import IO
 
 import httpx
 import pytest
@@ -31,9 +32,9 @@ def _free_port() -> int:
 
 
 @contextmanager
-def run_service(**env: str) -> Iterator[str]:
-    """Start `uvicorn service.app:app` with POSE_* settings `env`; yield its URL once /readyz
-    answers 200; stop it afterwards. Fails with the server's log if it does not come up."""
+def run_service(wait_for: str = "/readyz", **env: str) -> Iterator[str]:
+    """Start `uvicorn service.app:app` with POSE_* settings `env`; yield its URL once
+    `wait_for` answers 200; stop it afterwards. Fails with the server's log if it does not."""
     if not MODEL.is_file():
         pytest.fail(f"the client tests need the shipped model {MODEL.relative_to(REPO)}")
     port = _free_port()
@@ -50,7 +51,7 @@ def run_service(**env: str) -> Iterator[str]:
         )
         url = f"http://127.0.0.1:{port}"
         try:
-            _wait_ready(url, server, log)
+            _wait_for(url + wait_for, server, log)
             yield url
         finally:
             server.terminate()
@@ -61,16 +62,14 @@ def run_service(**env: str) -> Iterator[str]:
                 server.wait()
 
 
-def _wait_ready(url: str, server: subprocess.Popen[bytes], log: object) -> None:
+def _wait_for(url: str, server: subprocess.Popen[bytes], log: IO[str]) -> None:
     deadline = time.monotonic() + STARTUP_TIMEOUT_S
-    while time.monotonic() < deadline:
-        if server.poll() is not None:
-            break
+    while time.monotonic() < deadline and server.poll() is None:
         try:
-            if httpx.get(f"{url}/readyz", timeout=2.0).status_code == 200:
+            if httpx.get(url, timeout=2.0).status_code == 200:
                 return
         except httpx.TransportError:
             pass
         time.sleep(0.2)
-    log.seek(0)  # type: ignore[attr-defined]
-    pytest.fail(f"service at {url} did not become ready; its log:\n{log.read()}")  # type: ignore[attr-defined]
+    log.seek(0)
+    pytest.fail(f"{url} did not answer 200; the service's log:\n{log.read()}")

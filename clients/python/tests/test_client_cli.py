@@ -84,6 +84,13 @@ def test_status(service_url):
     assert result.exit_code == 0 and "alive, ready" in result.stdout
 
 
+def test_not_ready(unready_url, photos):
+    status = invoke("status", "--url", unready_url)
+    assert status.exit_code == ExitCode.UNREACHABLE and "alive, not ready" in status.stdout
+    result = invoke("predict", str(photos[0]), "--url", unready_url, "--retries", "0")
+    assert_one_line_error(result, ExitCode.UNREACHABLE, "HTTP 503 not_ready")
+
+
 def test_api_key_from_option_or_environment(secured_url, photos):
     assert_one_line_error(
         invoke("predict", str(photos[0]), "--url", secured_url),

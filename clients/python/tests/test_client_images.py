@@ -4,6 +4,7 @@ the local errors raised before any request is sent."""
 from __future__ import annotations
 
 import io
+import subprocess
 import sys
 from pathlib import Path
 
@@ -102,3 +103,17 @@ def test_bad_inputs_fail_before_any_request(tmp_path):
 def test_a_base_url_without_scheme_or_host_is_refused(url):
     with pytest.raises(ValueError, match="base_url must look like"):
         PoseClient(url)
+
+
+def test_the_sdk_does_not_need_numpy():
+    code = (
+        "import sys\n"
+        "from planar_pose_client import PoseClient\n"
+        "from planar_pose_client.images import to_upload\n"
+        f"to_upload({str(REAL / 'left01.jpg')!r}); to_upload(b'\\xff\\xd8\\xff')\n"
+        "PoseClient().close()\n"
+        "print(sorted({'numpy', 'cv2'} & set(sys.modules)))\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "[]"

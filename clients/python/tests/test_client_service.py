@@ -21,6 +21,7 @@ from planar_pose_client import (
     ModelCard,
     PoseClient,
     Prediction,
+    ServiceUnavailable,
     TooLargeError,
 )
 
@@ -181,3 +182,20 @@ def test_the_same_photo_as_a_path_file_gives_its_own_name(service_url, tmp_path:
     copy.write_bytes(photos[0].read_bytes())
     with PoseClient(service_url) as client:
         assert client.predict(copy).filename == "renamed photo.jpg"
+
+
+def test_a_service_that_is_not_ready(unready_url, photos):
+    with PoseClient(unready_url, retries=1, backoff=0.01) as client:
+        assert client.health() and not client.ready()
+        with pytest.raises(ServiceUnavailable) as info:
+            client.predict(photos[0])
+    assert info.value.status == 503 and info.value.code == "not_ready"
+    assert "model not loaded" in info.value.message
+
+    async def run():
+        async with AsyncPoseClient(unready_url, retries=0) as client:
+            assert await client.health() and not await client.ready()
+            await client.model_info()
+
+    with pytest.raises(ServiceUnavailable):
+        asyncio.run(run())
