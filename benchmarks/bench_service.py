@@ -115,7 +115,9 @@ def wrk_run(url: str, body: Path, concurrency: int, seconds: float) -> Run:
     return Run(r["requests"] / r["seconds"], r["p50"], r["p99"], r["errors"])
 
 
-def _httpx_worker(url: str, body: bytes, concurrency: int, seconds: float, out) -> None:  # noqa: ANN001
+def _httpx_worker(
+    url: str, body: bytes, concurrency: int, seconds: float, out: multiprocessing.Queue
+) -> None:
     async def main() -> tuple[list[float], int]:
         latencies: list[float] = []
         errors = 0

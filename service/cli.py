@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 from pydantic import ValidationError
@@ -30,7 +30,12 @@ def serve(
     from service.app import create_app
     from service.settings import Settings
 
-    overrides = {"host": host, "port": port, "model_path": model, "log_level": log_level}
+    overrides: dict[str, Any] = {
+        "host": host,
+        "port": port,
+        "model_path": model,
+        "log_level": log_level,
+    }
     try:
         settings = Settings(**{k: v for k, v in overrides.items() if v is not None})
     except ValidationError as exc:

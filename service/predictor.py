@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from service.model import PoseModel
-from service.preprocess import ImageDecodeError, load_image, to_network_input
+from service.preprocess import DecodedImage, ImageDecodeError, load_image, to_network_input
 from service.regions import region_of_class
 from service.schemas import Box, Detection, ImageResult, Mode, RegionOut
 from service.settings import Settings
@@ -72,7 +72,7 @@ class Predictor:
             max_windows=settings.sliding_max_windows,
         )
 
-    def _load(self, index: int, image: ImageInput, min_size: tuple[int, int]):  # noqa: ANN202
+    def _load(self, index: int, image: ImageInput, min_size: tuple[int, int]) -> DecodedImage:
         try:
             return load_image(image[1], max_pixels=self.settings.max_pixels, min_size=min_size)
         except ImageDecodeError as exc:

@@ -46,7 +46,7 @@ class ImageResult(BaseModel):
     confidence: float = Field(description="The largest probability.")
     box: Box | None = Field(description="Best window (sliding mode, object found), else null.")
     detections: list[Detection] | None = Field(
-        None, description="Sliding mode: all windows kept by NMS, best first."
+        default=None, description="Sliding mode: all windows kept by NMS, best first."
     )
     elapsed_ms: float = Field(
         description="Decoding and preprocessing this image plus its share of the batched "

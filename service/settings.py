@@ -31,32 +31,33 @@ class Settings(BaseSettings):
     model_config = SettingsConfigDict(env_prefix="POSE_", protected_namespaces=())
 
     model_path: Path | None = Field(
-        None, description="ONNX model; default models/default.onnx at the repo root."
+        default=None, description="ONNX model; default models/default.onnx at the repo root."
     )
     host: str = "127.0.0.1"
-    port: int = Field(8000, ge=1, le=65535)
+    port: int = Field(default=8000, ge=1, le=65535)
     api_key: SecretStr | None = Field(
-        None, description="When set, /v1/* needs `Authorization: Bearer <key>` or `X-API-Key`."
+        default=None,
+        description="When set, /v1/* needs `Authorization: Bearer <key>` or `X-API-Key`.",
     )
-    max_upload_bytes: int = Field(20 * 1024 * 1024, gt=0, description="Request body limit.")
-    max_pixels: int = Field(50_000_000, gt=0, description="Per image, from its header.")
-    max_images: int = Field(16, gt=0, description="Images per request.")
-    intra_op_threads: int = Field(1, ge=0, description="onnxruntime threads per call, 0 = auto.")
-    inter_op_threads: int = Field(1, ge=0)
+    max_upload_bytes: int = Field(default=20 * 1024 * 1024, gt=0, description="Body limit.")
+    max_pixels: int = Field(default=50_000_000, gt=0, description="Per image, from its header.")
+    max_images: int = Field(default=16, gt=0, description="Images per request.")
+    intra_op_threads: int = Field(default=1, ge=0, description="onnxruntime threads, 0 = auto.")
+    inter_op_threads: int = Field(default=1, ge=0)
     cors_origins: Annotated[list[str], NoDecode] = Field(default_factory=list)
     sliding_scales: Annotated[list[float], NoDecode] = Field(
         default_factory=lambda: [1.0, 0.8, 0.6],
         description="Window sizes as fractions of the largest input-aspect window in the image.",
     )
     sliding_resolution: float = Field(
-        1.0,
+        default=1.0,
         gt=0,
         description="Working copy scale: the largest window measures this many network inputs.",
     )
-    sliding_stride: int = Field(20, ge=1, description="Window step, pixels of the working copy.")
-    sliding_nms_iou: float = Field(0.3, gt=0, le=1)
-    sliding_max_windows: int = Field(256, ge=1, description="Stride grows beyond this count.")
-    graceful_timeout_s: float = Field(20.0, ge=0, description="Drain time after SIGTERM.")
+    sliding_stride: int = Field(default=20, ge=1, description="Window step, working-copy px.")
+    sliding_nms_iou: float = Field(default=0.3, gt=0, le=1)
+    sliding_max_windows: int = Field(default=256, ge=1, description="Stride grows beyond it.")
+    graceful_timeout_s: int = Field(default=20, ge=0, description="Drain time after SIGTERM.")
     log_level: str = "info"
     access_log: bool = True
 

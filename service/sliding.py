@@ -120,8 +120,8 @@ def best_window(boxes: np.ndarray, probs: np.ndarray, nms_iou: float) -> WindowA
     picks = [int(kept[i]) for i in np.asarray(order).reshape(-1)]
     picks.sort(key=lambda k: -probs[k, classes[k]])
     detections = [
-        (tuple(int(v) for v in boxes[k]), int(classes[k]), float(probs[k, classes[k]]))
-        for k in picks
+        ((int(x), int(y), int(w), int(h)), int(classes[k]), float(probs[k, classes[k]]))
+        for k, (x, y, w, h) in ((k, boxes[k]) for k in picks)
     ]
     best = picks[0]
     return WindowAnswer(int(classes[best]), probs[best], detections[0][0], detections)

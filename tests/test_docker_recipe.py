@@ -15,6 +15,7 @@ import shlex
 import shutil
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import httpx
@@ -68,7 +69,7 @@ def test_recipe_shape() -> None:
     assert exec_form(args_of(RUNTIME, "CMD")[0])[:2] == ["planar-pose", "serve"]
 
 
-def mapper(tmp: Path):  # noqa: ANN201
+def mapper(tmp: Path) -> Callable[[str], str]:
     """Container path -> path under `tmp`, applied inside any string."""
     roots = ("/opt/venv", "/app", "/src")
 
@@ -80,7 +81,9 @@ def mapper(tmp: Path):  # noqa: ANN201
     return to_tmp
 
 
-def copy_into(stage: list[tuple[str, str]], tmp: Path, to_tmp, workdir: str) -> None:  # noqa: ANN001
+def copy_into(
+    stage: list[tuple[str, str]], tmp: Path, to_tmp: Callable[[str], str], workdir: str
+) -> None:
     """Replay the stage's COPY lines from the repo (build context) into the mapped paths."""
     for args in args_of(stage, "COPY"):
         if args.startswith("--from="):
