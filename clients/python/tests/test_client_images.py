@@ -20,6 +20,7 @@ REAL = Path(__file__).resolve().parents[3] / "train/real/chessboard-stereo"
 def _decode(png: bytes) -> np.ndarray:
     """PNG bytes -> uint8 pixels as stored (grey [H, W], RGB [H, W, 3] or RGBA [H, W, 4])."""
     pixels = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_UNCHANGED)
+    assert pixels is not None, "OpenCV cannot read the PNG"
     if pixels.ndim == 3:
         code = cv2.COLOR_BGR2RGB if pixels.shape[2] == 3 else cv2.COLOR_BGRA2RGBA
         pixels = cv2.cvtColor(pixels, code)

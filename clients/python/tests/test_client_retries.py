@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import socket
 from pathlib import Path
+from typing import Any
 
 import pytest
 from planar_pose_client import (
@@ -20,7 +21,7 @@ from scripted_server import Script, error_body, prediction_body, serve
 
 PHOTO = Path(__file__).resolve().parents[3] / "train/real/chessboard-stereo/left01.jpg"
 NOT_READY = (503, error_body("not_ready", "model is loading"))
-FAST = {"backoff": 0.01, "backoff_max": 0.05}
+FAST: dict[str, Any] = {"backoff": 0.01, "backoff_max": 0.05}  # keep the test quick
 
 
 def test_503_twice_then_success_is_retried():
