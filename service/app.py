@@ -13,10 +13,10 @@ from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from typing import Annotated, Any
 
+import anyio
 from fastapi import Depends, FastAPI, Query, Request
 from fastapi.middleware.cors import CORSMiddleware
 from fastapi.responses import Response
-from starlette.concurrency import run_in_threadpool
 
 from service.errors import ApiError, install_error_handlers
 from service.limits import BodyLimitMiddleware
@@ -77,6 +77,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     """The FastAPI app; the model loads in the background after startup (see /readyz)."""
     settings = settings or Settings()
     state, metrics = _State(), Metrics()
+    # CPU-bound jobs beyond one per core only thrash caches and lengthen the tail: queue them.
+    jobs = anyio.CapacityLimiter(settings.workers)
 
     def load() -> None:
         path = settings.resolved_model_path
@@ -145,7 +147,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         runner = predictor()
         images = await read_images(request, settings.max_images)
         try:
-            prediction = await run_in_threadpool(runner.predict, images, mode)
+            prediction = await anyio.to_thread.run_sync(runner.predict, images, mode, limiter=jobs)
         except ImageTooLargeError as exc:
             raise ApiError(413, "image_too_large", str(exc)) from None
         except ImageDecodeError as exc:

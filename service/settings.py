@@ -6,6 +6,7 @@ Lists accept JSON (`["a", "b"]`) or comma-separated values (`a,b`).
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -44,9 +45,12 @@ class Settings(BaseSettings):
     max_images: int = Field(default=16, gt=0, description="Images per request.")
     intra_op_threads: int = Field(default=1, ge=0, description="onnxruntime threads, 0 = auto.")
     inter_op_threads: int = Field(default=1, ge=0)
+    inference_workers: int = Field(
+        default=0, ge=0, description="Images decoded/classified at once, 0 = one per CPU."
+    )
     cors_origins: Annotated[list[str], NoDecode] = Field(default_factory=list)
     sliding_scales: Annotated[list[float], NoDecode] = Field(
-        default_factory=lambda: [1.0, 0.8, 0.6],
+        default_factory=lambda: [1.0, 0.8, 0.65],
         description="Window sizes as fractions of the largest input-aspect window in the image.",
     )
     sliding_resolution: float = Field(
@@ -77,6 +81,11 @@ class Settings(BaseSettings):
     @classmethod
     def _empty_key(cls, value: Any) -> Any:
         return None if value == "" else value
+
+    @property
+    def workers(self) -> int:
+        """Concurrent inference jobs: `inference_workers` or the CPUs this process may use."""
+        return self.inference_workers or len(os.sched_getaffinity(0))
 
     @property
     def resolved_model_path(self) -> Path:

@@ -32,12 +32,16 @@ def test_windows_lie_inside_and_keep_the_aspect(w: int, h: int) -> None:
 
 
 def test_default_grid_on_the_working_copy_of_a_4_by_3_photo() -> None:
-    boxes = boxes_for(80, 60)  # a 640x480 photo at the default resolution 1
-    assert len(boxes) == 1 + 4 + 6
-    assert {(int(b[2]), int(b[3])) for b in boxes} == {(80, 60), (64, 48), (48, 36)}
-    small = boxes[boxes[:, 2] == 48]
-    assert sorted(set(small[:, 0].tolist())) == [0, 16, 32]  # ~20 px steps spanning it all
-    assert len(boxes_for(120, 90)) == 1 + 4 + 9  # resolution 1.5
+    settings = Settings()
+    grid = SlidingWindows(4 / 3, settings.sliding_scales, settings.sliding_stride, 256)
+    image = DecodedImage(np.zeros((120, 160, 3), np.uint8), width=640, height=480)
+    work, _ = working_copy(image, (80, 60), settings.sliding_resolution)
+    boxes = grid(work)
+    assert work.shape == (60, 80, 3) and len(boxes) == 1 + 4 + 4
+    assert {(int(b[2]), int(b[3])) for b in boxes} == {(80, 60), (64, 48), (52, 39)}
+    small = boxes[boxes[:, 2] == 52]
+    assert sorted(set(small[:, 0].tolist())) == [0, 28]  # ~20 px steps spanning it all
+    assert len(boxes_for(120, 90)) == 1 + 4 + 9  # GRID (scales 1, 0.8, 0.6) on a 120x90 copy
 
 
 def test_stride_grows_to_respect_max_windows() -> None:
