@@ -74,7 +74,7 @@ def load_split(folder: Path, split: str, limit: int = 0) -> Split:
 
     data = load_dataset(folder, split=None if split == "all" else split)
     n = len(data.labels) if limit <= 0 else min(limit, len(data.labels))
-    files = [str(f) for f in data.files[:n]]
+    files = data.column("file")[:n]
     return Split(np.asarray(data.images[:n]), np.asarray(data.labels[:n], np.int64), files)
 
 

@@ -1,0 +1,90 @@
+"""The comparison report: CNN vs baseline tables from measured numbers, detection variants."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from train.cli import app
+from train.compare import detection_variants, encode_png, load_split
+from train.evaluate import evaluate_predictor, onnx_predictor
+from train.realset import build_real_dataset
+
+ROOT = Path(__file__).resolve().parent.parent
+SOURCE = ROOT / "train" / "real" / "chessboard-stereo"
+MODEL = ROOT / "models" / "default.onnx"
+runner = CliRunner()
+
+
+@pytest.fixture(scope="module")
+def real_sets(tmp_path_factory) -> list[Path]:
+    root = tmp_path_factory.mktemp("cmp")
+    sets = []
+    for blur in (0, 3):
+        out = root / f"real-s1-b{blur}"
+        build_real_dataset(SOURCE, out, size=1, blur=blur, profile="chessboard", seed=0)
+        sets.append(out)
+    return sets
+
+
+@pytest.fixture(scope="module")
+def report(real_sets, tmp_path_factory) -> Path:
+    md = tmp_path_factory.mktemp("doc") / "comparison.md"
+    args = ["compare", "--models", str(MODEL), "--out", str(md), "--photos", str(SOURCE)]
+    for ds in real_sets:
+        args += ["--datasets", str(ds)]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    return md
+
+
+def test_report_tables_hold_the_measured_numbers(report, real_sets):
+    text = report.read_text()
+    metrics = json.loads((report.with_suffix("") / "metrics.json").read_text())["results"]
+    assert set(metrics) == {"default", "baseline-sift"}
+    for ds in real_sets:
+        for name in metrics:
+            cell = metrics[name][ds.name]
+            assert {"accuracy", "per_class_accuracy", "confusion", "ms_per_image"} <= set(cell)
+            assert f"{100 * cell['accuracy']:.1f}" in text
+        assert cell["count"] == 6  # the real test split
+    assert "## Real photographs per blur level" in text
+    assert "No model trained on synthetic data only" not in text or "default" in text
+    for png in ("accuracy_vs_blur.png", "time_per_image.png"):
+        assert (report.with_suffix("") / "plots" / png).is_file()
+
+
+def test_detection_variants_are_reported(report):
+    detections = json.loads((report.with_suffix("") / "detection_metrics.json").read_text())
+    subsets = detections["default"]
+    counts = {"chessboard-stereo photos, all": 26, "chessboard-stereo photos, test split": 6}
+    assert set(subsets) == set(counts)
+    for name, per_variant in subsets.items():
+        assert set(per_variant) == {"whole", "sliding", "proposals@1.5x", "proposals@4x"}
+        assert all(m["count"] == counts[name] for m in per_variant.values())
+    assert "proposals@4x" in report.read_text()
+
+
+def test_whole_mode_matches_the_evaluator(real_sets):
+    """The service's whole mode on PNG bytes answers like `evaluate` on the same images."""
+    data = load_split(real_sets[0], "all")
+    predict, _, _ = onnx_predictor(MODEL)
+    direct = evaluate_predictor(predict, data.images, data.labels)
+    via_service = detection_variants(MODEL, encode_png(data.images), data.labels)["all"]["whole"]
+    assert via_service["confusion"] == direct["confusion"]
+    assert np.isclose(via_service["accuracy"], direct["accuracy"])
+
+
+def test_cli_errors(real_sets, tmp_path):
+    ds = ["--datasets", str(real_sets[0])]
+    out = ["--out", str(tmp_path / "c.md")]
+    result = runner.invoke(app, ["compare", "--models", str(tmp_path / "x.onnx"), *ds, *out])
+    assert result.exit_code == 1 and "not an ONNX model" in result.output
+    result = runner.invoke(app, ["compare", "--models", str(MODEL), "--datasets", str(tmp_path)])
+    assert result.exit_code == 1 and "no labels.csv" in result.output
+    args = ["compare", "--models", str(MODEL), *ds, *out, "--features", "surf"]
+    assert runner.invoke(app, args).exit_code == 2
