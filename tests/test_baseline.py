@@ -114,6 +114,13 @@ def test_dataset_cameras(tmp_path):
     (cam,) = dataset_cameras(tmp_path / "syn", ["a.png"], (80, 60))
     assert np.allclose(cam.K, intrinsics((80, 60)))
 
+    rows = [{"file": "a.png", "class": 1, "focal_scale": "0.75"}, {"file": "b.png", "class": 0}]
+    rows[1]["focal_scale"] = ""
+    _write_set(tmp_path / "zoom", rows, {"variant": "noC"})
+    cams = dataset_cameras(tmp_path / "zoom", ["b.png", "a.png"], (160, 120))
+    assert np.allclose(cams[1].K, intrinsics((160, 120), 0.75))
+    assert np.allclose(cams[0].K, intrinsics((160, 120)))
+
     real = {"real": True, "source": "train/real/chessboard-stereo"}
     _write_set(tmp_path / "real", [{"file": "right03.png", "class": 1}], real)
     (cam,) = dataset_cameras(tmp_path / "real", ["right03.png"], (80, 60))
