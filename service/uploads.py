@@ -13,8 +13,15 @@ from service.preprocess import SUPPORTED_FORMATS
 
 #: Raw-body content types accepted (the bytes are sniffed anyway).
 IMAGE_TYPES = frozenset(
-    ["image/jpeg", "image/jpg", "image/png", "image/webp", "image/bmp", "image/x-ms-bmp"]
-    + ["image/gif"]
+    {
+        "image/jpeg",
+        "image/jpg",
+        "image/png",
+        "image/webp",
+        "image/bmp",
+        "image/x-ms-bmp",
+        "image/gif",
+    }
 )
 #: Content types accepted on a multipart part (curl sends octet-stream for unknown suffixes).
 PART_TYPES = IMAGE_TYPES | {"application/octet-stream", ""}
