@@ -14,6 +14,7 @@ from contextlib import asynccontextmanager
 from typing import Annotated, Any
 
 import anyio
+import cv2
 from fastapi import Depends, FastAPI, Query, Request
 from fastapi.middleware.cors import CORSMiddleware
 from fastapi.responses import Response
@@ -77,6 +78,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     """The FastAPI app; the model loads in the background after startup (see /readyz)."""
     settings = settings or Settings()
     state, metrics = _State(), Metrics()
+    # OpenCV would log every refused upload to stderr; the client's 400 already says it.
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_FATAL)
     # CPU-bound jobs beyond one per core only thrash caches and lengthen the tail: queue them.
     jobs = anyio.CapacityLimiter(settings.workers)
 
