@@ -18,6 +18,7 @@ import cv2
 from fastapi import Depends, FastAPI, Query, Request
 from fastapi.middleware.cors import CORSMiddleware
 from fastapi.responses import Response
+from pydantic import ValidationError
 
 from service.errors import ApiError, install_error_handlers
 from service.limits import BodyLimitMiddleware
@@ -164,7 +165,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         """The model card: name, version, input size, classes, profile, training, accuracy."""
         return predictor().model.card
 
-    @app.get("/healthz", response_model=Status)
+    @app.get("/healthz", response_model=Status, response_model_exclude_none=True)
     async def healthz() -> Status:
         """The process is up (liveness)."""
         return Status(status="ok")
@@ -192,4 +193,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     return app
 
 
-app = create_app()
+try:
+    app = create_app()
+except ValidationError as _exc:  # `uvicorn service.app:app` with bad POSE_* variables
+    raise SystemExit(f"error: invalid settings (POSE_* environment):\n{_exc}") from None

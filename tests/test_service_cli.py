@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -61,3 +64,17 @@ def test_serve_bad_environment_exits_2(monkeypatch: pytest.MonkeyPatch) -> None:
 
 def test_serve_bad_port_flag_exits_2() -> None:
     assert runner.invoke(app, ["serve", "--port", "70000"]).exit_code == 2
+
+
+def test_uvicorn_entry_with_bad_environment_says_why() -> None:
+    env = {**os.environ, "POSE_MAX_IMAGES": "-3"}
+    done = subprocess.run(
+        [sys.executable, "-m", "uvicorn", "service.app:app", "--port", "1"],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert done.returncode == 1
+    assert "invalid settings" in done.stderr and "max_images" in done.stderr
+    assert "Traceback" not in done.stderr
