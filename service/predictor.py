@@ -21,6 +21,7 @@ from service.sliding import (
     BoxGenerator,
     SlidingWindows,
     best_window,
+    to_full_resolution,
     window_batch,
     working_copy,
     working_min_size,
@@ -37,11 +38,8 @@ class Prediction:
 
 
 def _box(box: tuple[int, int, int, int], scale: tuple[float, float], size: tuple[int, int]) -> Box:
-    """Working-copy box -> pixels of the full image (W, H) = `size`, clipped to it."""
-    (x, y, w, h), (sx, sy) = box, scale
-    x0, y0 = min(round(x * sx), size[0] - 1), min(round(y * sy), size[1] - 1)
-    w1, h1 = max(1, min(round(w * sx), size[0] - x0)), max(1, min(round(h * sy), size[1] - y0))
-    return Box(x=x0, y=y0, w=w1, h=h1)
+    x, y, w, h = to_full_resolution(box, scale, size)
+    return Box(x=x, y=y, w=w, h=h)
 
 
 def _result(

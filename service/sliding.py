@@ -89,6 +89,21 @@ def working_copy(
     return resize_rgb(image.rgb, size), (image.width / size[0], image.height / size[1])
 
 
+def to_full_resolution(
+    box: tuple[int, int, int, int], scale: tuple[float, float], size: tuple[int, int]
+) -> tuple[int, int, int, int]:
+    """Working-copy box (x, y, w, h) -> pixels of the full image of `size` (W, H), clipped to
+    it, at least 1 px wide and high; `scale` = (sx, sy) from `working_copy`."""
+    (x, y, w, h), (sx, sy) = box, scale
+    x0, y0 = min(round(x * sx), size[0] - 1), min(round(y * sy), size[1] - 1)
+    return (
+        x0,
+        y0,
+        max(1, min(round(w * sx), size[0] - x0)),
+        max(1, min(round(h * sy), size[1] - y0)),
+    )
+
+
 def window_batch(image: np.ndarray, boxes: np.ndarray, input_size: tuple[int, int]) -> np.ndarray:
     """Crop each box of RGB uint8 `image` -> float32 [K, 3, H, W] network inputs."""
     crops = [to_network_input(image[y : y + h, x : x + w], input_size) for x, y, w, h in boxes]

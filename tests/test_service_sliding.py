@@ -11,7 +11,13 @@ from service.model import PoseModel
 from service.predictor import Predictor
 from service.preprocess import DecodedImage
 from service.settings import DEFAULT_MODEL, Settings
-from service.sliding import SlidingWindows, best_window, window_batch, working_copy
+from service.sliding import (
+    SlidingWindows,
+    best_window,
+    to_full_resolution,
+    window_batch,
+    working_copy,
+)
 
 REAL = Path(__file__).resolve().parent.parent / "train" / "real" / "chessboard-stereo"
 GRID = SlidingWindows(aspect=4 / 3, scales=(1.0, 0.8, 0.6), stride=20, max_windows=256)
@@ -107,15 +113,25 @@ def test_batched_answers_equal_one_by_one(model: PoseModel) -> None:
             assert abs(sum(result.probabilities) - 1) < 1e-9
 
 
-def test_sliding_box_is_in_photo_pixels(model: PoseModel) -> None:
-    result = Predictor(model, Settings()).predict(
-        [(None, (REAL / "left01.jpg").read_bytes())], "sliding"
-    )
-    answer = result.results[0]
-    assert answer.class_id != 0 and answer.box is not None  # the board fills the photo
-    box = answer.box
-    assert box.x >= 0 and box.y >= 0 and box.x + box.w <= 640 and box.y + box.h <= 480
-    assert box.w >= 640 * 0.6 - 1 and answer.detections and answer.detections[0].box == box
+def test_boxes_map_back_to_photo_pixels() -> None:
+    assert to_full_resolution((16, 12, 48, 36), (8.0, 8.0), (640, 480)) == (128, 96, 384, 288)
+    assert to_full_resolution((0, 0, 80, 60), (6.0, 6.0), (480, 360)) == (0, 0, 480, 360)
+    assert to_full_resolution((40, 30, 80, 60), (1 / 60, 1 / 60), (1, 1)) == (0, 0, 1, 1)
+
+
+def test_sliding_answers_on_real_photos(model: PoseModel) -> None:
+    predictor = Predictor(model, Settings())
+    images = [(p.name, p.read_bytes()) for p in sorted(REAL.glob("right0*.jpg"))[:4]]
+    for answer in predictor.predict(images, "sliding").results:
+        if answer.class_id == 0:
+            assert answer.box is None and answer.detections == []
+            continue
+        box, detections = answer.box, answer.detections or []
+        assert box is not None and detections[0].box == box
+        assert box.x >= 0 and box.y >= 0 and box.x + box.w <= 640 and box.y + box.h <= 480
+        assert box.w >= 640 * min(Settings().sliding_scales) - 1
+        scores = [d.confidence for d in detections]
+        assert scores == sorted(scores, reverse=True) and scores[0] == answer.confidence
 
 
 def test_another_box_generator_plugs_in(model: PoseModel) -> None:
