@@ -48,7 +48,7 @@ def test_report_tables_hold_the_measured_numbers(report, real_sets):
     assert set(metrics) == {"default", "baseline-sift"}
     for ds in real_sets:
         for name in metrics:
-            cell = metrics[name][ds.name]
+            cell = metrics[name][f"chessboard/{ds.name}"]
             assert {"accuracy", "per_class_accuracy", "confusion", "ms_per_image"} <= set(cell)
             assert f"{100 * cell['accuracy']:.1f}" in text
         assert cell["count"] == 6  # the real test split

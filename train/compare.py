@@ -85,10 +85,12 @@ def manifest_of(folder: Path) -> dict[str, Any]:
 
 
 def describe(folder: Path, images: np.ndarray) -> dict[str, Any]:
-    """Kind (real / C / noC / ...), size (W, H) and blur of a data set, from its manifest."""
+    """Object, kind (real / C / noC), size (W, H) and blur of a data set, from its manifest."""
     m = manifest_of(folder)
     kind = "real" if m.get("real") else str(m.get("variant", "synthetic"))
+    profile = m.get("profile")
     return {
+        "object": str(profile.get("name", "?") if isinstance(profile, dict) else profile),
         "kind": kind,
         "size": (int(images.shape[2]), int(images.shape[1])),
         "blur": m.get("blur", "?"),
@@ -103,7 +105,16 @@ def _profile_of(folder: Path, override: str | None) -> Any:
         return load_profile(override)
     entry = manifest_of(folder).get("profile")
     name = entry.get("name") if isinstance(entry, dict) else entry
-    return load_profile(name or "chessboard")
+    try:
+        return load_profile(name or "chessboard")
+    except ValueError:
+        # A profile kept outside train/profiles: its folder holds the recorded texture.
+        texture = entry.get("texture") if isinstance(entry, dict) else None
+        if not texture:
+            raise
+        path = Path(texture)
+        root = Path(__file__).resolve().parent.parent
+        return load_profile((path if path.is_absolute() else root / path).parent)
 
 
 def make_baseline(folder: Path, config: BaselineConfig, profile: str | None) -> FeatureBaseline:
@@ -150,6 +161,15 @@ def run_baseline_on(
             baseline, data.images, data.labels, cams, bar.update
         )
     return metrics, info
+
+
+def same_object(card: dict, folder: Path) -> bool:
+    """False when the model card and the data set name different object profiles."""
+    model_profile = card.get("profile", {})
+    data_profile = manifest_of(folder).get("profile", {})
+    a = model_profile.get("name") if isinstance(model_profile, dict) else None
+    b = data_profile.get("name") if isinstance(data_profile, dict) else None
+    return a is None or b is None or a == b
 
 
 def finetuned_on_real(card: dict) -> bool | None:
@@ -257,7 +277,7 @@ def _plot_accuracy(rows: list[dict], names: list[str], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    panels = sorted({(r["kind"], r["size"]) for r in rows})
+    panels = sorted({(r["object"], r["kind"], r["size"]) for r in rows})
     ncols = min(3, len(panels))
     nrows = -(-len(panels) // ncols)
     fig, axes = plt.subplots(
@@ -266,9 +286,9 @@ def _plot_accuracy(rows: list[dict], names: list[str], path: Path) -> None:
     for ax in axes.ravel()[len(panels) :]:
         ax.set_visible(False)
     handles = {}
-    for ax, (kind, size) in zip(axes.ravel(), panels, strict=False):
+    for ax, (obj, kind, size) in zip(axes.ravel(), panels, strict=False):
         sub = sorted(
-            (r for r in rows if (r["kind"], r["size"]) == (kind, size)),
+            (r for r in rows if (r["object"], r["kind"], r["size"]) == (obj, kind, size)),
             key=lambda r: str(r["blur"]),
         )
         for k, name in enumerate(names):
@@ -276,7 +296,7 @@ def _plot_accuracy(rows: list[dict], names: list[str], path: Path) -> None:
             if pts:
                 xs, ys = [str(b) for b, _ in pts], [a for _, a in pts]
                 (handles[name],) = ax.plot(xs, ys, marker="o", color=f"C{k}", label=name)
-        ax.set_title(f"{kind}, {size[0]}x{size[1]}", fontsize=9)
+        ax.set_title(f"{obj}: {kind}, {size[0]}x{size[1]}", fontsize=9)
         ax.set_xlabel("blur level")
         ax.set_ylim(-3, 103)
         ax.grid(alpha=0.3)
@@ -339,24 +359,27 @@ def run_comparison(config: CompareConfig) -> dict[str, Any]:
         if not len(data.labels):
             raise ValueError(f"{folder} has no images in split {config.split!r}")
         desc = describe(folder, data.images)
-        row = {"name": folder.name, **desc, "n": len(data.labels), "acc": {}, "ms": {}}
-        for name, (_, predict, size, _) in loaded.items():
-            if tuple(size) != desc["size"]:
+        key = f"{desc['object']}/{folder.name}"
+        if any(r["name"] == key for r in rows):
+            raise ValueError(f"two data sets would be named {key}")
+        row = {"name": key, **desc, "n": len(data.labels), "acc": {}, "ms": {}}
+        for name, (_, predict, size, card) in loaded.items():
+            if tuple(size) != desc["size"] or not same_object(card, folder):
                 continue
             with tqdm(total=len(data.labels), desc=f"{name} on {folder.name}") as bar:
                 m = evaluate_predictor(predict, data.images, data.labels, bar.update)
-            results[name][folder.name] = m
+            results[name][key] = m
             row["acc"][name], row["ms"][name] = m["accuracy"], m["ms_per_image"]
         m, info = run_baseline_on(
             folder, BaselineConfig(features=config.features), config.split, config.tune,
             limit=config.limit, verbose=True,
         )  # fmt: skip
-        results[base_name][folder.name] = m
+        results[base_name][key] = m
         row["acc"][base_name], row["ms"][base_name] = m["accuracy"], m["ms_per_image"]
         row["baseline_info"] = info
         rows.append(row)
         tqdm.write(
-            f"{folder.name}: "
+            f"{key}: "
             + ", ".join(
                 f"{n} {100 * a:.1f} % ({row['ms'][n]:.2f} ms)" for n, a in row["acc"].items()
             )
@@ -396,7 +419,7 @@ def run_comparison(config: CompareConfig) -> dict[str, Any]:
             f"summary in {config.markdown.name}."
         ],
         {n: str(p) for n, (p, _, _, _) in loaded.items()}
-        | {d.name: str(d) for d in config.datasets},
+        | {r["name"]: str(d) for r, d in zip(rows, config.datasets, strict=True)},
     )
     if detections:
         (out_dir / "detection_metrics.json").write_text(json.dumps(detections, indent=1) + "\n")
@@ -460,10 +483,10 @@ def _markdown(
         "",
         "Accuracy %, and ms per image (CNN: service preprocessing + onnxruntime, batches of 64; "
         "baseline: feature detection + matching + RANSAC + PnP, one image at a time). A model "
-        "is run on the data sets of its input size only.",
+        "is run on the data sets of its input size and its object only.",
         "",
     ]
-    header = ["data set", "kind", "size", "blur", "n"]
+    header = ["data set", "object", "kind", "size", "blur", "n"]
     header += [f"{m} %" for m in models] + [f"{base_name} %"]
     header += [f"{m} ms" for m in models] + [f"{base_name} ms", "baseline / CNN time"]
     lines += ["| " + " | ".join(header) + " |", "|---" * len(header) + "|"]
@@ -475,6 +498,7 @@ def _markdown(
             ratios.append(ratio)
         cells = [
             r["name"],
+            r["object"],
             r["kind"],
             f"{r['size'][0]}x{r['size'][1]}",
             str(r["blur"]),
