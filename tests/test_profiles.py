@@ -1,0 +1,123 @@
+"""Object profiles: loading by name or path, clear errors, roll measurement."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from train.geometry import look_at, pose_class
+from train.profile import (
+    PROFILES_DIR,
+    ProfileError,
+    load_profile,
+    measure_rolls,
+    roll_of_pose,
+)
+
+REAL = Path(__file__).resolve().parent.parent / "train" / "real" / "chessboard-stereo"
+
+
+def _copy_profile(tmp_path: Path, text: str | None = None) -> Path:
+    folder = tmp_path / "obj"
+    shutil.copytree(PROFILES_DIR / "chessboard", folder)
+    if text is not None:
+        (folder / "profile.toml").write_text(text)
+    return folder
+
+
+def test_default_profile():
+    p = load_profile("chessboard")
+    assert (p.width_cm, p.height_cm) == (25.0, 17.5)
+    assert p.geometry.z_split_cm == 60.0
+    assert p.geometry.box_min == (-36.86, -36.86, 10.68)
+    assert p.geometry.box_max == (36.86, 36.86, 92.40)
+    assert p.texture_rgb().shape == (140, 200, 3)
+    entry = p.manifest_entry()
+    assert entry["texture"] == "train/profiles/chessboard/texture.png"
+    assert {"name", "width_cm", "height_cm", "z_split_cm", "texture"} <= set(entry)
+
+
+def test_lattice_inside_box_and_every_class():
+    p = load_profile("chessboard")
+    lattice = p.lattice()
+    assert p.geometry.contains(lattice).all()
+    counts = np.bincount(pose_class(lattice, p.geometry.z_split_cm), minlength=9)[1:]
+    assert counts.min() >= 300  # enough distinct cameras per class
+
+
+def test_load_by_folder_and_file(tmp_path):
+    folder = _copy_profile(tmp_path)
+    assert load_profile(folder).name == "chessboard"
+    assert load_profile(folder / "profile.toml").texture == (folder / "texture.png").resolve()
+
+
+def test_name_defaults_to_folder(tmp_path):
+    folder = _copy_profile(tmp_path, 'texture = "texture.png"\nwidth_cm = 25\nheight_cm = 17.5\n')
+    p = load_profile(folder)
+    assert p.name == "obj" and p.roll_deg == (0.0, 0.0) and p.geometry.z_split_cm == 60.0
+
+
+def test_unknown_profile():
+    with pytest.raises(ProfileError, match="unknown profile 'nope'.*chessboard"):
+        load_profile("nope")
+
+
+def test_unreadable_texture(tmp_path):
+    folder = _copy_profile(tmp_path)
+    (folder / "texture.png").write_bytes(b"not a png")
+    with pytest.raises(ProfileError, match="cannot read texture"):
+        load_profile(folder)
+    (folder / "texture.png").unlink()
+    with pytest.raises(ProfileError, match="texture image not found"):
+        load_profile(folder)
+
+
+@pytest.mark.parametrize(
+    "body,message",
+    [
+        (
+            'texture = "texture.png"\nwidth_cm = -3\nheight_cm = 17.5\n',
+            "width_cm must be a positive",
+        ),
+        ('texture = "texture.png"\nwidth_cm = 25\n', "height_cm must be a positive"),
+        ("width_cm = 25\nheight_cm = 17.5\n", "missing the texture"),
+        (
+            'texture = "texture.png"\nwidth_cm = 25\nheight_cm = 1\n[camera]\nroll_deg = [5, -5]\n',
+            "roll_deg must be a range",
+        ),
+        (
+            'texture = "texture.png"\nwidth_cm = 25\nheight_cm = 1\n[regions]\nz_split_cm = 500\n',
+            r"no point in class\(es\) \[5, 6, 7, 8\]",
+        ),
+        ("texture = \n", "not a readable TOML"),
+    ],
+)
+def test_bad_profiles(tmp_path, body, message):
+    folder = _copy_profile(tmp_path, body)
+    with pytest.raises(ProfileError, match=message):
+        load_profile(folder)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.floats(-30, 30),
+    st.floats(-30, 30),
+    st.floats(11, 90),
+    st.floats(-179.0, 179.0),
+)
+def test_roll_of_pose_inverts_look_at(x, y, z, roll):
+    R = look_at(np.array([x, y, z]), np.zeros(3), np.radians(roll))
+    assert roll_of_pose(R) == pytest.approx(roll, abs=1e-6)
+
+
+def test_default_roll_range_covers_the_real_photos():
+    rolls = measure_rolls(REAL / "labels.csv")
+    assert len(rolls) == 26
+    lo, hi = load_profile("chessboard").roll_deg
+    assert lo <= rolls.min() and rolls.max() <= hi
+    assert rolls.max() - rolls.min() > 270  # hand-held: nearly every roll occurs

@@ -1,0 +1,194 @@
+"""Backgrounds for the renders (SPEC section 5): shipped photographs and procedural textures.
+
+Sources, all RGB uint8:
+
+* `train/backgrounds/photos/`: scikit-image sample photographs (CC0 / public domain);
+* `train/backgrounds/real/`: crops of the real chessboard photos that do not contain the
+  board (made by `real_photo_crops`, see train/backgrounds/README.md);
+* procedural textures (value noise, gradients, stripes, blobs, clutter), drawn from a fixed
+  seed so every data set sees the same pool.
+
+A `BackgroundPool` keeps them at a working resolution for one output size and returns random
+crops (position, scale, mirror) through a single affine warp.
+"""
+
+from __future__ import annotations
+
+import csv
+from collections.abc import Iterator
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from train.geometry import apply_homography, dlt_homography
+
+BACKGROUNDS_DIR = Path(__file__).resolve().parent / "backgrounds"
+IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png")
+N_PROCEDURAL = 48
+
+
+def shipped_backgrounds(folder: Path = BACKGROUNDS_DIR) -> list[np.ndarray]:
+    """Every image under `folder` (recursively, sorted by path) as RGB uint8 [h, w, 3]."""
+    images = []
+    for path in sorted(p for p in folder.rglob("*") if p.suffix.lower() in IMAGE_SUFFIXES):
+        bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
+        if bgr is None:
+            raise ValueError(f"cannot read background image {path}")
+        images.append(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB))
+    return images
+
+
+def _value_noise(rng: np.random.Generator, size: tuple[int, int]) -> np.ndarray:
+    """Multi-octave value noise, float32 [h, w, 3] in [0, 1]."""
+    w, h = size
+    out = np.zeros((h, w, 3), np.float32)
+    for octave in range(1, 6):
+        cells = 2**octave
+        small = rng.random((cells, cells, 3), dtype=np.float32)
+        out += cv2.resize(small, (w, h), interpolation=cv2.INTER_CUBIC) / octave
+    out -= out.min()
+    return out / max(float(out.max()), 1e-6)
+
+
+def procedural_background(rng: np.random.Generator, size: tuple[int, int]) -> np.ndarray:
+    """One procedural texture RGB uint8 [h, w, 3] of `size` (W, H): noise, gradient, stripes,
+    blobs or clutter, with random colours."""
+    w, h = size
+    kind = rng.integers(5)
+    colours = rng.integers(0, 256, (2, 3)).astype(np.float32)
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    if kind == 0:  # value noise between two colours
+        t = _value_noise(rng, size)
+    elif kind == 1:  # linear gradient at a random angle
+        a = rng.uniform(0, 2 * np.pi)
+        t = (np.cos(a) * xx + np.sin(a) * yy)[..., None]
+        t = np.repeat((t - t.min()) / max(float(np.ptp(t)), 1e-6), 3, axis=2)
+    elif kind == 2:  # stripes (sine), random angle and period
+        a, period = rng.uniform(0, np.pi), rng.uniform(6, 60)
+        t = 0.5 + 0.5 * np.sin(2 * np.pi * (np.cos(a) * xx + np.sin(a) * yy) / period)
+        t = np.repeat(t[..., None], 3, axis=2)
+    else:
+        t = None
+    if t is not None:
+        img = colours[0] * (1 - t) + colours[1] * t
+        return np.clip(img, 0, 255).astype(np.uint8)
+    img = np.empty((h, w, 3), np.uint8)
+    img[:] = colours[0].astype(np.uint8)
+    for _ in range(int(rng.integers(8, 40))):
+        colour = tuple(int(c) for c in rng.integers(0, 256, 3))
+        centre = (int(rng.integers(0, w)), int(rng.integers(0, h)))
+        if kind == 3:  # blobs: filled ellipses
+            axes = (int(rng.integers(4, w // 4)), int(rng.integers(4, h // 4)))
+            angle = float(rng.uniform(0, 180))
+            cv2.ellipse(img, centre, axes, angle, 0, 360, colour, -1, cv2.LINE_AA)
+        else:  # clutter: rectangles and lines, like an office scene
+            other = (int(rng.integers(0, w)), int(rng.integers(0, h)))
+            if rng.random() < 0.5:
+                cv2.rectangle(img, centre, other, colour, -1)
+            else:
+                cv2.line(img, centre, other, colour, int(rng.integers(1, 6)), cv2.LINE_AA)
+    return cv2.GaussianBlur(img, (0, 0), float(rng.uniform(0.5, 2.0)))
+
+
+def procedural_backgrounds(n: int, size: tuple[int, int], seed: int = 0) -> list[np.ndarray]:
+    """`n` procedural textures (see `procedural_background`) from a fixed seed."""
+    rng = np.random.default_rng(seed)
+    return [procedural_background(rng, size) for _ in range(n)]
+
+
+def board_polygon(
+    corners_px: np.ndarray, inner_cm: tuple[float, float], grow_cm: float
+) -> np.ndarray:
+    """Image polygon (4, 2) px of the board grown by `grow_cm` around its inner-corner grid.
+
+    `corners_px` (4, 2): the inner-grid rectangle corners (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y) as
+    in train/real/*/labels.csv; `inner_cm` = (width, height) of that grid.
+    """
+    w, h = inner_cm[0] / 2, inner_cm[1] / 2
+    inner = np.array([[-w, -h], [w, -h], [w, h], [-w, h]])
+    H = dlt_homography(inner, corners_px)
+    gw, gh = w + grow_cm, h + grow_cm
+    return apply_homography(H, np.array([[-gw, -gh], [gw, -gh], [gw, gh], [-gw, gh]]))
+
+
+def free_strips(
+    shape: tuple[int, int], polygon: np.ndarray, min_side: int
+) -> Iterator[tuple[int, int, int, int]]:
+    """Rectangles (x0, y0, x1, y1) px of an image of `shape` (H, W) left, right, above and
+    below the polygon's bounding box, with both sides >= `min_side`."""
+    h, w = shape
+    x0, y0 = np.floor(polygon.min(axis=0)).astype(int)
+    x1, y1 = np.ceil(polygon.max(axis=0)).astype(int)
+    for rect in ((0, 0, x0, h), (x1, 0, w, h), (0, 0, w, y0), (0, y1, w, h)):
+        a, b, c, d = max(rect[0], 0), max(rect[1], 0), min(rect[2], w), min(rect[3], h)
+        if c - a >= min_side and d - b >= min_side:
+            yield a, b, c, d
+
+
+def real_photo_crops(
+    folder: Path,
+    inner_cm: tuple[float, float] = (20.0, 12.5),
+    grow_cm: float = 6.0,
+    min_side: int = 120,
+) -> list[tuple[str, np.ndarray]]:
+    """Crops (name, RGB uint8) of the photos of a real set that do not show the board.
+
+    The board is the inner-corner rectangle of labels.csv (corner_x0..corner_y3) grown by
+    `grow_cm` (board squares, margin, frame and lens distortion); the crops are the strips
+    outside its bounding box whose sides are all >= `min_side` px.
+    """
+    with (folder / "labels.csv").open(newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    crops = []
+    for row in rows:
+        corners = np.array([[float(row[f"corner_{a}{i}"]) for a in "xy"] for i in range(4)])
+        bgr = cv2.imread(str(folder / row["file"]), cv2.IMREAD_COLOR)
+        if bgr is None:
+            raise ValueError(f"cannot read {folder / row['file']}")
+        polygon = board_polygon(corners, inner_cm, grow_cm)
+        for k, (x0, y0, x1, y1) in enumerate(free_strips(bgr.shape[:2], polygon, min_side)):
+            name = f"{Path(row['file']).stem}-{k}.png"
+            crops.append((name, cv2.cvtColor(bgr[y0:y1, x0:x1], cv2.COLOR_BGR2RGB)))
+    return crops
+
+
+class BackgroundPool:
+    """Background sources at a working resolution for output images of `size` (W, H).
+
+    Each source is scaled so that its short side is about `oversize` times the output's: crops
+    then cover 1/oversize .. 1 of it and are never minified much (no aliasing).
+    """
+
+    def __init__(
+        self, size: tuple[int, int], sources: list[np.ndarray], oversize: float = 2.0
+    ) -> None:
+        if not sources:
+            raise ValueError("no background images")
+        self.size = size
+        w, h = size
+        self.images = []
+        for img in sources:
+            scale = oversize * max(w / img.shape[1], h / img.shape[0])
+            interp = cv2.INTER_AREA if scale < 1 else cv2.INTER_LINEAR
+            self.images.append(cv2.resize(img, None, fx=scale, fy=scale, interpolation=interp))
+
+    @classmethod
+    def default(cls, size: tuple[int, int]) -> BackgroundPool:
+        """The shipped photographs, the real-photo crops and the procedural textures."""
+        w, h = size
+        return cls(
+            size, shipped_backgrounds() + procedural_backgrounds(N_PROCEDURAL, (2 * w, 2 * h))
+        )
+
+    def sample(self, rng: np.random.Generator) -> np.ndarray:
+        """A random crop (1/oversize .. 1 of the source's largest window of the output's
+        aspect, random place, 50 % mirrored) resized to the output size: RGB uint8 [H, W, 3]."""
+        src = self.images[int(rng.integers(len(self.images)))]
+        w, h = self.size
+        sh, sw = src.shape[:2]
+        k = min(sw / w, sh / h) * rng.uniform(1.0 / 2.0, 1.0)  # source px per output px
+        cw, ch = max(int(round(k * w)), 1), max(int(round(k * h)), 1)
+        x0, y0 = int(rng.integers(sw - cw + 1)), int(rng.integers(sh - ch + 1))
+        out = cv2.resize(src[y0 : y0 + ch, x0 : x0 + cw], (w, h), interpolation=cv2.INTER_LINEAR)
+        return cv2.flip(out, 1) if rng.random() < 0.5 else out

@@ -1,0 +1,539 @@
+"""Synthetic data sets on disk (SPEC section 7) and the loader used by training.
+
+On disk a data set is a folder a person can open:
+
+* `images/NNNNN.png`: RGB images of the manifest's size;
+* `labels.csv`: one row per image, columns `LABEL_COLUMNS` (`file` relative to the folder;
+  class 0..8; camera centre and look-at target in cm, object frame; SPEC blur level; split
+  train / val / test; roll in degrees and focal-length scale). Class 0 rows (no object) leave
+  the camera columns empty;
+* `manifest.json`: generator and version, profile, size [W, H], variant, blur, seed, count,
+  jitter, per-split counts and per-split class counts.
+
+`make_dataset` writes one set (class-balanced 60 / 20 / 20 splits, deterministic for a seed:
+the same bytes whatever the number of worker processes), `make_grid` the 16 SPEC sets, and
+`load_dataset` reads any set in this format (also the real ones) into arrays, with a cache.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import io
+import json
+import multiprocessing
+import os
+import shutil
+from collections.abc import Callable, Iterator
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from service.preprocess import ImageDecodeError, decode_image, resize_rgb
+from train.background import BackgroundPool
+from train.blur import BLUR_LEVELS, SIZES
+from train.profile import Profile
+from train.render import VARIANTS, Renderer, View, draw_views
+
+GENERATOR = "planar-pose data make"
+GENERATOR_VERSION = "1.0"
+SPLITS = ("train", "val", "test")
+SPLIT_FRACTIONS = (0.6, 0.2, 0.2)
+NUM_CLASSES = 9
+MIN_COUNT = NUM_CLASSES
+CHUNK = 250  # images per rendering task (and per random stream)
+LABEL_COLUMNS = [
+    "file",
+    "class",
+    "cam_x",
+    "cam_y",
+    "cam_z",
+    "target_x",
+    "target_y",
+    "target_z",
+    "blur",
+    "split",
+    "roll_deg",
+    "focal_scale",
+]
+PNG_PARAMS = [cv2.IMWRITE_PNG_COMPRESSION, 0, cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_NONE]
+CACHE_DIR = ".cache"
+
+
+class DatasetError(ValueError):
+    """A data set that cannot be made (bad arguments, existing folder) or read."""
+
+
+@dataclass(frozen=True)
+class DatasetSpec:
+    """What to generate: variant C / noC, SPEC size 1 / 2, blur 0..3, count, seed, profile."""
+
+    variant: str
+    size: int
+    blur: int
+    count: int
+    seed: int
+    profile: Profile
+    jitter: bool = True
+
+    def __post_init__(self) -> None:
+        if self.variant not in VARIANTS:
+            raise DatasetError(f"variant must be C or noC, got {self.variant!r}")
+        if self.size not in SIZES:
+            raise DatasetError(f"size must be 1 (80x60) or 2 (160x120), got {self.size!r}")
+        if self.blur not in BLUR_LEVELS:
+            raise DatasetError(f"blur must be 0, 1, 2 or 3, got {self.blur!r}")
+        if self.count < MIN_COUNT:
+            raise DatasetError(
+                f"count must be at least {MIN_COUNT} (one per class), got {self.count}"
+            )
+
+    @property
+    def name(self) -> str:
+        """Folder name in a grid, e.g. noC-s1-b2."""
+        return f"{self.variant}-s{self.size}-b{self.blur}"
+
+    @property
+    def wh(self) -> tuple[int, int]:
+        """Image size (W, H) in pixels."""
+        return SIZES[self.size]
+
+
+def balanced_assignment(count: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Classes int (N,) and split indices int (N,) (0 train, 1 val, 2 test), shuffled.
+
+    Split sizes round(60 %), round(20 %), rest; inside each split the 9 classes differ by at
+    most one image, and the split's extra images go to the classes with fewest so far, so the
+    whole set is balanced too.
+    """
+    n_train, n_val = round(SPLIT_FRACTIONS[0] * count), round(SPLIT_FRACTIONS[1] * count)
+    sizes = (n_train, n_val, count - n_train - n_val)
+    totals = np.zeros(NUM_CLASSES, int)
+    classes, splits = [], []
+    for split, n in enumerate(sizes):
+        per = np.full(NUM_CLASSES, n // NUM_CLASSES)
+        extra = np.argsort(totals, kind="stable")[: n % NUM_CLASSES]
+        per[extra] += 1
+        totals += per
+        classes.append(np.repeat(np.arange(NUM_CLASSES), per))
+        splits.append(np.full(n, split))
+    order = rng.permutation(count)
+    return np.concatenate(classes)[order], np.concatenate(splits)[order]
+
+
+@dataclass
+class Plan:
+    """Everything about a set except the pixels: one class, split and view (None for 0) each."""
+
+    spec: DatasetSpec
+    classes: np.ndarray
+    splits: np.ndarray
+    views: list[View | None] = field(repr=False)
+
+    def rows(self, width: int) -> list[dict[str, Any]]:
+        """labels.csv rows (see LABEL_COLUMNS); `width` = digits of the image numbers."""
+        rows = []
+        for i, (k, s, view) in enumerate(zip(self.classes, self.splits, self.views, strict=True)):
+            row: dict[str, Any] = {c: "" for c in LABEL_COLUMNS}
+            row |= {"file": image_name(i, width), "class": int(k), "blur": self.spec.blur}
+            row["split"] = SPLITS[int(s)]
+            if view is not None:
+                row |= {f"cam_{a}": f"{v:.4f}" for a, v in zip("xyz", view.centre, strict=True)}
+                row |= {f"target_{a}": f"{v:.4f}" for a, v in zip("xyz", view.target, strict=True)}
+                row |= {
+                    "roll_deg": f"{view.roll_deg:.3f}",
+                    "focal_scale": f"{view.focal_scale:.4f}",
+                }
+            rows.append(row)
+        return rows
+
+
+def plan_dataset(spec: DatasetSpec) -> Plan:
+    """Classes, splits and cameras of a set, from its seed alone."""
+    rng = np.random.default_rng(spec.seed)
+    classes, splits = balanced_assignment(spec.count, rng)
+    present = classes > 0
+    drawn = iter(draw_views(spec.profile, classes[present], spec.variant, rng))
+    views = [next(drawn) if p else None for p in present]
+    return Plan(spec, classes, splits, views)
+
+
+def image_name(index: int, width: int) -> str:
+    """Relative path of image `index`, e.g. images/00042.png."""
+    return f"images/{index:0{width}d}.png"
+
+
+_RENDERERS: dict[tuple, Renderer] = {}
+_BACKGROUNDS: dict[tuple[int, int], BackgroundPool] = {}
+
+
+def _renderer(spec: DatasetSpec) -> Renderer:
+    """One renderer per (profile, size, jitter, seed) and process; one background pool per
+    size and process."""
+    key = (spec.profile, spec.wh, spec.jitter, spec.seed)
+    if key not in _RENDERERS:
+        if spec.wh not in _BACKGROUNDS:
+            _BACKGROUNDS[spec.wh] = BackgroundPool.default(spec.wh)
+        _RENDERERS[key] = Renderer(
+            spec.profile, spec.wh, spec.jitter, _BACKGROUNDS[spec.wh], seed=spec.seed
+        )
+    return _RENDERERS[key]
+
+
+@dataclass(frozen=True)
+class Chunk:
+    """A rendering task: images chunk * CHUNK ... of a set, their views (None for class 0),
+    and the folder to write them to (None: return the arrays)."""
+
+    spec: DatasetSpec
+    chunk: int
+    views: tuple[View | None, ...]
+    out: Path | None = None
+
+
+def chunks_of(plan: Plan, out: Path | None) -> list[Chunk]:
+    """The rendering tasks of a planned set."""
+    n = plan.spec.count
+    return [
+        Chunk(plan.spec, c, tuple(plan.views[c * CHUNK : (c + 1) * CHUNK]), out)
+        for c in range(-(-n // CHUNK))
+    ]
+
+
+def render_chunk(task: Chunk) -> Iterator[tuple[int, np.ndarray]]:
+    """(index, RGB uint8 [H, W, 3]) of the images of one chunk.
+
+    Each chunk has its own random stream seeded by (seed, chunk), so images do not depend on
+    which process renders them.
+    """
+    renderer = _renderer(task.spec)
+    rng = np.random.default_rng([task.spec.seed, task.chunk])
+    for j, view in enumerate(task.views):
+        yield task.chunk * CHUNK + j, renderer.render(view, task.spec.blur, rng)
+
+
+def _run_task(task: Chunk) -> tuple[int, list[np.ndarray]]:
+    """Render one chunk; write its PNGs (returns no arrays) or return the arrays."""
+    images = []
+    width = _digits(task.spec.count)
+    for i, rgb in render_chunk(task):
+        if task.out is None:
+            images.append(rgb)
+            continue
+        ok, buf = cv2.imencode(".png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), PNG_PARAMS)
+        if not ok:
+            raise OSError(f"PNG encoding failed for image {i}")
+        (task.out / image_name(i, width)).write_bytes(buf.tobytes())
+    return task.chunk, images
+
+
+def _digits(count: int) -> int:
+    return max(5, len(str(count - 1)))
+
+
+def _init_worker() -> None:
+    cv2.setNumThreads(1)
+
+
+def run_tasks(
+    tasks: list[Chunk], workers: int, progress: Callable[[int], None] | None = None
+) -> Iterator[tuple[int, list[np.ndarray]]]:
+    """Run rendering tasks in `workers` processes (1: in this process), yielding
+    (chunk, images) in task order; `progress(n_images)` after each task."""
+
+    def done(task: Chunk) -> int:
+        return len(task.views)
+
+    if workers <= 1 or len(tasks) <= 1:
+        for task in tasks:
+            result = _run_task(task)
+            if progress:
+                progress(done(task))
+            yield result
+        return
+    # Not "fork": a child forked after OpenCV started its thread pool can deadlock.
+    if "forkserver" in multiprocessing.get_all_start_methods():
+        context = multiprocessing.get_context("forkserver")
+        context.set_forkserver_preload([__name__])
+    else:
+        context = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(workers, mp_context=context, initializer=_init_worker) as pool:
+        for task, result in zip(tasks, pool.map(_run_task, tasks), strict=True):
+            if progress:
+                progress(done(task))
+            yield result
+
+
+def default_workers() -> int:
+    """Worker processes: the CPU cores this process may use."""
+    return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 1)
+
+
+def check_outputs(folders: list[Path], overwrite: bool) -> None:
+    """Raise DatasetError if a folder is a file, or is not empty and `overwrite` is off."""
+    if len(set(folders)) != len(folders):
+        raise DatasetError("two data sets would be written to the same folder")
+    for out in folders:
+        if out.exists() and not out.is_dir():
+            raise DatasetError(f"{out} exists and is not a folder")
+        if out.is_dir() and any(out.iterdir()) and not overwrite:
+            raise DatasetError(f"{out} exists and is not empty (use --overwrite to replace it)")
+
+
+def prepare_folder(out: Path, overwrite: bool) -> None:
+    """Make `out` ready for a new set: refuse a non-empty folder unless `overwrite`, and then
+    only if it holds a data set (manifest.json, labels.csv or images/), which is deleted."""
+    if out.exists() and not out.is_dir():
+        raise DatasetError(f"{out} exists and is not a folder")
+    if out.is_dir() and any(out.iterdir()):
+        if not overwrite:
+            raise DatasetError(f"{out} exists and is not empty (use --overwrite to replace it)")
+        if not any((out / n).exists() for n in ("manifest.json", "labels.csv", "images")):
+            raise DatasetError(f"{out} is not a data set folder; refusing to delete it")
+        shutil.rmtree(out)
+    (out / "images").mkdir(parents=True, exist_ok=True)
+
+
+def _manifest(plan: Plan) -> dict[str, Any]:
+    spec = plan.spec
+    split_classes = {
+        name: np.bincount(plan.classes[plan.splits == s], minlength=NUM_CLASSES).tolist()
+        for s, name in enumerate(SPLITS)
+    }
+    return {
+        "generator": GENERATOR,
+        "generator_version": GENERATOR_VERSION,
+        "profile": spec.profile.manifest_entry(),
+        "size": list(spec.wh),
+        "variant": spec.variant,
+        "blur": spec.blur,
+        "seed": spec.seed,
+        "count": spec.count,
+        "jitter": spec.jitter,
+        "counts": {name: int(np.sum(plan.splits == s)) for s, name in enumerate(SPLITS)},
+        "class_counts": np.bincount(plan.classes, minlength=NUM_CLASSES).tolist(),
+        "split_class_counts": split_classes,
+    }
+
+
+def write_labels(path: Path, rows: list[dict[str, Any]]) -> None:
+    """Write labels.csv rows (LABEL_COLUMNS) to `path`."""
+    with path.open("w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=LABEL_COLUMNS, lineterminator="\n")
+        writer.writeheader()
+        writer.writerows(rows)
+
+
+def make_datasets(
+    jobs: list[tuple[DatasetSpec, Path]],
+    overwrite: bool = False,
+    workers: int = 1,
+    progress: Callable[[int], None] | None = None,
+) -> list[dict[str, Any]]:
+    """Write several data sets (`spec`, folder), sharing one pool of `workers` processes.
+
+    All folders are checked before anything is written. Returns their manifests.
+    """
+    check_outputs([out for _, out in jobs], overwrite)
+    plans = []
+    for spec, out in jobs:
+        prepare_folder(out, overwrite)
+        plans.append(plan_dataset(spec))
+    tasks = [t for plan, (_, out) in zip(plans, jobs, strict=True) for t in chunks_of(plan, out)]
+    for _ in run_tasks(tasks, workers, progress):
+        pass
+    manifests = []
+    for plan, (spec, out) in zip(plans, jobs, strict=True):
+        write_labels(out / "labels.csv", plan.rows(_digits(spec.count)))
+        manifest = _manifest(plan)
+        (out / "manifest.json").write_text(json.dumps(manifest, indent=1) + "\n")
+        manifests.append(manifest)
+    return manifests
+
+
+def make_dataset(
+    out: Path,
+    spec: DatasetSpec,
+    overwrite: bool = False,
+    workers: int = 1,
+    progress: Callable[[int], None] | None = None,
+) -> dict[str, Any]:
+    """Write one data set to `out` (see the module doc); return its manifest."""
+    return make_datasets([(spec, out)], overwrite, workers, progress)[0]
+
+
+def grid_specs(count: int, seed: int, profile: Profile, jitter: bool = True) -> list[DatasetSpec]:
+    """The 16 SPEC sets {C, noC} x size {1, 2} x blur {0..3}; set i gets seed `seed + i`."""
+    combos = [(v, s, b) for v in VARIANTS for s in SIZES for b in BLUR_LEVELS]
+    return [
+        DatasetSpec(v, s, b, count, seed + i, profile, jitter) for i, (v, s, b) in enumerate(combos)
+    ]
+
+
+def render_in_memory(spec: DatasetSpec, workers: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Render a whole set without writing it: images uint8 [N, H, W, 3] RGB, classes (N,)."""
+    plan = plan_dataset(spec)
+    chunks = dict(run_tasks(chunks_of(plan, None), workers))
+    images = np.stack([im for c in sorted(chunks) for im in chunks[c]])
+    return images, plan.classes.astype(np.int64)
+
+
+# ---------------------------------------------------------------------------------------------
+# Loading
+
+
+@dataclass
+class LoadedDataset:
+    """A data set (or one split of it) in memory.
+
+    `images` uint8 [N, H, W, 3] RGB, `labels` int64 [N] classes 0..8, `rows` the labels.csv
+    rows of these images (all columns as strings), `manifest` the parsed manifest.json.
+    """
+
+    path: Path
+    images: np.ndarray
+    labels: np.ndarray
+    rows: list[dict[str, str]]
+    manifest: dict[str, Any]
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """Image size (W, H) in pixels."""
+        return int(self.images.shape[2]), int(self.images.shape[1])
+
+    def column(self, name: str) -> list[str]:
+        """One labels.csv column of these images."""
+        return [row[name] for row in self.rows]
+
+
+def _read_table(path: Path) -> tuple[bytes, list[dict[str, str]]]:
+    labels = path / "labels.csv"
+    if not path.is_dir():
+        raise DatasetError(f"data set folder not found: {path}")
+    if not labels.is_file():
+        raise DatasetError(f"not a data set (no labels.csv): {path}")
+    raw = labels.read_bytes()
+    try:
+        rows = list(csv.DictReader(io.StringIO(raw.decode("utf-8"))))
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise DatasetError(f"{labels}: not a readable CSV ({exc})") from exc
+    if not rows:
+        raise DatasetError(f"{labels} has no rows")
+    missing = {"file", "class", "split"} - set(rows[0])
+    if missing:
+        raise DatasetError(f"{labels} lacks column(s) {sorted(missing)}")
+    for n, row in enumerate(rows, start=2):
+        if row["split"] not in SPLITS:
+            raise DatasetError(
+                f"{labels} line {n}: split must be train/val/test, got {row['split']!r}"
+            )
+        if not (row["class"] or "").isdigit() or int(row["class"]) >= NUM_CLASSES:
+            raise DatasetError(f"{labels} line {n}: class must be 0..8, got {row['class']!r}")
+    return raw, rows
+
+
+def _read_manifest(path: Path) -> dict[str, Any]:
+    file = path / "manifest.json"
+    if not file.is_file():
+        raise DatasetError(f"not a data set (no manifest.json): {path}")
+    try:
+        manifest = json.loads(file.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise DatasetError(f"{file}: not valid JSON ({exc})") from exc
+    if not isinstance(manifest, dict):
+        raise DatasetError(f"{file}: expected a JSON object")
+    return manifest
+
+
+def _decode_all(path: Path, rows: list[dict[str, str]], size: tuple[int, int]) -> np.ndarray:
+    w, h = size
+    images = np.empty((len(rows), h, w, 3), np.uint8)
+    for i, row in enumerate(rows):
+        file = path / row["file"]
+        try:
+            images[i] = resize_rgb(decode_image(file.read_bytes()), size)
+        except FileNotFoundError:
+            raise DatasetError(
+                f"{path}: image {row['file']} listed in labels.csv is missing"
+            ) from None
+        except (OSError, ImageDecodeError) as exc:
+            raise DatasetError(f"{path}: cannot read image {row['file']} ({exc})") from exc
+    return images
+
+
+def _cache_key(raw_labels: bytes, size: tuple[int, int]) -> str:
+    return hashlib.sha256(
+        raw_labels + f"|{size[0]}x{size[1]}|{GENERATOR_VERSION}".encode()
+    ).hexdigest()
+
+
+def _cached_images(
+    path: Path, raw: bytes, rows: list[dict[str, str]], size: tuple[int, int]
+) -> np.ndarray:
+    """All images of the set [N, H, W, 3] from `.cache/` or decoded (then cached).
+
+    The cache is keyed by the bytes of labels.csv and the size; a failure to write it (e.g. a
+    read-only folder) only costs the next load a decode.
+    """
+    cache = path / CACHE_DIR
+    key = _cache_key(raw, size)
+    array, key_file = (
+        cache / f"images-{size[0]}x{size[1]}.npy",
+        cache / f"images-{size[0]}x{size[1]}.key",
+    )
+    if array.is_file() and key_file.is_file() and key_file.read_text() == key:
+        try:
+            images = np.load(array, mmap_mode="r")
+            if images.shape == (len(rows), size[1], size[0], 3):
+                return images
+        except (OSError, ValueError):
+            pass
+    images = _decode_all(path, rows, size)
+    try:
+        cache.mkdir(exist_ok=True)
+        tmp = array.with_suffix(f".{os.getpid()}.tmp")
+        with tmp.open("wb") as fh:
+            np.save(fh, images)
+        os.replace(tmp, array)
+        key_file.write_text(key)
+    except OSError:
+        pass
+    return images
+
+
+def load_dataset(
+    path: Path | str, split: str | None = None, size: tuple[int, int] | None = None
+) -> LoadedDataset:
+    """Load a data set folder (synthetic or real) -> LoadedDataset.
+
+    `split`: train, val or test (None: every image, in labels.csv order). `size` (W, H):
+    resize to it (default: the manifest's size). Images are decoded and resized with
+    `service.preprocess` (as in serving) and cached in `<path>/.cache/` (an .npy per size,
+    invalidated when labels.csv changes). Raises DatasetError for a missing or corrupt set.
+    """
+    path = Path(path)
+    if split is not None and split not in SPLITS:
+        raise DatasetError(f"split must be train, val, test or None, got {split!r}")
+    raw, rows = _read_table(path)
+    manifest = _read_manifest(path)
+    if size is None:
+        try:
+            size = (int(manifest["size"][0]), int(manifest["size"][1]))
+        except (KeyError, TypeError, ValueError, IndexError):
+            raise DatasetError(f"{path / 'manifest.json'}: no valid size [W, H]") from None
+    images = _cached_images(path, raw, rows, tuple(size))
+    if split is None:
+        index = np.arange(len(rows))
+    else:
+        index = np.array([i for i, r in enumerate(rows) if r["split"] == split], dtype=np.int64)
+    selected = (
+        np.ascontiguousarray(images[index])
+        if len(index)
+        else np.empty((0, size[1], size[0], 3), np.uint8)
+    )
+    labels = np.array([int(rows[i]["class"]) for i in index], dtype=np.int64)
+    return LoadedDataset(path, selected, labels, [rows[i] for i in index], manifest)

@@ -1,0 +1,299 @@
+"""Synthetic views of a profile's object (SPEC section 5): camera drawing and rendering.
+
+* `draw_views`: camera centres from the profile's lattice for given classes, look-at targets
+  (variant "C": the object centre; "noC": uniform in a 6 x 6 cm square around it), rolls and
+  focal-length scales from the profile's ranges.
+* `Renderer`: warps the texture (with a drawn white margin and frame) onto a background with
+  the homography H = A [r1 r2 t] composed with texture pixel -> object plane; bilinear
+  `cv2.warpPerspective` of an RGBA mip-map level whose alpha edge is anti-aliased, blended onto
+  the background; then photometric jitter (gain, contrast, gamma, grey, noise, JPEG) and the
+  data set's SPEC 6 blur.
+* `render_view`: one plain image in memory for a camera centre / target / roll.
+
+Frames: object frame of SPEC section 2 (cm); images RGB uint8 [H, W, 3], size = (W, H).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cache
+
+import cv2
+import numpy as np
+
+from train.background import BackgroundPool
+from train.blur import blur_image
+from train.corners import texture_to_object
+from train.geometry import (
+    homography_from_pose,
+    intrinsics,
+    look_at,
+    pose_class,
+    project_points,
+    translation,
+)
+from train.profile import Profile
+
+VARIANTS = ("C", "noC")
+NOC_HALF_CM = 3.0  # noC targets: uniform in [-3, 3] x [-3, 3] cm around the object centre
+N_BORDER_VARIANTS = 12
+PAD = 2  # transparent texels around each mip level: the anti-aliased alpha edge
+
+
+@dataclass(frozen=True)
+class View:
+    """A camera for one render: centre and look-at target (3,) cm, roll (deg), focal scale."""
+
+    centre: np.ndarray
+    target: np.ndarray
+    roll_deg: float = 0.0
+    focal_scale: float = 1.0
+
+
+def draw_views(
+    profile: Profile, classes: np.ndarray, variant: str, rng: np.random.Generator
+) -> list[View]:
+    """One view per entry of `classes` (N,) in 1..8: a lattice point of that class (uniform),
+    its target per `variant`, roll and focal scale uniform in the profile's ranges."""
+    if variant not in VARIANTS:
+        raise ValueError(f"variant must be C or noC, got {variant!r}")
+    lattice = profile.lattice()
+    lattice_classes = pose_class(lattice, profile.geometry.z_split_cm)
+    by_class = {k: lattice[lattice_classes == k] for k in range(1, 9)}
+    views = []
+    for k in np.asarray(classes, dtype=int):
+        points = by_class[int(k)]
+        if len(points) == 0:
+            raise ValueError(f"profile {profile.name!r} has no lattice point in class {k}")
+        centre = points[rng.integers(len(points))]
+        target = np.zeros(3)
+        if variant == "noC":
+            target[:2] = rng.uniform(-NOC_HALF_CM, NOC_HALF_CM, 2)
+        views.append(
+            View(
+                centre=centre.copy(),
+                target=target,
+                roll_deg=float(rng.uniform(*profile.roll_deg)),
+                focal_scale=float(rng.uniform(*profile.focal_scale)),
+            )
+        )
+    return views
+
+
+def _rounded_alpha(shape: tuple[int, int], radius: float) -> np.ndarray:
+    """uint8 [h, w] alpha of a rectangle with anti-aliased rounded corners of `radius` px."""
+    h, w = shape
+    alpha = np.zeros((h, w), np.uint8)
+    r = int(round(radius))
+    if r < 1:
+        alpha[:] = 255
+        return alpha
+    cv2.rectangle(alpha, (r, 0), (w - 1 - r, h - 1), 255, -1)
+    cv2.rectangle(alpha, (0, r), (w - 1, h - 1 - r), 255, -1)
+    for cx, cy in ((r, r), (w - 1 - r, r), (r, h - 1 - r), (w - 1 - r, h - 1 - r)):
+        cv2.circle(alpha, (cx, cy), r, 255, -1, cv2.LINE_AA)
+    return alpha
+
+
+@dataclass(frozen=True)
+class _Level:
+    """One mip level: padded RGBA uint8 and the map padded pixel -> object plane (3, 3)."""
+
+    rgba: np.ndarray
+    to_object: np.ndarray
+    texels_per_cm: float
+
+
+class BoardImage:
+    """The texture framed by a white margin and an outer frame, as an RGBA mip-map.
+
+    `margin_cm`, `frame_cm`: widths; `frame_grey`: frame grey level. Level 0 has the
+    texture's own resolution; each next level halves it (area average).
+    """
+
+    def __init__(
+        self,
+        profile: Profile,
+        texture: np.ndarray,
+        margin_cm: float,
+        frame_cm: float,
+        frame_grey: int,
+        min_side: int = 8,
+    ) -> None:
+        th, tw = texture.shape[:2]
+        ppc = tw / profile.width_cm  # texels per cm
+        m, f = int(round(margin_cm * ppc)), int(round(frame_cm * ppc))
+        b = m + f
+        board = np.empty((th + 2 * b, tw + 2 * b, 4), np.uint8)
+        board[..., 3] = _rounded_alpha(board.shape[:2], 1.5 * f)
+        board[..., :3] = frame_grey
+        board[f : f + th + 2 * m, f : f + tw + 2 * m, :3] = profile.border.margin_rgb
+        board[b : b + th, b : b + tw, :3] = texture
+        tex_to_obj = texture_to_object((tw, th), profile.width_cm, profile.height_cm)
+        board_to_tex = np.array([[1.0, 0, -b], [0, 1.0, -b], [0, 0, 1.0]])
+        self.levels: list[_Level] = []
+        level = board
+        while True:
+            lh, lw = level.shape[:2]
+            sx, sy = board.shape[1] / lw, board.shape[0] / lh
+            # padded level pixel (p, q) -> level-0 board pixel: ((p - PAD + 0.5) s - 0.5).
+            to_board = np.array(
+                [[sx, 0, (0.5 - PAD) * sx - 0.5], [0, sy, (0.5 - PAD) * sy - 0.5], [0, 0, 1.0]]
+            )
+            padded = cv2.copyMakeBorder(level, PAD, PAD, PAD, PAD, cv2.BORDER_REPLICATE)
+            padded[:PAD, :, 3] = padded[-PAD:, :, 3] = 0
+            padded[:, :PAD, 3] = padded[:, -PAD:, 3] = 0
+            self.levels.append(_Level(padded, tex_to_obj @ board_to_tex @ to_board, ppc / sx))
+            if min(lh, lw) // 2 < min_side:
+                break
+            level = cv2.resize(level, (lw // 2, lh // 2), interpolation=cv2.INTER_AREA)
+        self.half_extent_cm = (profile.width_cm / 2 + b / ppc, profile.height_cm / 2 + b / ppc)
+
+    def level_for(self, texels_per_px: float) -> _Level:
+        """The mip level with at most ~1.4 texels per output pixel (the finest if magnified)."""
+        index = int(np.clip(np.floor(np.log2(max(texels_per_px, 1.0) / 1.4) + 1), 0, None))
+        return self.levels[min(index, len(self.levels) - 1)]
+
+
+class Renderer:
+    """Renders views of one profile at one image `size` (W, H).
+
+    `jitter` switches the photometric jitter; `backgrounds` defaults to the shipped pool.
+    Border variants (margin / frame widths and grey) are drawn from the profile's ranges with
+    `seed`, so a renderer is deterministic given its seed and the per-image rng.
+    """
+
+    def __init__(
+        self,
+        profile: Profile,
+        size: tuple[int, int],
+        jitter: bool = True,
+        backgrounds: BackgroundPool | None = None,
+        seed: int = 0,
+    ) -> None:
+        self.profile, self.size, self.jitter = profile, tuple(size), jitter
+        self.backgrounds = backgrounds if backgrounds is not None else BackgroundPool.default(size)
+        texture = profile.texture_rgb()
+        rng = np.random.default_rng(seed)
+        border = profile.border
+        self.boards = [
+            BoardImage(
+                profile,
+                texture,
+                float(rng.uniform(*border.margin_cm)),
+                float(rng.uniform(*border.frame_cm)),
+                int(rng.integers(border.frame_grey[0], border.frame_grey[1] + 1)),
+            )
+            for _ in range(N_BORDER_VARIANTS)
+        ]
+        self.noise = np.clip(rng.normal(128, 16, (2 * size[1], 2 * size[0], 3)), 0, 255).astype(
+            np.uint8
+        )
+
+    def homography(self, view: View, board: BoardImage) -> tuple[np.ndarray, _Level, np.ndarray]:
+        """Image-from-texel homography (3, 3) for `view`, the mip level it samples and the
+        board's outline in the image (4, 2) px (camera in front of the object plane)."""
+        A = intrinsics(self.size, view.focal_scale)
+        R = look_at(view.centre, view.target, np.radians(view.roll_deg))
+        t = translation(R, view.centre)
+        H_obj = homography_from_pose(A, R, t)
+        w, h = board.half_extent_cm
+        corners = np.array([[-w, -h, 0], [w, -h, 0], [w, h, 0], [-w, h, 0]])
+        quad = project_points(A, R, t, corners)
+        if np.min(corners @ R[2] + t[2]) <= 1e-6:  # a corner behind the camera: whole frame
+            quad = np.array([[0.0, 0.0], [self.size[0], self.size[1]]])
+        area_px = abs(cv2.contourArea(quad.astype(np.float32)))
+        texels = board.levels[0].texels_per_cm ** 2 * 4 * w * h
+        level = board.level_for(float(np.sqrt(texels / max(area_px, 1e-9))))
+        return H_obj @ level.to_object, level, quad
+
+    def draw_object(self, background: np.ndarray, view: View, board: BoardImage) -> np.ndarray:
+        """`background` RGB uint8 [H, W, 3] with the object of `board` seen from `view`.
+
+        Only the bounding box of the projected board is warped and blended.
+        """
+        H, level, quad = self.homography(view, board)
+        w, h = self.size
+        x0, y0 = np.clip(np.floor(quad.min(axis=0)).astype(int) - 1, 0, [w, h])
+        x1, y1 = np.clip(np.ceil(quad.max(axis=0)).astype(int) + 2, 0, [w, h])
+        if x1 <= x0 or y1 <= y0:
+            return background
+        shift = np.array([[1.0, 0, -x0], [0, 1.0, -y0], [0, 0, 1.0]])
+        warped = cv2.warpPerspective(
+            level.rgba,
+            shift @ H,
+            (int(x1 - x0), int(y1 - y0)),
+            flags=cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_REPLICATE,
+        )
+        alpha = cv2.extractChannel(warped, 3).astype(np.float32) * np.float32(1 / 255)
+        rgb = cv2.cvtColor(warped, cv2.COLOR_RGBA2RGB)
+        out = background.copy()
+        out[y0:y1, x0:x1] = cv2.blendLinear(rgb, out[y0:y1, x0:x1], alpha, 1.0 - alpha)
+        return out
+
+    def render(self, view: View | None, blur: int, rng: np.random.Generator) -> np.ndarray:
+        """One data set image: background (+ the object unless `view` is None, class 0),
+        photometric jitter if enabled, then SPEC blur `blur` -> RGB uint8 [H, W, 3]."""
+        image = self.backgrounds.sample(rng)
+        if view is not None:
+            board = self.boards[int(rng.integers(len(self.boards)))]
+            image = self.draw_object(image, view, board)
+        if self.jitter:
+            image = self.photometric(image, rng)
+        return blur_image(image, blur, self.size)
+
+    def photometric(self, image: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """Gain / contrast / gamma / brightness (one LUT), grey (30 %), Gaussian noise
+        (sigma 0-8 grey levels), JPEG (quality 35-95, 40 %) of an RGB uint8 image."""
+        x = np.arange(256, dtype=np.float32)[:, None] / 255.0
+        gamma = np.exp(rng.uniform(np.log(0.6), np.log(1.6)))
+        gain = rng.uniform(0.85, 1.15, 3).astype(np.float32)
+        y = (255 * x**gamma - 128) * rng.uniform(0.6, 1.3) + 128 + rng.uniform(-45, 45)
+        lut = np.clip(y * gain, 0, 255).astype(np.uint8).reshape(1, 256, 3)
+        image = cv2.LUT(image, lut)
+        if rng.random() < 0.3:
+            image = cv2.cvtColor(cv2.cvtColor(image, cv2.COLOR_RGB2GRAY), cv2.COLOR_GRAY2RGB)
+        w, h = self.size
+        sigma = rng.uniform(0, 8) / 16
+        y0, x0 = rng.integers(h), rng.integers(w)
+        noise = self.noise[y0 : y0 + h, x0 : x0 + w]
+        image = cv2.addWeighted(image, 1.0, noise, sigma, -128 * sigma)
+        if rng.random() < 0.4:
+            quality = int(rng.integers(35, 96))
+            ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, quality])
+            image = cv2.imdecode(buf, cv2.IMREAD_COLOR)  # channel order is kept as given
+        return image
+
+
+@cache
+def _plain_renderer(profile_path: str, size: tuple[int, int]) -> Renderer:
+    from train.profile import load_profile
+
+    profile = load_profile(profile_path)
+    grey = np.full((size[1], size[0], 3), 127, np.uint8)
+    return Renderer(profile, size, jitter=False, backgrounds=BackgroundPool(size, [grey]))
+
+
+def render_view(
+    profile: Profile,
+    size: tuple[int, int],
+    centre: np.ndarray,
+    target: np.ndarray | None = None,
+    roll_deg: float = 0.0,
+    focal_scale: float = 1.0,
+    background: np.ndarray | None = None,
+) -> np.ndarray:
+    """Render the object seen from `centre` (3,) cm looking at `target` (default the object
+    centre) with `roll_deg`, on `background` (RGB uint8 [H, W, 3], default mid grey), without
+    jitter or blur, with the first border variant -> RGB uint8 [H, W, 3] of `size` (W, H)."""
+    renderer = _plain_renderer(str(profile.path), tuple(size))
+    view = View(
+        np.asarray(centre, dtype=float),
+        np.zeros(3) if target is None else np.asarray(target, dtype=float),
+        roll_deg,
+        focal_scale,
+    )
+    if background is None:
+        background = np.full((size[1], size[0], 3), 127, np.uint8)
+    return renderer.draw_object(background, view, renderer.boards[0])
