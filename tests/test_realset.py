@@ -12,6 +12,7 @@ import pytest
 from typer.testing import CliRunner
 
 from train.cli import app
+from train.datasets import load_dataset
 from train.geometry import pose_class
 from train.realset import build_real_dataset, moment_of, optical_axis_target, split_moments
 
@@ -36,12 +37,16 @@ def test_labels_come_from_the_camera_centres(real_s1):
     assert len(rows) == 26 == manifest["count"]
     z_split = manifest["profile"]["z_split_cm"]
     for row in rows:
-        src = source[row["file"].replace(".png", ".jpg")]
+        src = source[Path(row["file"]).stem + ".jpg"]
         cam = [float(src[k]) for k in ("cam_x", "cam_y", "cam_z")]
         assert int(row["class"]) == int(pose_class(np.array(cam), z_split))
         image = cv2.imread(str(out / row["file"]))
         assert image.shape == (60, 80, 3)
     assert manifest["size"] == [80, 60] and manifest["real"] is True
+    loaded = load_dataset(out, split="test")
+    assert loaded.images.shape == (6, 60, 80, 3) and set(loaded.labels) <= {1, 2, 3, 4}
+    focal = {float(r["focal_scale"]) for r in rows}
+    assert all(0.6 < f < 0.7 for f in focal)  # fx = 532 px at 640 wide vs the SPEC 206 at 160
 
 
 def test_stereo_pairs_share_a_split(real_s1):
@@ -74,8 +79,8 @@ def test_blur_changes_the_images(real_s1, tmp_path):
     out0, _ = real_s1
     out3 = tmp_path / "s1b3"
     build_real_dataset(SOURCE, out3, size=1, blur=3, profile="chessboard", seed=0)
-    a = cv2.imread(str(out0 / "left01.png")).astype(float)
-    b = cv2.imread(str(out3 / "left01.png")).astype(float)
+    a = cv2.imread(str(out0 / "images" / "left01.png")).astype(float)
+    b = cv2.imread(str(out3 / "images" / "left01.png")).astype(float)
     assert np.abs(np.diff(b, axis=1)).mean() < np.abs(np.diff(a, axis=1)).mean()
     assert json.loads((out3 / "manifest.json").read_text())["blur"] == 3
 
@@ -84,7 +89,7 @@ def test_cli(tmp_path):
     out = tmp_path / "r2"
     result = runner.invoke(app, ["realset", str(SOURCE), str(out), "--size", "2"])
     assert result.exit_code == 0, result.output
-    assert cv2.imread(str(out / "right14.png")).shape == (120, 160, 3)
+    assert cv2.imread(str(out / "images" / "right14.png")).shape == (120, 160, 3)
     result = runner.invoke(app, ["realset", str(tmp_path / "none"), str(out)])
     assert result.exit_code == 1 and "no labels.csv" in result.output
     result = runner.invoke(app, ["realset", str(SOURCE), str(out), "--size", "3"])

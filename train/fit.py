@@ -89,11 +89,12 @@ def load_split(paths: list[Path], split: str) -> tuple[Split, list[dict[str, Any
         if not (path / "labels.csv").is_file():
             raise TrainingError(f"not a data set (no labels.csv): {path}")
         data = load_dataset(path, split=split)
-        manifest = json.loads((path / "manifest.json").read_text())
         images.append(data.images)
         labels.append(data.labels)
-        blurs.append(np.full(len(data.labels), int(manifest.get("blur", 0))))
-        infos.append({"path": str(path), "split": split, "count": len(data.labels), **manifest})
+        blurs.append(np.full(len(data.labels), int(data.manifest.get("blur", 0))))
+        infos.append(
+            {"path": str(path), "split": split, "count": len(data.labels), **data.manifest}
+        )
     sizes = {im.shape[1:3] for im in images if len(im)}
     if len(sizes) > 1:
         raise TrainingError(f"data sets have different image sizes (H, W): {sorted(sizes)}")

@@ -23,22 +23,10 @@ import cv2
 import numpy as np
 
 from service.preprocess import resize_rgb
+from train.blur import SIZES
 from train.geometry import pose_class
 
-SIZES = {1: (80, 60), 2: (160, 120)}
 SPLITS = ("train", "val", "test")
-LABEL_COLUMNS = [
-    "file",
-    "class",
-    "cam_x",
-    "cam_y",
-    "cam_z",
-    "target_x",
-    "target_y",
-    "target_z",
-    "blur",
-    "split",
-]
 
 
 def moment_of(file: str) -> str:
@@ -60,6 +48,12 @@ def split_moments(moments: list[str], seed: int) -> dict[str, str]:
     return {distinct[i]: names[k] for k, i in enumerate(order)}
 
 
+def rotation(rvec: np.ndarray) -> np.ndarray:
+    """OpenCV Rodrigues vector (3,) -> object -> camera rotation R (3, 3)."""
+    rot, _ = cv2.Rodrigues(np.asarray(rvec, dtype=np.float64).reshape(3, 1))
+    return rot
+
+
 def optical_axis_target(cam: np.ndarray, rvec: np.ndarray | None) -> np.ndarray:
     """Where the optical axis of a camera at `cam` (3,) meets the plane z = 0 (cm).
 
@@ -68,8 +62,7 @@ def optical_axis_target(cam: np.ndarray, rvec: np.ndarray | None) -> np.ndarray:
     """
     if rvec is None:
         return np.zeros(3)
-    rot, _ = cv2.Rodrigues(np.asarray(rvec, dtype=np.float64).reshape(3, 1))
-    axis = rot.T @ np.array([0.0, 0.0, 1.0])  # optical axis in the object frame
+    axis = rotation(rvec).T @ np.array([0.0, 0.0, 1.0])  # optical axis in the object frame
     if axis[2] >= -1e-9:
         return np.zeros(3)
     return cam + (-cam[2] / axis[2]) * axis
@@ -86,9 +79,16 @@ def read_rgb(path: Path) -> np.ndarray:
 def build_real_dataset(
     source: Path, out: Path, size: int, blur: int, profile: str, seed: int
 ) -> dict[str, Any]:
-    """Write out/ (PNG images, labels.csv, manifest.json) from `source`; return the manifest."""
+    """Write out/ (images/*.png, labels.csv, manifest.json) from `source`; return the manifest.
+
+    Besides the class, labels.csv gets the target (`optical_axis_target`), the camera roll
+    (`train.profile.roll_of_pose`) and the focal length relative to the SPEC one when the
+    source gives `rvec0..2` and `fx`, `width`.
+    """
     from train.blur import blur_image
-    from train.profile import load_profile
+    from train.datasets import write_labels
+    from train.geometry import SPEC_FOCAL_160
+    from train.profile import load_profile, roll_of_pose
 
     prof = load_profile(profile)
     z_split = float(prof.geometry.z_split_cm)
@@ -102,15 +102,18 @@ def build_real_dataset(
         raise ValueError(f"{source / 'labels.csv'} lacks columns {sorted(missing)}")
     assignment = split_moments([moment_of(r["file"]) for r in rows], seed)
 
-    out.mkdir(parents=True, exist_ok=True)
+    (out / "images").mkdir(parents=True, exist_ok=True)
     labels = []
     for row in rows:
         cam = np.array([float(row[k]) for k in ("cam_x", "cam_y", "cam_z")])
         rvec = np.array([float(row[f"rvec{i}"]) for i in range(3)]) if "rvec0" in row else None
         target = optical_axis_target(cam, rvec)
         image = blur_image(resize_rgb(read_rgb(source / row["file"]), wh), blur, wh)
-        name = f"{Path(row['file']).stem}.png"
+        name = f"images/{Path(row['file']).stem}.png"
         cv2.imwrite(str(out / name), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
+        focal = ""
+        if row.get("fx") and row.get("width"):
+            focal = f"{float(row['fx']) / float(row['width']) * 160 / SPEC_FOCAL_160[0]:.4f}"
         labels.append(
             {
                 "file": name,
@@ -119,16 +122,16 @@ def build_real_dataset(
                 **{f"target_{a}": f"{v:.4f}" for a, v in zip("xyz", target, strict=True)},
                 "blur": blur,
                 "split": assignment[moment_of(row["file"])],
+                "roll_deg": "" if rvec is None else f"{roll_of_pose(rotation(rvec)):.2f}",
+                "focal_scale": focal,
             }
         )
-    with (out / "labels.csv").open("w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=LABEL_COLUMNS)
-        writer.writeheader()
-        writer.writerows(labels)
+    write_labels(out / "labels.csv", labels)
     counts = {s: sum(r["split"] == s for r in labels) for s in SPLITS}
     classes = np.bincount([r["class"] for r in labels], minlength=9).tolist()
     manifest = {
         "generator": "planar-pose realset",
+        "generator_version": "1.0",
         "variant": "real",
         "real": True,
         "source": _repo_relative(source),

@@ -62,7 +62,7 @@ def train(
     ] = True,
 ) -> None:
     """Train (or with --init fine-tune) the pose network on the train split; keep the best val."""
-    from train.fit import FitConfig, TrainingError, fit
+    from train.fit import FitConfig, fit
 
     for path in datasets:
         if not path.is_dir():
@@ -88,10 +88,7 @@ def train(
         threads=threads,
         compile=compile_step,
     )
-    try:
-        summary = fit(config, resume=resume)
-    except TrainingError as exc:
-        raise _fail(str(exc)) from None
+    summary = _guard(lambda: fit(config, resume=resume))
     best = summary["best"]
     out.print(
         f"[green]done[/]: {summary['epochs_run']} epochs, best epoch {best['epoch']} "

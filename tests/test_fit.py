@@ -1,0 +1,138 @@
+"""Training: loss goes down, a seed gives the same weights, resume continues exactly."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from typer.testing import CliRunner
+
+import train.fit as fit_module
+from train.cli import app
+from train.datasets import DatasetSpec, make_dataset
+from train.fit import (
+    Augmenter,
+    FitConfig,
+    TrainingError,
+    evaluate_split,
+    fit,
+    load_network,
+    load_split,
+)
+from train.profile import load_profile
+
+runner = CliRunner()
+
+
+@pytest.fixture(scope="module")
+def tiny_set(tmp_path_factory) -> Path:
+    """A tiny synthetic noC 80x60 data set made by the project's generator."""
+    out = tmp_path_factory.mktemp("data") / "tiny"
+    make_dataset(out, DatasetSpec("noC", 1, 0, 180, 3, load_profile("chessboard")))
+    return out
+
+
+def _config(data: Path, out: Path, **kw) -> FitConfig:
+    base = {"epochs": 2, "batch_size": 8, "lr": 0.002, "progress": False, "threads": 1}
+    return FitConfig(datasets=[data], out=out, **(base | kw))
+
+
+def _weights(path: Path) -> dict[str, torch.Tensor]:
+    return load_network(path)[0].state_dict()
+
+
+def test_training_reduces_the_loss(tiny_set, tmp_path):
+    train, _ = load_split([tiny_set], "train")
+    torch.manual_seed(0)
+    before, _ = evaluate_split(fit_module.PoseNet((80, 60)), train)
+    summary = fit(_config(tiny_set, tmp_path, epochs=3, augment=False, schedule="constant"))
+    after, _ = evaluate_split(load_network(tmp_path / "last.pt")[0], train)
+    assert after < 0.95 * before
+    rows = [json.loads(line) for line in (tmp_path / "log.jsonl").read_text().splitlines()]
+    assert [r["epoch"] for r in rows] == [1, 2, 3]
+    assert {"train_loss", "train_accuracy", "val_loss", "val_accuracy", "lr"} <= set(rows[0])
+    assert summary["best"]["epoch"] in (1, 2, 3)
+    assert (tmp_path / "best.pt").is_file()
+
+
+def test_same_seed_same_weights(tiny_set, tmp_path):
+    fit(_config(tiny_set, tmp_path / "a", seed=5))
+    fit(_config(tiny_set, tmp_path / "b", seed=5))
+    fit(_config(tiny_set, tmp_path / "c", seed=6))
+    a, b, c = (_weights(tmp_path / r / "last.pt") for r in "abc")
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    assert not all(torch.equal(a[k], c[k]) for k in a)
+
+
+def test_resume_after_an_interruption_ends_like_an_uninterrupted_run(
+    tiny_set, tmp_path, monkeypatch
+):
+    fit(_config(tiny_set, tmp_path / "full", epochs=3))
+    real_epoch = fit_module._train_epoch
+
+    def interrupted(net, opt, train, config, epoch, augmenter):
+        if epoch == 3:
+            raise KeyboardInterrupt
+        return real_epoch(net, opt, train, config, epoch, augmenter)
+
+    monkeypatch.setattr(fit_module, "_train_epoch", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        fit(_config(tiny_set, tmp_path / "cut", epochs=3))
+    monkeypatch.setattr(fit_module, "_train_epoch", real_epoch)
+    summary = fit(_config(tiny_set, tmp_path / "cut", epochs=3), resume=True)
+    assert summary["epochs_run"] == 3
+    full, cut = _weights(tmp_path / "full" / "last.pt"), _weights(tmp_path / "cut" / "last.pt")
+    assert all(torch.equal(full[k], cut[k]) for k in full)
+    lines = (tmp_path / "cut" / "log.jsonl").read_text().splitlines()
+    assert [json.loads(line)["epoch"] for line in lines] == [1, 2, 3]
+
+
+def test_fine_tuning_starts_from_the_checkpoint(tiny_set, tmp_path):
+    fit(_config(tiny_set, tmp_path / "base", epochs=1))
+    base, _ = load_network(tmp_path / "base" / "best.pt")
+    fit(_config(tiny_set, tmp_path / "ft", epochs=1, lr=0.0, init=tmp_path / "base" / "best.pt"))
+    tuned, ckpt = load_network(tmp_path / "ft" / "last.pt")
+    assert all(torch.equal(v, tuned.state_dict()[k]) for k, v in base.state_dict().items())
+    assert ckpt["parent"]["checkpoint"].endswith("best.pt")
+
+
+def test_augmenter_keeps_shape_and_is_seeded():
+    images = np.random.default_rng(0).integers(0, 256, (8, 60, 80, 3), dtype=np.uint8)
+    aug = Augmenter((80, 60), p_blur=1.0, p_grey=0.5)
+    a = aug(images, np.zeros(8, int), np.random.default_rng(1))
+    b = aug(images, np.zeros(8, int), np.random.default_rng(1))
+    assert a.shape == images.shape and a.dtype == np.uint8
+    assert np.array_equal(a, b) and not np.array_equal(a, images)
+
+
+def test_errors_are_clear(tiny_set, tmp_path):
+    with pytest.raises(TrainingError, match="not a data set"):
+        fit(_config(tmp_path / "missing", tmp_path / "run"))
+    bad = tmp_path / "bad.pt"
+    bad.write_bytes(b"not a checkpoint")
+    with pytest.raises(TrainingError, match="not a readable PyTorch checkpoint"):
+        load_network(bad)
+    big = fit_module.PoseNet((160, 120))
+    torch.save(
+        {"format": fit_module.CHECKPOINT_FORMAT, "size": [160, 120], "model": big.state_dict()},
+        tmp_path / "big.pt",
+    )
+    with pytest.raises(TrainingError, match="takes 160x120 images but the data sets are 80x60"):
+        fit(_config(tiny_set, tmp_path / "run", init=tmp_path / "big.pt"))
+
+
+def test_cli_errors_exit_nonzero_with_a_message(tiny_set, tmp_path):
+    result = runner.invoke(app, ["train", str(tmp_path / "nope"), "--out", str(tmp_path / "r")])
+    assert result.exit_code == 1 and "data set not found" in result.output
+    args = ["train", str(tiny_set), "--out", str(tmp_path / "r"), "--resume"]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 1 and "no checkpoint" in result.output
+    args = ["train", str(tiny_set), "--out", str(tmp_path / "r"), "--init", str(tmp_path / "x.pt")]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 1 and "--init checkpoint not found" in result.output
+    args = ["train", str(tiny_set), "--out", str(tmp_path / "r"), "--optimizer", "rmsprop"]
+    result = runner.invoke(app, [*args, "--epochs", "1"])
+    assert result.exit_code == 1 and "unknown optimiser" in result.output
