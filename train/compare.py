@@ -521,13 +521,30 @@ def _markdown(
             f"data sets; range {min(ratios):.1f}x-{max(ratios):.1f}x).",
             "",
         ]
-    base_acc = [r["acc"][base_name] for r in rows]
     lines += [
         "### The baseline",
         "",
-        f"Mean baseline accuracy over these data sets: {_pct(float(np.mean(base_acc)))} %. "
-        "Per data set, the thresholds chosen on its validation split and why images got no pose "
-        "(class 0):",
+        "Per object: mean baseline accuracy, share of images where no pose was found (answered "
+        "class 0), and the most frequent reason.",
+        "",
+        "| object | data sets | mean accuracy % | no pose % | main reason |",
+        "|---|---|---|---|---|",
+    ]
+    for obj in dict.fromkeys(r["object"] for r in rows):
+        mine = [r for r in rows if r["object"] == obj]
+        reasons: dict[str, int] = {}
+        for r in mine:
+            for k, v in r["baseline_info"]["failures"].items():
+                reasons[k] = reasons.get(k, 0) + v
+        n = sum(r["n"] for r in mine)
+        main = max(reasons, key=lambda k: reasons[k]) if reasons else "-"
+        acc = float(np.mean([r["acc"][base_name] for r in mine]))
+        lines.append(
+            f"| {obj} | {len(mine)} | {_pct(acc)} | {_pct(sum(reasons.values()) / n)} | {main} |"
+        )
+    lines += [
+        "",
+        "Per data set, the thresholds chosen on its validation split and why images got no pose:",
         "",
     ]
     for r in rows:
