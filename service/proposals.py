@@ -37,7 +37,7 @@ def _candidates(grey: np.ndarray, edges: np.ndarray) -> np.ndarray:
     """Bounding rectangles (N, 4) x, y, w, h of MSER regions and closed-edge contours."""
     h, w = grey.shape
     area = h * w
-    mser = cv2.MSER_create(min_area=max(16, area // 2000), max_area=area // 2)
+    mser = cv2.MSER.create(min_area=max(16, area // 2000), max_area=area // 2)
     _, mser_boxes = mser.detectRegions(grey)
     boxes = [np.asarray(mser_boxes, dtype=np.int64).reshape(-1, 4)]
     for k in CLOSE_KERNELS:
