@@ -3,12 +3,17 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
+from typer.testing import CliRunner
 
+from train.cli import app
 from train.evaluate import compute_metrics, confusion_matrix, predict_all
 from train.report import write_report
+
+runner = CliRunner()
 
 
 def test_metrics_of_a_hand_made_confusion():
@@ -86,3 +91,58 @@ def test_report_writes_json_markdown_and_plots(tmp_path):
     assert "](../out/plots/grid.png)" in text
     pngs = sorted(p.name for p in (tmp_path / "out" / "plots").glob("*.png"))
     assert pngs == ["grid.png", "net-a__set1.png", "net-a__set2.png", "net-b__set1.png"]
+
+
+@pytest.fixture(scope="module")
+def model_and_set(tmp_path_factory):
+    """A tiny exported model (random weights) and the real photos as an 80x60 data set."""
+    import torch
+
+    from train.export import export
+    from train.fit import CHECKPOINT_FORMAT
+    from train.model import PoseNet
+    from train.realset import build_real_dataset
+
+    root = tmp_path_factory.mktemp("eval")
+    source = Path(__file__).resolve().parent.parent / "train" / "real" / "chessboard-stereo"
+    build_real_dataset(source, root / "real", size=1, blur=0, profile="chessboard", seed=0)
+    torch.manual_seed(0)
+    ckpt = {
+        "format": CHECKPOINT_FORMAT,
+        "size": [80, 60],
+        "model": PoseNet((80, 60)).state_dict(),
+        "config": {"seed": 0},
+    }
+    torch.save(ckpt, root / "best.pt")
+    onnx_path, _ = export(root / "best.pt", "tiny", root)
+    return onnx_path, root / "best.pt", root / "real"
+
+
+def test_cli_evaluates_onnx_and_checkpoint_the_same(model_and_set, tmp_path):
+    onnx_path, ckpt, data = model_and_set
+    out = tmp_path / "out"
+    args = ["evaluate", str(onnx_path), str(ckpt), str(data), "--out", str(out), "--split", "all"]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    doc = json.loads((out / "metrics.json").read_text())
+    onnx_m = doc["results"]["tiny"]["real"]
+    torch_m = doc["results"][ckpt.parent.name]["real"]
+    assert onnx_m["count"] == 26
+    assert onnx_m["confusion"] == torch_m["confusion"]
+    assert sum(map(sum, onnx_m["confusion"])) == 26
+    assert (out / "report.md").is_file() and (out / "plots" / "grid.png").is_file()
+
+
+def test_cli_evaluate_errors(model_and_set, tmp_path):
+    onnx_path, _, data = model_and_set
+    result = runner.invoke(app, ["evaluate", str(data), "--out", str(tmp_path)])
+    assert result.exit_code == 2 and "at least one model" in result.output
+    result = runner.invoke(app, ["evaluate", str(onnx_path), "--out", str(tmp_path)])
+    assert result.exit_code == 2 and "at least one data set" in result.output
+    result = runner.invoke(app, ["evaluate", str(onnx_path), str(tmp_path), "--out", str(tmp_path)])
+    assert result.exit_code == 1 and "not a data set" in result.output
+    args = ["evaluate", str(tmp_path / "x.onnx"), str(data), "--out", str(tmp_path)]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 1 and "model not found" in result.output
+    args = ["evaluate", str(onnx_path), str(data), "--out", str(tmp_path), "--split", "nope"]
+    assert runner.invoke(app, args).exit_code == 2
