@@ -154,41 +154,45 @@ def real_photo_crops(
 
 
 class BackgroundPool:
-    """Background sources at a working resolution for output images of `size` (W, H).
+    """Background sources pre-scaled for output images of `size` (W, H).
 
-    Each source is scaled so that its short side is about `oversize` times the output's: crops
-    then cover 1/oversize .. 1 of it and are never minified much (no aliasing).
+    Each source is kept at `scales` times the smallest size that covers the output (so a crop
+    shows 1/scale of the source's extent); `sample` takes a random integer crop of one of them,
+    mirrored half of the time: no resampling per image.
     """
 
     def __init__(
-        self, size: tuple[int, int], sources: list[np.ndarray], oversize: float = 2.0
+        self,
+        size: tuple[int, int],
+        sources: list[np.ndarray],
+        scales: tuple[float, ...] = (1.0, 1.3, 1.6, 2.0),
     ) -> None:
         if not sources:
             raise ValueError("no background images")
         self.size = size
         w, h = size
-        self.images = []
+        self.images: list[np.ndarray] = []
         for img in sources:
-            scale = oversize * max(w / img.shape[1], h / img.shape[0])
-            interp = cv2.INTER_AREA if scale < 1 else cv2.INTER_LINEAR
-            self.images.append(cv2.resize(img, None, fx=scale, fy=scale, interpolation=interp))
+            cover = max(w / img.shape[1], h / img.shape[0])
+            for scale in scales:
+                f = cover * scale
+                out = (max(w, int(round(img.shape[1] * f))), max(h, int(round(img.shape[0] * f))))
+                interp = cv2.INTER_AREA if f < 1 else cv2.INTER_LINEAR
+                self.images.append(cv2.resize(img, out, interpolation=interp))
 
     @classmethod
     def default(cls, size: tuple[int, int]) -> BackgroundPool:
         """The shipped photographs, the real-photo crops and the procedural textures."""
         w, h = size
-        return cls(
-            size, shipped_backgrounds() + procedural_backgrounds(N_PROCEDURAL, (2 * w, 2 * h))
-        )
+        procedural = procedural_backgrounds(N_PROCEDURAL, (2 * w, 2 * h))
+        return cls(size, shipped_backgrounds() + procedural)
 
     def sample(self, rng: np.random.Generator) -> np.ndarray:
-        """A random crop (1/oversize .. 1 of the source's largest window of the output's
-        aspect, random place, 50 % mirrored) resized to the output size: RGB uint8 [H, W, 3]."""
+        """A random crop of the output size from a random scaled source, 50 % mirrored:
+        RGB uint8 [H, W, 3]."""
         src = self.images[int(rng.integers(len(self.images)))]
         w, h = self.size
-        sh, sw = src.shape[:2]
-        k = min(sw / w, sh / h) * rng.uniform(1.0 / 2.0, 1.0)  # source px per output px
-        cw, ch = max(int(round(k * w)), 1), max(int(round(k * h)), 1)
-        x0, y0 = int(rng.integers(sw - cw + 1)), int(rng.integers(sh - ch + 1))
-        out = cv2.resize(src[y0 : y0 + ch, x0 : x0 + cw], (w, h), interpolation=cv2.INTER_LINEAR)
-        return cv2.flip(out, 1) if rng.random() < 0.5 else out
+        y0 = int(rng.integers(src.shape[0] - h + 1))
+        x0 = int(rng.integers(src.shape[1] - w + 1))
+        crop = src[y0 : y0 + h, x0 : x0 + w]
+        return cv2.flip(crop, 1) if rng.random() < 0.5 else crop.copy()

@@ -15,6 +15,7 @@ Frames: object frame of SPEC section 2 (cm); images RGB uint8 [H, W, 3], size = 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import cache
 
@@ -151,7 +152,7 @@ class BoardImage:
 
     def level_for(self, texels_per_px: float) -> _Level:
         """The mip level with at most ~1.4 texels per output pixel (the finest if magnified)."""
-        index = int(np.clip(np.floor(np.log2(max(texels_per_px, 1.0) / 1.4) + 1), 0, None))
+        index = max(0, math.floor(math.log2(max(texels_per_px, 1.0) / 1.4) + 1))
         return self.levels[min(index, len(self.levels) - 1)]
 
 
@@ -245,10 +246,10 @@ class Renderer:
 
     def photometric(self, image: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """Gain / contrast / gamma / brightness (one LUT), grey (30 %), Gaussian noise
-        (sigma 0-8 grey levels), JPEG (quality 35-95, 40 %) of an RGB uint8 image."""
+        (sigma 0-8 grey levels), JPEG (quality 35-95, 25 %) of an RGB uint8 image."""
         x = np.arange(256, dtype=np.float32)[:, None] / 255.0
         gamma = np.exp(rng.uniform(np.log(0.6), np.log(1.6)))
-        gain = rng.uniform(0.85, 1.15, 3).astype(np.float32)
+        gain = rng.uniform(0.9, 1.1, 3).astype(np.float32)
         y = (255 * x**gamma - 128) * rng.uniform(0.6, 1.3) + 128 + rng.uniform(-45, 45)
         lut = np.clip(y * gain, 0, 255).astype(np.uint8).reshape(1, 256, 3)
         image = cv2.LUT(image, lut)
@@ -259,7 +260,7 @@ class Renderer:
         y0, x0 = rng.integers(h), rng.integers(w)
         noise = self.noise[y0 : y0 + h, x0 : x0 + w]
         image = cv2.addWeighted(image, 1.0, noise, sigma, -128 * sigma)
-        if rng.random() < 0.4:
+        if rng.random() < 0.25:
             quality = int(rng.integers(35, 96))
             ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, quality])
             image = cv2.imdecode(buf, cv2.IMREAD_COLOR)  # channel order is kept as given
