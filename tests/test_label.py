@@ -14,6 +14,7 @@ from typer.testing import CliRunner
 from train.calibration import Calibration, default_camera
 from train.cli import app
 from train.corners import ChessboardPattern, detect_chessboard, texture_to_object
+from train.datasets import load_dataset
 from train.geometry import homography_from_pose, intrinsics, look_at, pose_class, translation
 from train.label import compare_to_truth, label_folder, read_corner_csv
 from train.profile import load_profile
@@ -59,11 +60,16 @@ def test_output_is_a_data_set_with_overlays(labelled):
     )
     for row in rows:
         assert (out / row["file"]).is_file()
+        assert row["file"].startswith("images/") and float(row["focal_scale"]) > 0
         overlay = cv2.imread(str(out / "overlays" / f"{Path(row['file']).stem}.png"))
         assert overlay is not None and overlay.shape == (480, 640, 3)
         centre = [float(row[k]) for k in ("cam_x", "cam_y", "cam_z")]
         assert int(row["class"]) == int(pose_class(np.array(centre), 60.0))
     assert manifest["counts"] == {"train": 14, "val": 6, "test": 6}
+    test = load_dataset(out, split="test")
+    assert test.images.shape == (6, 480, 640, 3) and list(test.labels) == [
+        int(r["class"]) for r in rows if r["split"] == "test"
+    ]
     # The labelled folder feeds the real-set builder unchanged.
     result = runner.invoke(app, ["realset", str(out), str(out.parent / "s1")])
     assert result.exit_code == 0, result.output
@@ -138,7 +144,7 @@ def test_textured_profile_is_found_by_features(tmp_path):
     assert "empty.png" in (tmp_path / "out" / "failed.txt").read_text()
     for row in _rows(tmp_path / "out" / "labels.csv"):
         got = np.array([float(row[k]) for k in ("cam_x", "cam_y", "cam_z")])
-        assert np.linalg.norm(got - centres[row["file"]]) < 1.0
+        assert np.linalg.norm(got - centres[Path(row["file"]).name]) < 1.0
 
 
 @pytest.mark.parametrize("turn", [False, True])

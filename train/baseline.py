@@ -10,9 +10,9 @@ Small images are enlarged (cubic) to `min_width` pixels before detection. The ra
 RANSAC thresholds can be tuned on a validation split (`tune`), never on the test split.
 
 Intrinsics per image (`dataset_cameras`): fx, fy, cx, cy (and k1.. if present) columns of the
-data set's labels.csv; else its focal_scale column (synthetic sets: the SPEC intrinsics for the
-image size with fx, fy scaled); else, for a real data set whose source folder holds a
-calibration.json, that calibration scaled to the image size; else the SPEC intrinsics.
+data set's labels.csv; else, for a real data set whose source folder holds a calibration.json,
+that calibration scaled to the image size (distortion included); else its focal_scale column
+(synthetic sets: the SPEC intrinsics for the image size, fx and fy scaled); else the SPEC ones.
 """
 
 from __future__ import annotations
@@ -155,9 +155,6 @@ def dataset_cameras(folder: Path, files: Sequence[str], size: tuple[int, int]) -
             dist = [float(r[k]) for k in ("k1", "k2", "p1", "p2", "k3") if r.get(k)]
             cams.append(Camera(K, np.array(dist) if len(dist) == 5 else np.zeros(5)))
         return cams
-    if "focal_scale" in first:  # empty for class 0 images: no camera was drawn
-        scales = [float(rows[f]["focal_scale"] or 1.0) for f in files]
-        return [Camera(intrinsics(size, s), np.zeros(5)) for s in scales]
     manifest_path = folder / "manifest.json"
     manifest = json.loads(manifest_path.read_text()) if manifest_path.is_file() else {}
     if manifest.get("real") and manifest.get("source"):
@@ -166,7 +163,10 @@ def dataset_cameras(folder: Path, files: Sequence[str], size: tuple[int, int]) -
             source = Path(__file__).resolve().parent.parent / source
         if (source / "calibration.json").is_file():
             cal = Calibration.load(source / "calibration.json")
-            return [cal.for_image(f, size) for f in files]
+            return [cal.for_image(Path(f).name, size) for f in files]
+    if "focal_scale" in first:  # empty for class 0 images: no camera was drawn
+        scales = [float(rows[f]["focal_scale"] or 1.0) for f in files]
+        return [Camera(intrinsics(size, s), np.zeros(5)) for s in scales]
     spec = Camera(intrinsics(size), np.zeros(5), size)
     return [spec] * len(files)
 

@@ -7,10 +7,11 @@ object-plane -> image homography comes from the normalised DLT over all points
 (`train.geometry.dlt_homography`), the pose from `pose_from_homography`, the camera centre
 c = -R^T t (cm, object frame) and the class from `pose_class` with the profile's z split.
 
-Output folder (the data set layout of SPEC section 7, readable by `planar-pose realset`):
-the images (copied), labels.csv (data set columns + image size, intrinsics, distortion,
-OpenCV rvec/tvec, the four object corners in raw pixels, method, reprojection RMS),
-manifest.json, failed.txt and overlays/<stem>.png with the projected outline and axes.
+Output folder (the data set layout of SPEC section 7, readable by `load_dataset` and
+`planar-pose realset`): images/ (the photographs, copied), labels.csv (data set columns +
+image size, intrinsics, distortion, OpenCV rvec/tvec, the four object corners in raw pixels,
+method, reprojection RMS), manifest.json, failed.txt and overlays/<stem>.png with the
+projected outline and axes.
 """
 
 from __future__ import annotations
@@ -28,8 +29,16 @@ import numpy as np
 
 from train.calibration import Calibration, Camera, default_camera
 from train.corners import ChessboardPattern, Correspondences, TextureMatcher, detect_chessboard
-from train.geometry import camera_centre, dlt_homography, pose_class, pose_from_homography
-from train.realset import LABEL_COLUMNS, moment_of, optical_axis_target, split_moments
+from train.datasets import LABEL_COLUMNS
+from train.geometry import (
+    SPEC_FOCAL_160,
+    camera_centre,
+    dlt_homography,
+    pose_class,
+    pose_from_homography,
+)
+from train.profile import roll_of_pose
+from train.realset import moment_of, optical_axis_target, split_moments
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".webp", ".tif", ".tiff")
 CORNER_COLUMNS = [f"corner_{a}{i}" for i in range(4) for a in "xy"]
@@ -217,6 +226,9 @@ def _row(file: str, lab: Label, size: tuple[int, int], split: str) -> dict[str, 
     target = optical_axis_target(lab.centre, rvec.ravel())
     K, d = lab.camera.K, np.resize(lab.camera.dist, 5) if lab.camera.dist.size else np.zeros(5)
     row: dict[str, Any] = {"file": file, "class": lab.label, "blur": 0, "split": split}
+    row["roll_deg"] = f"{roll_of_pose(lab.R):.2f}"
+    # Focal length relative to the SPEC camera's at the same image width.
+    row["focal_scale"] = f"{K[0, 0] / size[0] * 160 / SPEC_FOCAL_160[0]:.4f}"
     row |= {f"cam_{a}": f"{v:.4f}" for a, v in zip("xyz", lab.centre, strict=True)}
     row |= {f"target_{a}": f"{v:.4f}" for a, v in zip("xyz", target, strict=True)}
     row |= {"width": size[0], "height": size[1]}
@@ -256,6 +268,7 @@ def label_folder(
     finder = ObjectFinder(profile)
     out.mkdir(parents=True, exist_ok=True)
     (out / "overlays").mkdir(exist_ok=True)
+    (out / "images").mkdir(exist_ok=True)
     labelled: list[tuple[str, Label, tuple[int, int]]] = []
     failed: list[str] = []
     for path in progress(paths):
@@ -282,11 +295,11 @@ def label_folder(
         except ValueError as exc:
             failed.append(f"{path.name}: {exc}")
             continue
-        if out.resolve() != images_dir.resolve():
-            shutil.copy2(path, out / path.name)
+        if (out / "images").resolve() != images_dir.resolve():
+            shutil.copy2(path, out / "images" / path.name)
         overlay = draw_overlay(rgb, lab, finder.width_cm, finder.height_cm)
         cv2.imwrite(str(out / "overlays" / f"{path.stem}.png"), overlay)
-        labelled.append((path.name, lab, size))
+        labelled.append((f"images/{path.name}", lab, size))
 
     splits = split_moments([moment_of(f) for f, _, _ in labelled], seed)
     rows = [_row(f, lab, size, splits[moment_of(f)]) for f, lab, size in labelled]
@@ -295,6 +308,8 @@ def label_folder(
         writer.writeheader()
         writer.writerows(rows)
     (out / "failed.txt").write_text("".join(f"{line}\n" for line in failed))
+    # The data set layout's image size [W, H], when every photograph has the same one.
+    sizes = {size for _, _, size in labelled}
     manifest = {
         "generator": "planar-pose label",
         "variant": "real",
@@ -305,6 +320,8 @@ def label_folder(
         if calibration
         else "default guess (SPEC field of view, centred)",
         "seed": seed,
+        "size": list(sizes.pop()) if len(sizes) == 1 else None,
+        "blur": 0,
         "count": len(rows),
         "counts": {s: sum(r["split"] == s for r in rows) for s in ("train", "val", "test")},
         "class_counts": np.bincount([r["class"] for r in rows], minlength=9).tolist(),
@@ -318,15 +335,15 @@ def label_folder(
 
 def compare_to_truth(out: Path, truth_csv: Path, z_split: float) -> dict[str, Any]:
     """Camera centre error (cm) and class agreement of out/labels.csv against a ground truth
-    labels.csv with `file, cam_x, cam_y, cam_z` (matched by file name)."""
+    labels.csv with `file, cam_x, cam_y, cam_z` (matched by file name, folders ignored)."""
     with truth_csv.open(newline="") as fh:
-        truth = {r["file"]: r for r in csv.DictReader(fh)}
+        truth = {Path(r["file"]).name: r for r in csv.DictReader(fh)}
     with (out / "labels.csv").open(newline="") as fh:
-        ours = [r for r in csv.DictReader(fh) if r["file"] in truth]
+        ours = [r for r in csv.DictReader(fh) if Path(r["file"]).name in truth]
     if not ours:
         raise ValueError(f"no labelled image of {out} is in {truth_csv}")
     keys = ("cam_x", "cam_y", "cam_z")
-    ct = np.array([[float(truth[r["file"]][k]) for k in keys] for r in ours])
+    ct = np.array([[float(truth[Path(r["file"]).name][k]) for k in keys] for r in ours])
     co = np.array([[float(r[k]) for k in keys] for r in ours])
     err = np.linalg.norm(co - ct, axis=1)
     agree = pose_class(co, z_split) == pose_class(ct, z_split)
