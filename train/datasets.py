@@ -26,6 +26,7 @@ import os
 import shutil
 from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -255,17 +256,34 @@ def run_tasks(
                 progress(done(task))
             yield result
         return
-    # Not "fork": a child forked after OpenCV started its thread pool can deadlock.
-    if "forkserver" in multiprocessing.get_all_start_methods():
-        context = multiprocessing.get_context("forkserver")
-        context.set_forkserver_preload([__name__])
-    else:
-        context = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(workers, mp_context=context, initializer=_init_worker) as pool:
+    pool = _executor(workers)
+    try:
         for task, result in zip(tasks, pool.map(_run_task, tasks), strict=True):
             if progress:
                 progress(done(task))
             yield result
+    except BrokenProcessPool:
+        _EXECUTORS.pop(workers, None)
+        raise
+
+
+_EXECUTORS: dict[int, ProcessPoolExecutor] = {}
+
+
+def _executor(workers: int) -> ProcessPoolExecutor:
+    """A process pool kept for the life of this process, so that its workers keep their
+    renderers (textures, backgrounds) warm between data sets."""
+    if workers not in _EXECUTORS:
+        # Not "fork": a child forked after OpenCV started its thread pool can deadlock.
+        if "forkserver" in multiprocessing.get_all_start_methods():
+            context = multiprocessing.get_context("forkserver")
+            context.set_forkserver_preload([__name__])
+        else:
+            context = multiprocessing.get_context("spawn")
+        _EXECUTORS[workers] = ProcessPoolExecutor(
+            workers, mp_context=context, initializer=_init_worker
+        )
+    return _EXECUTORS[workers]
 
 
 def default_workers() -> int:
