@@ -6,8 +6,8 @@
 * `Renderer`: warps the texture (with a drawn white margin and frame) onto a background with
   the homography H = A [r1 r2 t] composed with texture pixel -> object plane; bilinear
   `cv2.warpPerspective` of an RGBA mip-map level whose alpha edge is anti-aliased, blended onto
-  the background; then photometric jitter (gain, contrast, gamma, grey, noise, JPEG) and the
-  data set's SPEC 6 blur.
+  the background; then (jitter on) a hand-like occluder on the board's edge and photometric
+  jitter (gain, contrast, gamma, grey, noise, JPEG), and the data set's SPEC 6 blur.
 * `render_view`: one plain image in memory for a camera centre / target / roll.
 
 Frames: object frame of SPEC section 2 (cm); images RGB uint8 [H, W, 3], size = (W, H).
@@ -38,7 +38,26 @@ from train.profile import Profile
 VARIANTS = ("C", "noC")
 NOC_HALF_CM = 3.0  # noC targets: uniform in [-3, 3] x [-3, 3] cm around the object centre
 N_BORDER_VARIANTS = 12
+P_OCCLUDE = 0.25  # share of object images with a hand-like occluder (jitter on)
 PAD = 2  # transparent texels around each mip level: the anti-aliased alpha edge
+
+
+def occlude_edge(image: np.ndarray, quad: np.ndarray, rng: np.random.Generator) -> None:
+    """Draw (in place) a hand-like occluder over a random point of the board's outline
+    `quad` (4, 2) px: an anti-aliased ellipse of skin or sleeve colour, 8-25 % of the
+    outline's size, as the fingers holding the board in the real photographs."""
+    i = int(rng.integers(4))
+    point = quad[i] + rng.uniform(0.1, 0.9) * (quad[(i + 1) % 4] - quad[i])
+    extent = float(np.linalg.norm(np.ptp(quad, axis=0)))
+    a = max(2.0, extent * rng.uniform(0.08, 0.25))
+    axes = (int(round(a)), int(round(a * rng.uniform(0.3, 0.6))))
+    skin = rng.random() < 0.6
+    base = np.array([205, 150, 120]) if skin else rng.integers(20, 230, 3)
+    colour = tuple(int(c) for c in np.clip(base * rng.uniform(0.6, 1.15), 0, 255))
+    if not np.all(np.isfinite(point)):
+        return
+    centre = (int(round(point[0])), int(round(point[1])))
+    cv2.ellipse(image, centre, axes, float(rng.uniform(0, 180)), 0, 360, colour, -1, cv2.LINE_AA)
 
 
 @dataclass(frozen=True)
@@ -209,16 +228,19 @@ class Renderer:
         return H_obj @ level.to_object, level, quad
 
     def draw_object(self, background: np.ndarray, view: View, board: BoardImage) -> np.ndarray:
-        """`background` RGB uint8 [H, W, 3] with the object of `board` seen from `view`.
+        """`background` RGB uint8 [H, W, 3] with the object of `board` seen from `view`."""
+        return self._composite(background, view, board)[0]
 
-        Only the bounding box of the projected board is warped and blended.
-        """
+    def _composite(
+        self, background: np.ndarray, view: View, board: BoardImage
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(image, board outline (4, 2) px); only the outline's bounding box is warped."""
         H, level, quad = self.homography(view, board)
         w, h = self.size
         x0, y0 = np.clip(np.floor(quad.min(axis=0)).astype(int) - 1, 0, [w, h])
         x1, y1 = np.clip(np.ceil(quad.max(axis=0)).astype(int) + 2, 0, [w, h])
         if x1 <= x0 or y1 <= y0:
-            return background
+            return background, quad
         shift = np.array([[1.0, 0, -x0], [0, 1.0, -y0], [0, 0, 1.0]])
         warped = cv2.warpPerspective(
             level.rgba,
@@ -231,7 +253,7 @@ class Renderer:
         rgb = cv2.cvtColor(warped, cv2.COLOR_RGBA2RGB)
         out = background.copy()
         out[y0:y1, x0:x1] = cv2.blendLinear(rgb, out[y0:y1, x0:x1], alpha, 1.0 - alpha)
-        return out
+        return out, quad
 
     def render(self, view: View | None, blur: int, rng: np.random.Generator) -> np.ndarray:
         """One data set image: background (+ the object unless `view` is None, class 0),
@@ -239,7 +261,9 @@ class Renderer:
         image = self.backgrounds.sample(rng)
         if view is not None:
             board = self.boards[int(rng.integers(len(self.boards)))]
-            image = self.draw_object(image, view, board)
+            image, quad = self._composite(image, view, board)
+            if self.jitter and rng.random() < P_OCCLUDE:
+                occlude_edge(image, quad, rng)
         if self.jitter:
             image = self.photometric(image, rng)
         return blur_image(image, blur, self.size)
