@@ -62,12 +62,11 @@ class Predictor:
     def __init__(self, model: PoseModel, settings: Settings, boxes: BoxGenerator | None = None):
         self.model = model
         self.settings = settings
-        iw, ih = model.input_size
-        self.boxes = boxes or SlidingWindows(
-            aspect=iw / ih,
-            scales=tuple(settings.sliding_scales),
-            stride=settings.sliding_stride,
-            max_windows=settings.sliding_max_windows,
+        self.boxes = boxes or SlidingWindows.for_network(
+            model.input_size,
+            settings.sliding_scales,
+            settings.sliding_stride,
+            settings.sliding_max_windows,
         )
 
     def _load(self, index: int, image: ImageInput, min_size: tuple[int, int]) -> DecodedImage:

@@ -58,7 +58,9 @@ class Settings(BaseSettings):
         gt=0,
         description="Working copy scale: the largest window measures this many network inputs.",
     )
-    sliding_stride: int = Field(default=20, ge=1, description="Window step, working-copy px.")
+    sliding_stride: int = Field(
+        default=20, ge=1, description="Window step in working-copy px of an 80x60 network."
+    )
     sliding_nms_iou: float = Field(default=0.3, gt=0, le=1)
     sliding_max_windows: int = Field(default=256, ge=1, description="Stride grows beyond it.")
     graceful_timeout_s: int = Field(default=20, ge=0, description="Drain time after SIGTERM.")

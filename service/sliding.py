@@ -10,7 +10,8 @@ windows at scales 1, 0.8 and 0.65 of it (80x60, 64x48, 52x39, each resized to 80
 ~20 working pixels (~160 px of the photo): 1 + 4 + 4 = 9 windows in one batched call, about
 5x the cost of whole mode (the network dominates: ~0.85 ms per window on one core). Scales
 1, 0.8, 0.6 give 11 windows (~6x); `resolution` 1.5 (120x90 copy, 14 windows, ~7x) keeps the
-small windows sharper. The window count does not depend on the photo's size, only its aspect.
+small windows sharper. The window count does not depend on the photo's size, only its aspect,
+nor on the network's input size (the stride scales with it: 40 px for a 160x120 network).
 """
 
 from __future__ import annotations
@@ -26,6 +27,10 @@ from service.preprocess import DecodedImage, resize_rgb, to_network_input
 
 #: RGB uint8 [H, W, 3] -> int [K, 4] boxes (x, y, w, h) inside that image.
 BoxGenerator = Callable[[np.ndarray], np.ndarray]
+
+#: The stride is given in pixels at SPEC size 1 (80 px wide network input) and scaled with the
+#: network's input width, so a 160x120 network gets the same windows (and ~5x cost) as 80x60.
+STRIDE_REFERENCE_WIDTH = 80
 
 
 def _positions(extent: int, size: int, stride: float) -> np.ndarray:
@@ -46,6 +51,14 @@ class SlidingWindows:
     scales: Sequence[float]
     stride: float
     max_windows: int
+
+    @classmethod
+    def for_network(
+        cls, input_size: tuple[int, int], scales: Sequence[float], stride: float, max_windows: int
+    ) -> SlidingWindows:
+        """The grid for a network of `input_size` (W, H); `stride` in size-1 pixels."""
+        iw, ih = input_size
+        return cls(iw / ih, tuple(scales), stride * iw / STRIDE_REFERENCE_WIDTH, max_windows)
 
     def _sizes(self, width: int, height: int) -> list[tuple[int, int]]:
         fit_w = min(float(width), height * self.aspect)

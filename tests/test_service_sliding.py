@@ -50,6 +50,17 @@ def test_default_grid_on_the_working_copy_of_a_4_by_3_photo() -> None:
     assert len(boxes_for(120, 90)) == 1 + 4 + 9  # GRID (scales 1, 0.8, 0.6) on a 120x90 copy
 
 
+@pytest.mark.parametrize("input_size", [(40, 30), (80, 60), (160, 120)])
+def test_same_windows_for_any_network_size(input_size: tuple[int, int]) -> None:
+    """The stride follows the input width: the window count (the cost ratio) stays put."""
+    settings = Settings()
+    grid = SlidingWindows.for_network(input_size, settings.sliding_scales, 20, 256)
+    image = DecodedImage(np.zeros((480, 640, 3), np.uint8), width=640, height=480)
+    work, _ = working_copy(image, input_size, settings.sliding_resolution)
+    assert work.shape[:2] == (input_size[1], input_size[0])
+    assert len(grid(work)) == 9
+
+
 def test_stride_grows_to_respect_max_windows() -> None:
     capped = SlidingWindows(aspect=4 / 3, scales=(1.0, 0.5), stride=1, max_windows=50)
     assert len(boxes_for(400, 300, capped)) <= 50
