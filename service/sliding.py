@@ -7,7 +7,8 @@ grid, e.g. an object-proposal generator for an `objectness` mode.
 Default cost (80x60 network, 640x480 photo): the working copy is 80x60 (the largest window
 spans `resolution` = 1 network input, so the scale-1 window is exactly the whole-mode input),
 windows at scales 1, 0.8 and 0.65 of it (80x60, 64x48, 52x39, each resized to 80x60) every
-~20 working pixels (~160 px of the photo): 1 + 4 + 4 = 9 windows in one batched call, about
+~20 working pixels (16 and 28 here: the grid spans the copy evenly; x8 in photo pixels):
+1 + 4 + 4 = 9 windows in one batched call, about
 5x the cost of whole mode (the network dominates: ~0.85 ms per window on one core). Scales
 1, 0.8, 0.6 give 11 windows (~6x); `resolution` 1.5 (120x90 copy, 14 windows, ~7x) keeps the
 small windows sharper. The window count does not depend on the photo's size, only its aspect,
