@@ -137,3 +137,17 @@ def test_cli_errors(tmp_path):
         app, ["baseline", str(tmp_path / "ds"), "--out", str(tmp_path / "o"), "--features", "surf"]
     )
     assert result.exit_code == 2 and "--features" in result.output
+
+
+def test_cli_writes_the_evaluate_layout(tmp_path):
+    from train.realset import build_real_dataset
+
+    ds = tmp_path / "real-s1-b0"
+    build_real_dataset(REAL, ds, size=1, blur=0, profile="chessboard", seed=0)
+    args = ["baseline", str(ds), "--out", str(tmp_path / "o"), "--split", "val"]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    doc = json.loads((tmp_path / "o" / "metrics.json").read_text())
+    cell = doc["results"]["baseline-sift"]["real-s1-b0"]
+    assert cell["count"] == 6 and len(cell["confusion"]) == 9 and cell["ms_per_image"] > 0
+    assert (tmp_path / "o" / "report.md").is_file()
