@@ -12,7 +12,8 @@ COPY train ./train
 RUN python -m venv /opt/venv && /opt/venv/bin/pip install --no-cache-dir .
 
 FROM python:3.11-slim AS runtime
-RUN useradd --system --uid 10001 --no-create-home --shell /usr/sbin/nologin pose
+RUN groupadd --system --gid 10001 pose \
+    && useradd --system --uid 10001 --gid pose --no-create-home --shell /usr/sbin/nologin pose
 COPY --from=build /opt/venv /opt/venv
 COPY models/default.onnx models/default.json /app/models/
 ENV PATH=/opt/venv/bin:$PATH \
@@ -20,7 +21,7 @@ ENV PATH=/opt/venv/bin:$PATH \
     PYTHONUNBUFFERED=1 \
     POSE_MODEL_PATH=/app/models/default.onnx
 WORKDIR /app
-USER 10001
+USER 10001:10001
 EXPOSE 8000
 HEALTHCHECK --interval=15s --timeout=3s --start-period=10s --retries=3 \
     CMD ["python", "-c", "import urllib.request as u; u.urlopen('http://127.0.0.1:8000/healthz', timeout=2)"]

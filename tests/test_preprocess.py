@@ -151,11 +151,16 @@ def test_to_network_input_shape_range_and_resize() -> None:
 
 
 def _decode_cleanly(data: bytes) -> None:
-    try:
-        rgb = load_image(data, max_pixels=4_000_000, min_size=(80, 60)).rgb
-    except ImageDecodeError:
-        return
-    assert rgb.ndim == 3 and rgb.shape[2] == 3 and rgb.dtype == np.uint8
+    """Both entry points return RGB uint8 or raise ImageDecodeError, nothing else."""
+    for decode in (
+        decode_image,
+        lambda d: load_image(d, max_pixels=4_000_000, min_size=(80, 60)).rgb,
+    ):
+        try:
+            rgb = decode(data)
+        except ImageDecodeError:
+            continue
+        assert rgb.ndim == 3 and rgb.shape[2] == 3 and rgb.dtype == np.uint8
 
 
 MAGICS = [b"", b"\x89PNG\r\n\x1a\n", b"\xff\xd8", b"RIFF\0\0\0\0WEBP", b"BM", b"GIF89a"]
