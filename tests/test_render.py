@@ -78,14 +78,8 @@ def test_mask_is_anti_aliased_and_has_the_right_area(profile):
     assert alpha.min() >= -0.01 and alpha.max() <= 1.01
     edge = (alpha > 0.05) & (alpha < 0.95)
     assert edge.sum() > 40  # a soft edge all around, not a binary mask
-    w, h = board.half_extent_cm
     R = look_at(view.centre, view.target, np.radians(view.roll_deg))
-    quad = project_points(
-        intrinsics(SIZE),
-        R,
-        translation(R, view.centre),
-        [[-w, -h, 0], [w, -h, 0], [w, h, 0], [-w, h, 0]],
-    )
+    quad = project_points(intrinsics(SIZE), R, translation(R, view.centre), board.outline_cm)
     area = abs(cv2.contourArea(quad.astype(np.float32)))
     assert alpha.sum() == pytest.approx(area, rel=0.03)
 

@@ -39,6 +39,7 @@ VARIANTS = ("C", "noC")
 NOC_HALF_CM = 3.0  # noC targets: uniform in [-3, 3] x [-3, 3] cm around the object centre
 N_BORDER_VARIANTS = 12
 P_OCCLUDE = 0.25  # share of object images with a hand-like occluder (jitter on)
+_RAMP = np.linspace(0.0, 1.0, 256, dtype=np.float32)[:, None]  # grey levels / 255
 PAD = 2  # transparent texels around each mip level: the anti-aliased alpha edge
 
 
@@ -167,7 +168,10 @@ class BoardImage:
             if min(lh, lw) // 2 < min_side:
                 break
             level = cv2.resize(level, (lw // 2, lh // 2), interpolation=cv2.INTER_AREA)
-        self.half_extent_cm = (profile.width_cm / 2 + b / ppc, profile.height_cm / 2 + b / ppc)
+        w, h = profile.width_cm / 2 + b / ppc, profile.height_cm / 2 + b / ppc
+        #: The board's outline (4, 3) cm in the object plane, margin and frame included.
+        self.outline_cm = np.array([[-w, -h, 0], [w, -h, 0], [w, h, 0], [-w, h, 0]])
+        self.texels = float(board.shape[0] * board.shape[1])  # at level 0
 
     def level_for(self, texels_per_px: float) -> _Level:
         """The mip level with at most ~1.4 texels per output pixel (the finest if magnified)."""
@@ -217,14 +221,11 @@ class Renderer:
         R = look_at(view.centre, view.target, np.radians(view.roll_deg))
         t = translation(R, view.centre)
         H_obj = homography_from_pose(A, R, t)
-        w, h = board.half_extent_cm
-        corners = np.array([[-w, -h, 0], [w, -h, 0], [w, h, 0], [-w, h, 0]])
-        quad = project_points(A, R, t, corners)
-        if np.min(corners @ R[2] + t[2]) <= 1e-6:  # a corner behind the camera: whole frame
+        quad = project_points(A, R, t, board.outline_cm)
+        if np.min(board.outline_cm @ R[2] + t[2]) <= 1e-6:  # a corner behind the camera
             quad = np.array([[0.0, 0.0], [self.size[0], self.size[1]]])
         area_px = abs(cv2.contourArea(quad.astype(np.float32)))
-        texels = board.levels[0].texels_per_cm ** 2 * 4 * w * h
-        level = board.level_for(float(np.sqrt(texels / max(area_px, 1e-9))))
+        level = board.level_for(math.sqrt(board.texels / max(area_px, 1e-9)))
         return H_obj @ level.to_object, level, quad
 
     def draw_object(self, background: np.ndarray, view: View, board: BoardImage) -> np.ndarray:
@@ -237,15 +238,16 @@ class Renderer:
         """(image, board outline (4, 2) px); only the outline's bounding box is warped."""
         H, level, quad = self.homography(view, board)
         w, h = self.size
-        x0, y0 = np.clip(np.floor(quad.min(axis=0)).astype(int) - 1, 0, [w, h])
-        x1, y1 = np.clip(np.ceil(quad.max(axis=0)).astype(int) + 2, 0, [w, h])
+        (qx0, qy0), (qx1, qy1) = quad.min(axis=0).tolist(), quad.max(axis=0).tolist()
+        x0, y0 = max(0, min(w, math.floor(qx0) - 1)), max(0, min(h, math.floor(qy0) - 1))
+        x1, y1 = max(0, min(w, math.ceil(qx1) + 2)), max(0, min(h, math.ceil(qy1) + 2))
         if x1 <= x0 or y1 <= y0:
             return background, quad
         shift = np.array([[1.0, 0, -x0], [0, 1.0, -y0], [0, 0, 1.0]])
         warped = cv2.warpPerspective(
             level.rgba,
             shift @ H,
-            (int(x1 - x0), int(y1 - y0)),
+            (x1 - x0, y1 - y0),
             flags=cv2.INTER_LINEAR,
             borderMode=cv2.BORDER_REPLICATE,
         )
@@ -271,10 +273,11 @@ class Renderer:
     def photometric(self, image: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """Gain / contrast / gamma / brightness (one LUT), grey (30 %), Gaussian noise
         (sigma 0-8 grey levels), JPEG (quality 35-95, 25 %) of an RGB uint8 image."""
-        x = np.arange(256, dtype=np.float32)[:, None] / 255.0
-        gamma = np.exp(rng.uniform(np.log(0.6), np.log(1.6)))
-        gain = rng.uniform(0.9, 1.1, 3).astype(np.float32)
-        y = (255 * x**gamma - 128) * rng.uniform(0.6, 1.3) + 128 + rng.uniform(-45, 45)
+        u = rng.random(6)
+        gamma = math.exp(math.log(0.6) + u[0] * math.log(1.6 / 0.6))  # 0.6 .. 1.6
+        gain = (0.9 + 0.2 * u[1:4]).astype(np.float32)  # per channel
+        contrast, brightness = 0.6 + 0.7 * u[4], -45 + 90 * u[5]
+        y = (255 * _RAMP**gamma - 128) * contrast + 128 + brightness
         lut = np.clip(y * gain, 0, 255).astype(np.uint8).reshape(1, 256, 3)
         image = cv2.LUT(image, lut)
         if rng.random() < 0.3:
