@@ -26,7 +26,7 @@ def contact_sheet(
     `scale` (nearest neighbour, to see the pixels), with the class id and its region in words
     (`service.regions.region_of_class`); write it to `out` (PNG) and return it (RGB uint8).
 
-    A class with fewer images leaves its remaining tiles black.
+    A class with fewer images leaves its remaining tiles light grey.
     """
     data = load_dataset(dataset, split=split)
     w, h = data.size
@@ -52,6 +52,9 @@ def contact_sheet(
                 1,
                 cv2.LINE_AA,
             )
+        for c in range(cols):  # empty tiles stay light grey
+            x = LABEL_WIDTH + GAP + c * (tw + GAP)
+            sheet[y : y + th, x : x + tw] = 225
         index = np.flatnonzero(data.labels == k)
         picked = rng.choice(index, size=min(cols, len(index)), replace=False) if len(index) else []
         for c, i in enumerate(sorted(picked)):
