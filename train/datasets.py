@@ -217,8 +217,8 @@ def render_chunk(task: Chunk) -> Iterator[tuple[int, np.ndarray]]:
         yield task.chunk * CHUNK + j, renderer.render(view, task.spec.blur, rng)
 
 
-def _run_task(task: Chunk) -> tuple[int, list[np.ndarray]]:
-    """Render one chunk; write its PNGs (returns no arrays) or return the arrays."""
+def _run_task(task: Chunk) -> tuple[int, np.ndarray | None]:
+    """Render one chunk; write its PNGs (returns None) or return the images [n, H, W, 3]."""
     images = []
     width = _digits(task.spec.count)
     for i, rgb in render_chunk(task):
@@ -229,7 +229,7 @@ def _run_task(task: Chunk) -> tuple[int, list[np.ndarray]]:
         if not ok:
             raise OSError(f"PNG encoding failed for image {i}")
         (task.out / image_name(i, width)).write_bytes(buf.tobytes())
-    return task.chunk, images
+    return task.chunk, np.stack(images) if images else None
 
 
 def _digits(count: int) -> int:
@@ -242,7 +242,7 @@ def _init_worker() -> None:
 
 def run_tasks(
     tasks: list[Chunk], workers: int, progress: Callable[[int], None] | None = None
-) -> Iterator[tuple[int, list[np.ndarray]]]:
+) -> Iterator[tuple[int, np.ndarray | None]]:
     """Run rendering tasks in `workers` processes (1: in this process), yielding
     (chunk, images) in task order; `progress(n_images)` after each task."""
 
@@ -395,8 +395,7 @@ def grid_specs(count: int, seed: int, profile: Profile, jitter: bool = True) -> 
 def render_in_memory(spec: DatasetSpec, workers: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """Render a whole set without writing it: images uint8 [N, H, W, 3] RGB, classes (N,)."""
     plan = plan_dataset(spec)
-    chunks = dict(run_tasks(chunks_of(plan, None), workers))
-    images = np.stack([im for c in sorted(chunks) for im in chunks[c]])
+    images = np.concatenate([im for _, im in run_tasks(chunks_of(plan, None), workers)])
     return images, plan.classes.astype(np.int64)
 
 

@@ -22,7 +22,7 @@ out = Console()
 
 app = typer.Typer(
     name="data",
-    help="Synthetic data sets: make one, make the 16-set grid, draw a contact sheet.",
+    help="Synthetic data sets: make one or the 16-set grid, contact sheets, real-photo roll.",
     no_args_is_help=True,
 )
 
