@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import csv
+from pathlib import Path
+
 import cv2
 import numpy as np
 import pytest
 
-from train.background import BackgroundPool
+from train.background import BackgroundPool, procedural_backgrounds
 from train.geometry import intrinsics, look_at, pose_class, project_points, translation
 from train.profile import load_profile
 from train.render import Renderer, View, draw_views, render_view
@@ -115,3 +118,35 @@ def test_render_is_deterministic_and_class_zero_has_no_object(profile):
     plain = Renderer(profile, (80, 60), jitter=False, backgrounds=renderer.backgrounds)
     background = plain.render(None, 0, np.random.default_rng(9))
     assert np.array_equal(background, plain.backgrounds.sample(np.random.default_rng(9)))
+
+
+def test_real_photo_crops_avoid_the_board():
+    from train.background import board_polygon, real_photo_crops
+
+    folder = Path(__file__).resolve().parent.parent / "train" / "real" / "chessboard-stereo"
+    crops = real_photo_crops(folder)
+    assert len(crops) >= 10
+    corners = {}
+    with (folder / "labels.csv").open(newline="") as fh:
+        for row in csv.DictReader(fh):
+            corners[Path(row["file"]).stem] = np.array(
+                [[float(row[f"corner_{a}{i}"]) for a in "xy"] for i in range(4)]
+            )
+    for name, rgb in crops:
+        assert min(rgb.shape[:2]) >= 120 and rgb.dtype == np.uint8
+        # the grown board polygon contains the inner corners (sanity of the DLT growth)
+        polygon = board_polygon(corners[name.split("-")[0]], (20.0, 12.5), 6.0)
+        inner = corners[name.split("-")[0]]
+        for point in inner:
+            assert cv2.pointPolygonTest(polygon.astype(np.float32), tuple(point), False) > 0
+
+
+def test_background_pool_crops():
+    sources = procedural_backgrounds(10, (100, 70), seed=1)
+    assert all(s.shape == (70, 100, 3) and s.dtype == np.uint8 for s in sources)
+    assert len({s.tobytes() for s in sources}) == 10
+    pool = BackgroundPool((80, 60), sources)
+    rng = np.random.default_rng(0)
+    crops = [pool.sample(rng) for _ in range(20)]
+    assert all(c.shape == (60, 80, 3) for c in crops)
+    assert len({c.tobytes() for c in crops}) == 20

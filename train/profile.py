@@ -33,6 +33,7 @@ The object frame's origin is the centre of the texture rectangle; the border lie
 
 from __future__ import annotations
 
+import csv
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -41,7 +42,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from train.geometry import RegionGeometry, camera_lattice, look_at
+from train.geometry import RegionGeometry, camera_lattice, look_at, pose_class
 
 PROFILES_DIR = Path(__file__).resolve().parent / "profiles"
 REPO_ROOT = Path(__file__).resolve().parent.parent
@@ -241,8 +242,6 @@ def load_profile(name_or_path: str | Path) -> Profile:
 
 
 def _lattice_classes(profile: Profile) -> set[int]:
-    from train.geometry import pose_class
-
     return {int(k) for k in pose_class(profile.lattice(), profile.geometry.z_split_cm)}
 
 
@@ -262,8 +261,6 @@ def roll_of_pose(R: np.ndarray) -> float:
 
 def measure_rolls(labels_csv: Path) -> np.ndarray:
     """Rolls (degrees, (N,)) of the photos of a real labels.csv with OpenCV rvec0..2 columns."""
-    import csv
-
     with Path(labels_csv).open(newline="") as fh:
         rows = list(csv.DictReader(fh))
     if not rows or "rvec0" not in rows[0]:

@@ -49,14 +49,14 @@ def occlude_edge(image: np.ndarray, quad: np.ndarray, rng: np.random.Generator) 
     outline's size, as the fingers holding the board in the real photographs."""
     i = int(rng.integers(4))
     point = quad[i] + rng.uniform(0.1, 0.9) * (quad[(i + 1) % 4] - quad[i])
+    if len(quad) != 4 or not np.all(np.isfinite(point)):
+        return
     extent = float(np.linalg.norm(np.ptp(quad, axis=0)))
     a = max(2.0, extent * rng.uniform(0.08, 0.25))
     axes = (int(round(a)), int(round(a * rng.uniform(0.3, 0.6))))
     skin = rng.random() < 0.6
     base = np.array([205, 150, 120]) if skin else rng.integers(20, 230, 3)
     colour = tuple(int(c) for c in np.clip(base * rng.uniform(0.6, 1.15), 0, 255))
-    if not np.all(np.isfinite(point)):
-        return
     centre = (int(round(point[0])), int(round(point[1])))
     cv2.ellipse(image, centre, axes, float(rng.uniform(0, 180)), 0, 360, colour, -1, cv2.LINE_AA)
 
@@ -122,7 +122,6 @@ class _Level:
 
     rgba: np.ndarray
     to_object: np.ndarray
-    texels_per_cm: float
 
 
 class BoardImage:
@@ -164,11 +163,12 @@ class BoardImage:
             padded = cv2.copyMakeBorder(level, PAD, PAD, PAD, PAD, cv2.BORDER_REPLICATE)
             padded[:PAD, :, 3] = padded[-PAD:, :, 3] = 0
             padded[:, :PAD, 3] = padded[:, -PAD:, 3] = 0
-            self.levels.append(_Level(padded, tex_to_obj @ board_to_tex @ to_board, ppc / sx))
+            self.levels.append(_Level(padded, tex_to_obj @ board_to_tex @ to_board))
             if min(lh, lw) // 2 < min_side:
                 break
             level = cv2.resize(level, (lw // 2, lh // 2), interpolation=cv2.INTER_AREA)
-        w, h = profile.width_cm / 2 + b / ppc, profile.height_cm / 2 + b / ppc
+        w = profile.width_cm / 2 + b / ppc
+        h = profile.height_cm / 2 + b * profile.height_cm / th
         #: The board's outline (4, 3) cm in the object plane, margin and frame included.
         self.outline_cm = np.array([[-w, -h, 0], [w, -h, 0], [w, h, 0], [-w, h, 0]])
         self.texels = float(board.shape[0] * board.shape[1])  # at level 0
