@@ -169,6 +169,7 @@ def image_name(index: int, width: int) -> str:
 
 
 _RENDERERS: dict[tuple, Renderer] = {}
+MAX_RENDERERS = 32
 _BACKGROUNDS: dict[tuple[int, int], BackgroundPool] = {}
 
 
@@ -177,6 +178,8 @@ def _renderer(spec: DatasetSpec) -> Renderer:
     size and process."""
     key = (spec.profile, spec.wh, spec.jitter, spec.seed)
     if key not in _RENDERERS:
+        if len(_RENDERERS) >= MAX_RENDERERS:  # forget the oldest
+            del _RENDERERS[next(iter(_RENDERERS))]
         if spec.wh not in _BACKGROUNDS:
             _BACKGROUNDS[spec.wh] = BackgroundPool.default(spec.wh)
         _RENDERERS[key] = Renderer(
