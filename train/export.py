@@ -94,8 +94,7 @@ def build_card(
     training: dict[str, Any] = {
         "data": _data_summary(checkpoint.get("data", [])),
         "seed": checkpoint["config"].get("seed"),
-        "epochs_run": checkpoint.get("epoch"),
-        "best_epoch": checkpoint.get("best", {}),
+        "best_epoch": checkpoint.get("best", {}),  # the epoch whose weights these are
         "config": {
             k: checkpoint["config"].get(k)
             for k in ("epochs", "batch_size", "optimizer", "lr", "schedule", "augment")
