@@ -141,7 +141,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     async def predict(
         request: Request,
         mode: Annotated[
-            Mode, Query(description="whole: the image as is; sliding: best window (SPEC 9).")
+            Mode,
+            Query(
+                description="whole: the image as is; sliding: best window of a grid; "
+                "proposals: best object proposal (SPEC 9)."
+            ),
         ] = "whole",
     ) -> PredictResponse:
         """Send images as multipart field `image` (repeat it for many) or one raw image body.

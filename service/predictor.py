@@ -14,6 +14,7 @@ import numpy as np
 
 from service.model import PoseModel
 from service.preprocess import DecodedImage, ImageDecodeError, load_image, to_network_input
+from service.proposals import propose_boxes
 from service.regions import region_of_class
 from service.schemas import Box, Detection, ImageResult, Mode, RegionOut
 from service.settings import Settings
@@ -81,10 +82,20 @@ class Predictor:
         probs = self.model.predict(batch)
         return probs, time.perf_counter() - t0
 
+    def _proposals(self, image: np.ndarray) -> np.ndarray:
+        """Object-proposal boxes (SPEC 9, objectness) of the network's aspect in `image`."""
+        w, h = self.model.input_size
+        return propose_boxes(image, w / h, self.settings.proposals_max)
+
     def predict(self, images: Sequence[ImageInput], mode: Mode) -> Prediction:
-        """Answer every image; raises ImageDecodeError/ImageTooLargeError naming the image."""
+        """Answer every image; raises ImageDecodeError/ImageTooLargeError naming the image.
+
+        whole: the image as one input; sliding: the window grid; proposals: object proposals.
+        """
         if mode == "sliding":
-            return self._sliding(images)
+            return self._detect(images, self.boxes, self.settings.sliding_resolution)
+        if mode == "proposals":
+            return self._detect(images, self._proposals, self.settings.proposals_resolution)
         return self._whole(images)
 
     def _whole(self, images: Sequence[ImageInput]) -> Prediction:
@@ -101,15 +112,19 @@ class Predictor:
         ]
         return Prediction(results, infer_s)
 
-    def _sliding(self, images: Sequence[ImageInput]) -> Prediction:
+    def _detect(
+        self, images: Sequence[ImageInput], boxes_of: BoxGenerator, resolution: float
+    ) -> Prediction:
+        """Classify the boxes `boxes_of` finds in a working copy of each image (one batched
+        call for all), keep the best window per image (NMS, class 0 windows dropped)."""
         size, cfg = self.model.input_size, self.settings
-        min_size = working_min_size(size, cfg.sliding_resolution)
+        min_size = working_min_size(size, resolution)
         staged, batches, prep = [], [], []
         for i, image in enumerate(images):
             t0 = time.perf_counter()
             decoded = self._load(i, image, min_size)
-            work, scale = working_copy(decoded, size, cfg.sliding_resolution)
-            boxes = self.boxes(work)
+            work, scale = working_copy(decoded, size, resolution)
+            boxes = boxes_of(work)
             batches.append(window_batch(work, boxes, size))
             staged.append((boxes, scale, (decoded.width, decoded.height)))
             prep.append(time.perf_counter() - t0)

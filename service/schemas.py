@@ -6,7 +6,7 @@ from typing import Literal
 
 from pydantic import BaseModel, Field
 
-Mode = Literal["whole", "sliding"]
+Mode = Literal["whole", "sliding", "proposals"]
 
 
 class RegionOut(BaseModel):

@@ -63,6 +63,12 @@ class Settings(BaseSettings):
     )
     sliding_nms_iou: float = Field(default=0.3, gt=0, le=1)
     sliding_max_windows: int = Field(default=256, ge=1, description="Stride grows beyond it.")
+    proposals_max: int = Field(default=16, ge=1, description="Object proposals per image.")
+    proposals_resolution: float = Field(
+        default=4.0,
+        gt=0,
+        description="Proposals working copy scale, in network inputs (4: 320x240 for 80x60).",
+    )
     graceful_timeout_s: int = Field(default=20, ge=0, description="Drain time after SIGTERM.")
     log_level: str = "info"
     access_log: bool = True

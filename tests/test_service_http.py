@@ -177,7 +177,7 @@ def check_answer(body: dict[str, Any], mode: str, sizes: list[tuple[int, int]]) 
 # --- happy paths -----------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("mode", ["whole", "sliding"])
+@pytest.mark.parametrize("mode", ["whole", "sliding", "proposals"])
 @pytest.mark.parametrize("name", list(IMAGES))
 def test_raw_body_every_kind_of_image(client: httpx.Client, name: str, mode: str) -> None:
     data, media, size = IMAGES[name]
@@ -196,7 +196,7 @@ def inference_count(client: httpx.Client, mode: str) -> float:
     return next((float(ln[len(prefix) :]) for ln in lines if ln.startswith(prefix)), 0.0)
 
 
-@pytest.mark.parametrize("mode", ["whole", "sliding"])
+@pytest.mark.parametrize("mode", ["whole", "sliding", "proposals"])
 def test_many_images_one_batched_call(client: httpx.Client, mode: str) -> None:
     names = ["jpeg", "png", "exif-rotated", "tiny-1x1", "grey-png"]
     files = [("image", (f"{n}.img", IMAGES[n][0], IMAGES[n][1])) for n in names]
