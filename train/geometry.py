@@ -84,15 +84,12 @@ def look_at(c: ArrayLike, t: ArrayLike, roll_rad: float = 0.0) -> FloatArray:
     if norm == 0:
         raise ValueError("camera centre and target coincide")
     z_c = d / norm
-    horizontal = np.array([z_c[1], -z_c[0], 0.0])
-    h_norm = np.linalg.norm(horizontal)
-    if h_norm < 1e-12:
-        x_c = np.array([1.0, 0.0, 0.0])
-    else:
-        x_c = horizontal / h_norm
-        if np.cross(z_c, x_c)[2] > 0:
-            x_c = -x_c
-    y_c = np.cross(z_c, x_c)
+    h_norm = float(np.hypot(z_c[0], z_c[1]))
+    # Of the two horizontal unit vectors orthogonal to zC, (zy, -zx, 0) / |.| is the one giving
+    # yC = zC x xC the z component -(zx^2 + zy^2) / |.| < 0; straight down/up: world x.
+    x_c = np.array([1.0, 0.0, 0.0]) if h_norm < 1e-12 else np.array([z_c[1], -z_c[0], 0.0]) / h_norm
+    # zC x xC written out (xC has no z component): hot in data generation.
+    y_c = np.array([-z_c[2] * x_c[1], z_c[2] * x_c[0], z_c[0] * x_c[1] - z_c[1] * x_c[0]])
     level = np.stack([x_c, y_c, z_c])
     if roll_rad == 0.0:
         return level
