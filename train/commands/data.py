@@ -7,18 +7,13 @@ always with a one-line message and no stack trace.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated, Any
 
 import typer
-from rich.console import Console
 from rich.table import Table
 
-from train.profile import ProfileError
-
-err = Console(stderr=True)
-out = Console()
+from train.commands.common import fail, guard, out, profile_or_exit
 
 app = typer.Typer(
     name="data",
@@ -37,28 +32,6 @@ WorkersOption = Annotated[
 ]
 
 
-def _fail(message: str, code: int = 1) -> typer.Exit:
-    err.print(f"[bold red]error:[/] {message}")
-    return typer.Exit(code)
-
-
-def _guard(body: Callable[[], Any], code: int = 1) -> Any:
-    """Run `body`, turning expected input errors into a message and exit `code`."""
-    try:
-        return body()
-    except (ValueError, OSError) as exc:
-        raise _fail(str(exc), code) from None
-
-
-def _profile(name_or_path: str) -> Any:
-    from train.profile import load_profile
-
-    try:
-        return load_profile(name_or_path)
-    except ProfileError as exc:
-        raise _fail(str(exc)) from None
-
-
 def _workers(workers: int) -> int:
     from train.datasets import default_workers
 
@@ -71,16 +44,16 @@ def _make(jobs: list[tuple[Any, Path]], overwrite: bool, workers: int) -> list[d
 
     from train.datasets import DatasetError, check_outputs, make_datasets
 
-    _guard(lambda: check_outputs([path for _, path in jobs], overwrite), code=2)
+    guard(lambda: check_outputs([path for _, path in jobs], overwrite), code=2)
     total = sum(spec.count for spec, _ in jobs)
     start = time.perf_counter()
     with tqdm(total=total, desc="rendering", unit="img") as bar:
         try:
             manifests = make_datasets(jobs, overwrite, workers, bar.update)
         except DatasetError as exc:  # existing folder, bad arguments
-            raise _fail(str(exc), code=2) from None
+            raise fail(str(exc), code=2) from None
         except (ValueError, OSError) as exc:  # unreadable background, disk full...
-            raise _fail(str(exc)) from None
+            raise fail(str(exc)) from None
     seconds = time.perf_counter() - start
     table = Table(title=f"{total} images in {seconds:.1f} s ({total / seconds:.0f} img/s)")
     for column in ("data set", "size", "train", "val", "test", "class counts 0..8"):
@@ -113,8 +86,8 @@ def make(
     """Render one synthetic data set: OUT/images/*.png, OUT/labels.csv, OUT/manifest.json."""
     from train.datasets import DatasetSpec
 
-    prof = _profile(profile)
-    spec = _guard(lambda: DatasetSpec(variant, size, blur, count, seed, prof, jitter), code=2)
+    prof = profile_or_exit(profile)
+    spec = guard(lambda: DatasetSpec(variant, size, blur, count, seed, prof, jitter), code=2)
     _make([(spec, out_dir)], overwrite, _workers(workers))
 
 
@@ -131,8 +104,8 @@ def grid(
     """Render the 16 SPEC sets {C, noC} x size {1, 2} x blur {0..3} as OUT_ROOT/noC-s1-b0 etc."""
     from train.datasets import grid_specs
 
-    prof = _profile(profile)
-    specs = _guard(lambda: grid_specs(count, seed, prof, jitter), code=2)
+    prof = profile_or_exit(profile)
+    specs = guard(lambda: grid_specs(count, seed, prof, jitter), code=2)
     _make([(spec, out_root / spec.name) for spec in specs], overwrite, _workers(workers))
 
 
@@ -149,11 +122,11 @@ def sheet(
     from train.sheet import contact_sheet
 
     if split not in ("train", "val", "test", "all"):
-        raise _fail(f"--split must be train, val, test or all, got {split!r}", code=2)
+        raise fail(f"--split must be train, val, test or all, got {split!r}", code=2)
     if out_png.suffix.lower() != ".png":
-        raise _fail(f"the contact sheet must be a .png file, got {out_png}", code=2)
+        raise fail(f"the contact sheet must be a .png file, got {out_png}", code=2)
     chosen = None if split == "all" else split
-    image = _guard(lambda: contact_sheet(dataset, out_png, per_class, scale, chosen, seed))
+    image = guard(lambda: contact_sheet(dataset, out_png, per_class, scale, chosen, seed))
     out.print(f"[green]wrote[/] {out_png} ({image.shape[1]}x{image.shape[0]})")
 
 
@@ -169,8 +142,8 @@ def roll(
     from train.profile import measure_rolls
 
     if not labels_csv.is_file():
-        raise _fail(f"file not found: {labels_csv}", code=2)
-    rolls = _guard(lambda: measure_rolls(labels_csv))
+        raise fail(f"file not found: {labels_csv}", code=2)
+    rolls = guard(lambda: measure_rolls(labels_csv))
     q = np.percentile(rolls, [0, 5, 50, 95, 100])
     out.print(
         f"{len(rolls)} photos: roll min {q[0]:.1f}, 5 % {q[1]:.1f}, median {q[2]:.1f}, "

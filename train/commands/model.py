@@ -6,36 +6,19 @@ torch is imported inside the commands only (the service install has no torch).
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated
 
 import typer
-from rich.console import Console
 
-err = Console(stderr=True)
-out = Console()
+from train.commands.common import fail, guard, out
 
 SPLITS = ("train", "val", "test", "all")
 
 
-def _fail(message: str, code: int = 1) -> typer.Exit:
-    err.print(f"[bold red]error:[/] {message}")
-    return typer.Exit(code)
-
-
-def _guard(body: Callable[[], Any]) -> Any:
-    """Run a command body, turning the expected input errors into a message and exit code 1."""
-    try:
-        return body()
-    except (FileNotFoundError, ValueError, KeyError, OSError) as exc:
-        message = str(exc) if not isinstance(exc, KeyError) else f"missing field {exc}"
-        raise _fail(message) from None
-
-
 def _check_split(split: str) -> str:
     if split not in SPLITS:
-        raise _fail(f"--split must be one of {', '.join(SPLITS)}, got {split!r}", code=2)
+        raise fail(f"--split must be one of {', '.join(SPLITS)}, got {split!r}", code=2)
     return split
 
 
@@ -66,11 +49,11 @@ def train(
 
     for path in datasets:
         if not path.is_dir():
-            raise _fail(f"data set not found: {path}")
+            raise fail(f"data set not found: {path}")
     if init is not None and not init.is_file():
-        raise _fail(f"--init checkpoint not found: {init}")
+        raise fail(f"--init checkpoint not found: {init}")
     if resume and not (out_dir / "last.pt").is_file():
-        raise _fail(f"--resume: no checkpoint {out_dir / 'last.pt'} to continue")
+        raise fail(f"--resume: no checkpoint {out_dir / 'last.pt'} to continue")
     config = FitConfig(
         datasets=datasets,
         out=out_dir,
@@ -88,7 +71,7 @@ def train(
         threads=threads,
         compile=compile_step,
     )
-    summary = _guard(lambda: fit(config, resume=resume))
+    summary = guard(lambda: fit(config, resume=resume))
     best = summary["best"]
     out.print(
         f"[green]done[/]: {summary['epochs_run']} epochs, best epoch {best['epoch']} "
@@ -125,12 +108,12 @@ def evaluate(
     models = [p for p in paths if p.suffix in (".onnx", ".pt")]
     datasets = [p for p in paths if p not in models]
     if not models:
-        raise _fail("give at least one model (.onnx or .pt) before the data sets", code=2)
+        raise fail("give at least one model (.onnx or .pt) before the data sets", code=2)
     if not datasets:
-        raise _fail("give at least one data set folder after the model(s)", code=2)
+        raise fail("give at least one data set folder after the model(s)", code=2)
     for path in datasets:
         if not (path / "labels.csv").is_file():
-            raise _fail(f"not a data set (no labels.csv): {path}")
+            raise fail(f"not a data set (no labels.csv): {path}")
 
     def body() -> Path:
         loaded = {p: load_predictor(p) for p in models}
@@ -152,7 +135,7 @@ def evaluate(
         notes = [f"Split: `{split}`. Written by `planar-pose evaluate`."] + list(note or [])
         return write_report(results, out_dir, markdown, title, notes, sources)
 
-    report = _guard(body)
+    report = guard(body)
     out.print(f"[green]done[/]: {out_dir / 'metrics.json'}, {report}")
 
 
@@ -182,13 +165,13 @@ def export(
 
     _check_split(split)
     if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.-]*", name):
-        raise _fail(f"--name {name!r}: use letters, digits, '.', '_' or '-'", code=2)
+        raise fail(f"--name {name!r}: use letters, digits, '.', '_' or '-'", code=2)
     if not checkpoint.is_file():
-        raise _fail(f"checkpoint not found: {checkpoint}")
+        raise fail(f"checkpoint not found: {checkpoint}")
     for path in eval_data or []:
         if not (path / "labels.csv").is_file():
-            raise _fail(f"not a data set (no labels.csv): {path}")
-    path, card = _guard(
+            raise fail(f"not a data set (no labels.csv): {path}")
+    path, card = guard(
         lambda: run_export(checkpoint, name, out_dir, eval_data, split, version, notes)
     )
     out.print(f"[green]wrote[/] {path} ({path.stat().st_size / 1e6:.2f} MB) and {name}.json")
@@ -208,12 +191,12 @@ def realset(
     from train.realset import build_real_dataset
 
     if size not in (1, 2):
-        raise _fail(f"--size must be 1 (80x60) or 2 (160x120), got {size}", code=2)
+        raise fail(f"--size must be 1 (80x60) or 2 (160x120), got {size}", code=2)
     if not 0 <= blur <= 3:
-        raise _fail(f"--blur must be in 0..3, got {blur}", code=2)
+        raise fail(f"--blur must be in 0..3, got {blur}", code=2)
     if not (source / "labels.csv").is_file():
-        raise _fail(f"no labels.csv in {source}")
-    manifest = _guard(lambda: build_real_dataset(source, out_dir, size, blur, profile, seed))
+        raise fail(f"no labels.csv in {source}")
+    manifest = guard(lambda: build_real_dataset(source, out_dir, size, blur, profile, seed))
     out.print(f"[green]wrote[/] {out_dir}: {json.dumps(manifest['counts'])}")
 
 

@@ -6,37 +6,13 @@ No torch here: the baseline is OpenCV and the comparison runs the CNN through on
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated, Any
 
 import typer
-from rich.console import Console
 from rich.table import Table
 
-err = Console(stderr=True)
-out = Console()
-
-
-def _fail(message: str, code: int = 1) -> typer.Exit:
-    err.print(f"[bold red]error:[/] {message}")
-    return typer.Exit(code)
-
-
-def _guard(body: Callable[[], Any]) -> Any:
-    """Run a command body, turning expected input errors into a message and exit code 1."""
-    try:
-        return body()
-    except (FileNotFoundError, ValueError, KeyError, OSError) as exc:
-        message = str(exc) if not isinstance(exc, KeyError) else f"missing field {exc}"
-        raise _fail(message) from None
-
-
-def _profile(name_or_path: str) -> Any:
-    """The object profile, or exit 1 with the loader's message (unknown profile, bad files)."""
-    from train.profile import load_profile
-
-    return _guard(lambda: load_profile(name_or_path))
+from train.commands.common import err, fail, guard, out, profile_or_exit
 
 
 def label(
@@ -65,17 +41,17 @@ def label(
     from train.calibration import Calibration
     from train.label import compare_to_truth, label_folder, list_images, read_corner_csv
 
-    _guard(lambda: list_images(images_dir))
-    prof = _profile(profile)
-    cal = _guard(lambda: Calibration.load(calibration)) if calibration else None
-    clicked = _guard(lambda: read_corner_csv(corners)) if corners else None
+    guard(lambda: list_images(images_dir))
+    prof = profile_or_exit(profile)
+    cal = guard(lambda: Calibration.load(calibration)) if calibration else None
+    clicked = guard(lambda: read_corner_csv(corners)) if corners else None
     if truth is not None and not truth.is_file():
-        raise _fail(f"ground truth not found: {truth}")
+        raise fail(f"ground truth not found: {truth}")
 
     def progress(paths: list[Path]) -> Any:
         return tqdm(paths, desc="labelling", unit="image")
 
-    manifest = _guard(lambda: label_folder(images_dir, out_dir, prof, cal, clicked, seed, progress))
+    manifest = guard(lambda: label_folder(images_dir, out_dir, prof, cal, clicked, seed, progress))
     out.print(
         f"[green]labelled[/] {manifest['count']} image(s) into {out_dir} "
         f"({', '.join(f'{m}: {n}' for m, n in manifest['methods'].items()) or 'none'}); "
@@ -90,14 +66,14 @@ def label(
     out.print(f"check the labels by eye in {out_dir / 'overlays'}")
     if truth is not None:
         z_split = float(prof.geometry.z_split_cm)
-        check = _guard(lambda: compare_to_truth(out_dir, truth, z_split))
+        check = guard(lambda: compare_to_truth(out_dir, truth, z_split))
         out.print(
             f"against {truth}: {check['count']} images, camera centre error mean "
             f"{check['centre_error_cm_mean']:.3f} cm, max {check['centre_error_cm_max']:.3f} cm, "
             f"class agreement {100 * check['class_agreement']:.1f} %"
         )
     if manifest["count"] == 0:
-        raise _fail("no image could be labelled")
+        raise fail("no image could be labelled")
 
 
 def baseline(
@@ -121,12 +97,12 @@ def baseline(
     from train.report import write_report
 
     if features not in FEATURE_CHOICES:
-        raise _fail(f"--features must be one of {', '.join(FEATURE_CHOICES)}", code=2)
+        raise fail(f"--features must be one of {', '.join(FEATURE_CHOICES)}", code=2)
     if split not in ("train", "val", "test", "all"):
-        raise _fail(f"--split must be train, val, test or all, got {split!r}", code=2)
+        raise fail(f"--split must be train, val, test or all, got {split!r}", code=2)
     for path in datasets:
         if not (path / "labels.csv").is_file():
-            raise _fail(f"not a data set (no labels.csv): {path}")
+            raise fail(f"not a data set (no labels.csv): {path}")
 
     def body() -> Path:
         name = f"baseline-{features}"
@@ -158,7 +134,7 @@ def baseline(
             )
         return write_report(results, out_dir, None, "Feature baseline", notes)
 
-    report = _guard(body)
+    report = guard(body)
     out.print(f"[green]done[/]: {out_dir / 'metrics.json'}, {report}")
 
 
@@ -193,17 +169,17 @@ def compare(
     from train.compare import CompareConfig, run_comparison
 
     if features not in FEATURE_CHOICES:
-        raise _fail(f"--features must be one of {', '.join(FEATURE_CHOICES)}", code=2)
+        raise fail(f"--features must be one of {', '.join(FEATURE_CHOICES)}", code=2)
     if split not in ("train", "val", "test", "all"):
-        raise _fail(f"--split must be train, val, test or all, got {split!r}", code=2)
+        raise fail(f"--split must be train, val, test or all, got {split!r}", code=2)
     for path in models:
         if path.suffix != ".onnx" or not path.is_file():
-            raise _fail(f"not an ONNX model file: {path}")
+            raise fail(f"not an ONNX model file: {path}")
     for path in [*datasets, *(detection_dataset or [])]:
         if not (path / "labels.csv").is_file():
-            raise _fail(f"not a data set (no labels.csv): {path}")
+            raise fail(f"not a data set (no labels.csv): {path}")
     if photos is not None and not (photos / "labels.csv").is_file():
-        raise _fail(f"no labels.csv in the photo folder {photos}")
+        raise fail(f"no labels.csv in the photo folder {photos}")
     config = CompareConfig(
         models=models,
         datasets=datasets,
@@ -215,7 +191,7 @@ def compare(
         limit=limit,
         tune=tune,
     )
-    summary = _guard(lambda: run_comparison(config))
+    summary = guard(lambda: run_comparison(config))
     table = Table(title="accuracy %  (ms / image)")
     for column in ["data set", *summary["columns"]]:
         table.add_column(column)
