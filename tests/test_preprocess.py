@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import struct
-import zlib
 from pathlib import Path
 
 import cv2
@@ -11,6 +10,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from image_bytes import png_claiming, with_exif_orientation
 
 from service.preprocess import (
     ImageDecodeError,
@@ -39,19 +39,6 @@ def colour_image(w: int = 64, h: int = 48) -> np.ndarray:
     img[: h // 2, w // 2 :] = (0, 255, 0)  # green top right
     img[h // 2 :, : w // 2] = (255, 0, 0)  # blue bottom left
     return img
-
-
-def with_exif_orientation(jpeg: bytes, orientation: int) -> bytes:
-    """Insert an APP1 Exif segment with the given orientation tag after SOI."""
-    tiff = b"II*\x00" + struct.pack("<IH", 8, 1) + struct.pack("<HHII", 0x0112, 3, 1, orientation)
-    payload = b"Exif\x00\x00" + tiff + struct.pack("<I", 0)
-    return jpeg[:2] + b"\xff\xe1" + struct.pack(">H", len(payload) + 2) + payload + jpeg[2:]
-
-
-def png_claiming(w: int, h: int) -> bytes:
-    ihdr = struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0)
-    chunk = struct.pack(">I", 13) + b"IHDR" + ihdr + struct.pack(">I", zlib.crc32(b"IHDR" + ihdr))
-    return b"\x89PNG\r\n\x1a\n" + chunk
 
 
 def jpeg_claiming(w: int, h: int) -> bytes:

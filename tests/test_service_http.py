@@ -9,11 +9,9 @@ import json
 import os
 import signal
 import socket
-import struct
 import subprocess
 import sys
 import time
-import zlib
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -23,6 +21,7 @@ import cv2
 import httpx
 import numpy as np
 import pytest
+from image_bytes import png_claiming, with_exif_orientation
 
 from service.app import create_app
 from service.predictor import Predictor
@@ -121,18 +120,6 @@ def encode(ext: str, image: np.ndarray) -> bytes:
     ok, buf = cv2.imencode(ext, image)
     assert ok
     return buf.tobytes()
-
-
-def with_exif_orientation(jpeg: bytes, orientation: int) -> bytes:
-    tiff = b"II*\x00" + struct.pack("<IH", 8, 1) + struct.pack("<HHII", 0x0112, 3, 1, orientation)
-    payload = b"Exif\x00\x00" + tiff + struct.pack("<I", 0)
-    return jpeg[:2] + b"\xff\xe1" + struct.pack(">H", len(payload) + 2) + payload + jpeg[2:]
-
-
-def png_claiming(w: int, h: int) -> bytes:
-    ihdr = struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0)
-    chunk = struct.pack(">I", 13) + b"IHDR" + ihdr + struct.pack(">I", zlib.crc32(b"IHDR" + ihdr))
-    return b"\x89PNG\r\n\x1a\n" + chunk + bytes(64)
 
 
 PHOTO = (REAL / "left01.jpg").read_bytes()
@@ -265,7 +252,7 @@ HOSTILE: dict[str, tuple[dict[str, Any], int, str]] = {
         "undecodable_image",
     ),
     "png-header-only": (
-        {"content": png_claiming(40, 30), "headers": {"content-type": "image/png"}},
+        {"content": png_claiming(40, 30, padding=64), "headers": {"content-type": "image/png"}},
         400,
         "undecodable_image",
     ),
@@ -286,7 +273,10 @@ HOSTILE: dict[str, tuple[dict[str, Any], int, str]] = {
         "unsupported_media_type",
     ),
     "png-50000x50000": (
-        {"content": png_claiming(50_000, 50_000), "headers": {"content-type": "image/png"}},
+        {
+            "content": png_claiming(50_000, 50_000, padding=64),
+            "headers": {"content-type": "image/png"},
+        },
         413,
         "image_too_large",
     ),

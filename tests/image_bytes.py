@@ -1,0 +1,20 @@
+"""Hand-made image bytes for the preprocessing and service tests (EXIF, lying headers)."""
+
+from __future__ import annotations
+
+import struct
+import zlib
+
+
+def with_exif_orientation(jpeg: bytes, orientation: int) -> bytes:
+    """Insert an APP1 Exif segment with the given orientation tag after SOI."""
+    tiff = b"II*\x00" + struct.pack("<IH", 8, 1) + struct.pack("<HHII", 0x0112, 3, 1, orientation)
+    payload = b"Exif\x00\x00" + tiff + struct.pack("<I", 0)
+    return jpeg[:2] + b"\xff\xe1" + struct.pack(">H", len(payload) + 2) + payload + jpeg[2:]
+
+
+def png_claiming(w: int, h: int, padding: int = 0) -> bytes:
+    """A PNG signature + IHDR claiming w x h RGB pixels, `padding` zero bytes, no image data."""
+    ihdr = struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0)
+    chunk = struct.pack(">I", 13) + b"IHDR" + ihdr + struct.pack(">I", zlib.crc32(b"IHDR" + ihdr))
+    return b"\x89PNG\r\n\x1a\n" + chunk + bytes(padding)
