@@ -76,26 +76,19 @@ def network_batch(images: np.ndarray, size: tuple[int, int]) -> np.ndarray:
 
 
 def onnx_predictor(path: Path, threads: int = 0) -> tuple[Predictor, tuple[int, int], dict]:
-    """Load an exported model with onnxruntime -> (predictor, input size (W, H), model card)."""
-    import json
+    """Load an exported model as the service does (`service.model.PoseModel`, onnxruntime)
+    -> (predictor, input size (W, H), model card). `threads` 0 lets onnxruntime choose."""
+    from service.model import ModelLoadError, PoseModel
 
-    import onnxruntime as ort
-
-    options = ort.SessionOptions()
-    options.intra_op_num_threads = threads
-    session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
-    meta = session.get_modelmeta().custom_metadata_map
-    shape = session.get_inputs()[0].shape
-    if not (isinstance(shape[2], int) and isinstance(shape[3], int)):
-        raise ValueError(f"{path}: input shape {shape} has no fixed height and width")
-    size = (int(shape[3]), int(shape[2]))
-    input_name = session.get_inputs()[0].name
-    card = json.loads(meta["model_card"]) if "model_card" in meta else {}
+    try:
+        model = PoseModel.load(path, intra_op_threads=threads)
+    except ModelLoadError as exc:
+        raise ValueError(str(exc)) from None
 
     def predict(images: np.ndarray) -> np.ndarray:
-        return session.run(None, {input_name: network_batch(images, size)})[0]
+        return model.predict(network_batch(images, model.input_size))
 
-    return predict, size, card
+    return predict, model.input_size, model.card
 
 
 def checkpoint_predictor(path: Path) -> tuple[Predictor, tuple[int, int], dict]:
