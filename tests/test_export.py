@@ -20,15 +20,21 @@ from train.realset import read_rgb
 REAL = Path(__file__).resolve().parent.parent / "train" / "real" / "chessboard-stereo"
 
 
-def _checkpoint(tmp_path: Path, size: tuple[int, int]) -> tuple[Path, PoseNet]:
+def _checkpoint(
+    tmp_path: Path, size: tuple[int, int], batch_norm: bool = False
+) -> tuple[Path, PoseNet]:
     torch.manual_seed(1)
-    net = PoseNet(size)
+    net = PoseNet(size, batch_norm=batch_norm)
     net.set_normalisation(torch.tensor([0.4, 0.5, 0.6]), torch.tensor([0.2, 0.25, 0.3]))
+    if batch_norm:  # running statistics of real-looking inputs instead of the identity
+        with torch.no_grad():
+            net.train()(torch.rand(16, 3, size[1], size[0]))
     path = tmp_path / "best.pt"
     torch.save(
         {
             "format": CHECKPOINT_FORMAT,
             "size": list(size),
+            "batch_norm": batch_norm,
             "model": net.state_dict(),
             "config": {"seed": 7, "epochs": 3},
             "data": [{"path": "data/x", "split": "train", "count": 10, "blur": 0}],
@@ -41,10 +47,15 @@ def _checkpoint(tmp_path: Path, size: tuple[int, int]) -> tuple[Path, PoseNet]:
     return path, net.eval()
 
 
-@pytest.mark.parametrize("size", [(80, 60), (160, 120)])
-def test_onnx_matches_pytorch_on_random_and_real_inputs(tmp_path, size):
-    ckpt, net = _checkpoint(tmp_path, size)
+@pytest.mark.parametrize(
+    ("size", "batch_norm"), [((80, 60), False), ((160, 120), False), ((80, 60), True)]
+)
+def test_onnx_matches_pytorch_on_random_and_real_inputs(tmp_path, size, batch_norm):
+    ckpt, net = _checkpoint(tmp_path, size, batch_norm)
     path, card = export(ckpt, "m", tmp_path / "models")
+    ops = {node.op_type for node in onnx.load(str(path)).graph.node}
+    assert {"Conv", "Tanh", "AveragePool", "Sqrt", "Gemm", "Softmax"} <= ops
+    assert "BatchNormalization" not in ops  # folded into the SPEC layers
     session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
     rng = np.random.default_rng(0)
     photos = sorted(REAL.glob("*.jpg"))[:17]

@@ -5,7 +5,14 @@ from __future__ import annotations
 import pytest
 import torch
 
-from train.model import L2Pool2d, PoseNet, channel_stats, check_size, feature_shape
+from train.model import (
+    L2Pool2d,
+    PoseNet,
+    channel_stats,
+    check_size,
+    feature_shape,
+    fold_batch_norm,
+)
 
 
 @pytest.mark.parametrize(
@@ -51,3 +58,38 @@ def test_normalisation_lives_in_the_state_dict():
     other.load_state_dict(net.state_dict())
     torch.testing.assert_close(other.mean.flatten(), mean)
     torch.testing.assert_close(other.std.flatten(), std)
+
+
+def _trained_batch_norm_net(size: tuple[int, int]) -> PoseNet:
+    """A batch-norm PoseNet whose norms are far from identity (random affine, real stats)."""
+    torch.manual_seed(3)
+    net = PoseNet(size, batch_norm=True)
+    net.set_normalisation(torch.tensor([0.4, 0.5, 0.6]), torch.tensor([0.2, 0.25, 0.3]))
+    with torch.no_grad():
+        net.train()
+        for _ in range(3):
+            net(torch.rand(8, 3, size[1], size[0]))
+        for module in net.modules():
+            if isinstance(module, torch.nn.BatchNorm1d | torch.nn.BatchNorm2d):
+                module.weight.uniform_(0.5, 1.5)
+                module.bias.uniform_(-0.5, 0.5)
+    return net.eval()
+
+
+@pytest.mark.parametrize("size", [(80, 60), (160, 120)])
+def test_folding_batch_norm_gives_the_plain_spec_network(size):
+    net = _trained_batch_norm_net(size)
+    plain = fold_batch_norm(net).eval()
+    assert not plain.batch_norm
+    assert set(plain.state_dict()) == set(PoseNet(size).state_dict())
+    x = torch.rand(5, 3, size[1], size[0])
+    with torch.no_grad():
+        torch.testing.assert_close(plain.logits(x), net.logits(x), atol=1e-5, rtol=1e-5)
+
+
+def test_folding_a_plain_network_copies_it():
+    net = PoseNet((80, 60)).eval()
+    plain = fold_batch_norm(net)
+    assert plain is not net
+    for key, value in net.state_dict().items():
+        torch.testing.assert_close(plain.state_dict()[key], value)

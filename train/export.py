@@ -175,9 +175,10 @@ def export(
 
     from train.evaluate import network_batch
     from train.fit import load_network
+    from train.model import fold_batch_norm
 
-    net, checkpoint = load_network(checkpoint_path)
-    net.eval()
+    trained, checkpoint = load_network(checkpoint_path)
+    net = fold_batch_norm(trained.eval()).eval()
     raw = onnx_bytes(net)
     session = ort.InferenceSession(raw, providers=["CPUExecutionProvider"])
 

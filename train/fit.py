@@ -54,6 +54,7 @@ class FitConfig:
     seed: int = 0
     augment: bool = True
     init: Path | None = None
+    batch_norm: bool = True  # train the reparameterised net (folded away on export)
     threads: int = 0  # torch intra-op threads; 0 = torch default
     compile: bool = False  # torch.compile the training step (about 2.5x faster at 160x120)
     progress: bool = True
@@ -154,7 +155,7 @@ def load_network(path: Path) -> tuple[PoseNet, dict[str, Any]]:
         raise TrainingError(f"{path} is not a readable PyTorch checkpoint: {exc}") from exc
     if not isinstance(checkpoint, dict) or checkpoint.get("format") != CHECKPOINT_FORMAT:
         raise TrainingError(f"{path} is not a planar-pose training checkpoint")
-    net = PoseNet(tuple(checkpoint["size"]))
+    net = PoseNet(tuple(checkpoint["size"]), batch_norm=bool(checkpoint.get("batch_norm")))
     net.load_state_dict(checkpoint["model"])
     return net, checkpoint
 
@@ -228,19 +229,19 @@ def fit(config: FitConfig, resume: bool = False) -> dict[str, Any]:
         raise TrainingError(f"training images: {exc}") from exc
 
     torch.manual_seed(config.seed)
-    net = PoseNet(size).to(memory_format=torch.channels_last)
     parent: dict[str, Any] | None = None
-    if config.init is not None:
-        init_net, parent = load_network(config.init)
-        if init_net.size != size:
+    if config.init is not None:  # fine-tuning keeps the parent's architecture and weights
+        net, parent = load_network(config.init)
+        if net.size != size:
             raise TrainingError(
-                f"--init checkpoint {config.init} takes {init_net.size[0]}x{init_net.size[1]} "
+                f"--init checkpoint {config.init} takes {net.size[0]}x{net.size[1]} "
                 f"images but the data sets are {size[0]}x{size[1]}"
             )
-        net.load_state_dict(init_net.state_dict())
     else:
+        net = PoseNet(size, batch_norm=config.batch_norm)
         mean, std = channel_stats(torch.from_numpy(train.images))
         net.set_normalisation(mean, std)
+    net = net.to(memory_format=torch.channels_last)
     opt = _optimiser(config, net)
     sched = _schedule(config, opt)
     augmenter = Augmenter(size) if config.augment else None
@@ -252,6 +253,7 @@ def fit(config: FitConfig, resume: bool = False) -> dict[str, Any]:
     state: dict[str, Any] = {
         "format": CHECKPOINT_FORMAT,
         "size": list(size),
+        "batch_norm": net.batch_norm,
         "config": config.to_json(),
         "data": train_info,
         "profile": train_info[0].get("profile", {}),

@@ -5,6 +5,12 @@ Output of `PoseNet.forward`: log-probabilities float32 [N, 9] (log-softmax).
 
     conv 5x5 3->64, tanh, L2 pool 4x4/4, conv 5x5 64->64, tanh, L2 pool 4x4/4,
     flatten (384 | 3072) -> linear -> tanh (128 | 1024) -> linear -> 9 -> log-softmax
+
+Training may use `PoseNet(size, batch_norm=True)`: batch normalisation before each tanh and
+after each pooling. It only reparameterises the same function class (the L2-pooled maps are
+all positive with a large common mode, which makes plain SGD slow and unstable); in eval mode
+every one of those layers is a per-channel affine map, and `fold_batch_norm` merges them into
+the neighbouring convolution / linear layers, giving exactly the SPEC network above.
 """
 
 from __future__ import annotations
@@ -63,24 +69,37 @@ class PoseNet(nn.Module):
     set with `set_normalisation`, they travel with the state dict and the ONNX graph.
     """
 
-    def __init__(self, size: tuple[int, int] = (80, 60)) -> None:
+    def __init__(self, size: tuple[int, int] = (80, 60), batch_norm: bool = False) -> None:
         super().__init__()
         self.size = check_size(size)
+        self.batch_norm = batch_norm
         fh, fw = feature_shape(self.size)
         hidden = HIDDEN_UNITS[self.size]
         self.register_buffer("mean", torch.full((1, 3, 1, 1), 0.5))
         self.register_buffer("std", torch.full((1, 3, 1, 1), 0.25))
+
+        def norm(n: int, one_d: bool = False) -> nn.Module:
+            if not batch_norm:
+                return nn.Identity()
+            return nn.BatchNorm1d(n) if one_d else nn.BatchNorm2d(n)
+
+        # Fixed indices (Identity without batch_norm): conv 0 and 5, linear 1 and 4.
         self.features = nn.Sequential(
             nn.Conv2d(3, CHANNELS, CONV_KERNEL),
+            norm(CHANNELS),
             nn.Tanh(),
             L2Pool2d(POOL),
+            norm(CHANNELS),
             nn.Conv2d(CHANNELS, CHANNELS, CONV_KERNEL),
+            norm(CHANNELS),
             nn.Tanh(),
             L2Pool2d(POOL),
+            norm(CHANNELS),
         )
         self.classifier = nn.Sequential(
             nn.Flatten(),
             nn.Linear(CHANNELS * fh * fw, hidden),
+            norm(hidden, one_d=True),
             nn.Tanh(),
             nn.Linear(hidden, NUM_CLASSES),
         )
@@ -99,6 +118,52 @@ class PoseNet(nn.Module):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """RGB [N, 3, H, W] in [0, 1] -> log-probabilities [N, 9]."""
         return F.log_softmax(self.logits(x), dim=1)
+
+
+def _bn_affine(bn: nn.Module, n: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Eval-mode batch norm as y = a * x + c per channel -> (a, c), each (n,); identity if none."""
+    if not isinstance(bn, nn.BatchNorm1d | nn.BatchNorm2d):
+        return torch.ones(n), torch.zeros(n)
+    a = bn.weight / torch.sqrt(bn.running_var + bn.eps)
+    return a, bn.bias - a * bn.running_mean
+
+
+@torch.no_grad()
+def fold_batch_norm(net: PoseNet) -> PoseNet:
+    """The plain SPEC network computing what `net` computes in eval mode (a copy).
+
+    A norm after a layer scales its output rows; a norm after a pooling is an affine map of
+    the next layer's input (exact: the convolutions have no padding). A `net` without batch
+    norm is copied unchanged.
+    """
+    plain = PoseNet(net.size)
+    plain.mean.copy_(net.mean)
+    plain.std.copy_(net.std)
+    f, c = net.features, net.classifier
+    # (layer, norm of its input or None, norm of its output) in the training network.
+    layers: list[tuple[nn.Conv2d | nn.Linear, nn.Module | None, nn.Module]] = [
+        (f[0], None, f[1]),
+        (f[5], f[4], f[6]),
+        (c[1], f[9], c[2]),
+    ]
+    targets = [plain.features[0], plain.features[5], plain.classifier[1]]
+    for (layer, before, after), target in zip(layers, targets, strict=True):
+        weight, bias = layer.weight.clone(), layer.bias.clone()
+        if before is not None:
+            a_in, c_in = _bn_affine(before, CHANNELS)
+            per_input = weight.shape[1] // CHANNELS  # spatial positions per channel (flatten)
+            a_in, c_in = a_in.repeat_interleave(per_input), c_in.repeat_interleave(per_input)
+            if weight.dim() == 4:  # conv: input channels are dim 1, summed over the kernel
+                bias += (weight.sum((2, 3)) * c_in).sum(1)
+                weight *= a_in.reshape(1, -1, 1, 1)
+            else:
+                bias += weight @ c_in
+                weight *= a_in.reshape(1, -1)
+        a_out, c_out = _bn_affine(after, weight.shape[0])
+        target.weight.copy_(weight * a_out.reshape(-1, *([1] * (weight.dim() - 1))))
+        target.bias.copy_(bias * a_out + c_out)
+    plain.classifier[4].load_state_dict(c[4].state_dict())
+    return plain
 
 
 class Probabilities(nn.Module):

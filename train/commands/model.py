@@ -39,6 +39,10 @@ def train(
         Path | None, typer.Option(help="Checkpoint to start from (fine-tuning).")
     ] = None,
     resume: Annotated[bool, typer.Option(help="Continue OUT/last.pt.")] = False,
+    batch_norm: Annotated[
+        bool,
+        typer.Option(help="Train with batch norm, folded into the SPEC layers on export."),
+    ] = True,
     threads: Annotated[int, typer.Option(min=0, help="Torch threads, 0 = default.")] = 0,
     compile_step: Annotated[
         bool, typer.Option("--compile/--no-compile", help="torch.compile the training step.")
@@ -68,6 +72,7 @@ def train(
         seed=seed,
         augment=augment,
         init=init,
+        batch_norm=batch_norm,
         threads=threads,
         compile=compile_step,
     )
