@@ -1,10 +1,11 @@
 #!/usr/bin/env bash
-# Reproduce the shipped models from scratch for the `chessboard` profile (about 30 min on an
-# otherwise idle 2-core machine; about 45 min on the shared, loaded one it was made on):
+# Reproduce the shipped models from scratch for the `chessboard` profile (about 55 min on an
+# otherwise idle 2-core machine):
 #   1. synthetic data: training sets (noC, blur 0; blur 1-3 are mixed in on the fly by `train`),
 #      the evaluation grid {noC, C} x size {1, 2} x blur {0..3}, small rehearsal sets;
 #   2. the real photos as data sets (both sizes, blur 0..3, split by stereo moment);
-#   3. A (noC, 80x60) and C (noC, 160x120) trained in parallel, one core each;
+#   3. A (noC, 80x60) and C (noC, 160x120) trained in parallel, one core each (Adam, batch
+#      norm folded away on export);
 #   4. Ar, Cr: A and C fine-tuned on the real train split (all blur levels) plus a synthetic
 #      rehearsal set so that class 0 and the far classes, absent from the photos, are kept;
 #   5. export of the four to models/ (ONNX + card, accuracy measured on the exported graph);
@@ -22,9 +23,10 @@ VERSION=${VERSION:-1.0.0}
 D=$WORK/data
 R=$WORK/runs
 mkdir -p "$D" "$R"
-STATUS="Below the project's bars (synthetic noC test >= 97 %, class 0 >= 99 %): with this training \
-budget the network learns class 0 and near/far but hardly the x/y quadrant under the profile's \
-full roll range; see docs/results.md. The real test split is 6 photos (3 stereo moments)."
+STATUS="Below the project's bar of 97 % on synthetic noC: the network learns class 0, near/far and \
+the board's orientation (x/y side up to a half turn) but only partly the square-colour parity that \
+tells opposite quadrants apart; see docs/results.md. Trained for a level camera (roll within 5 \
+degrees): photos taken at a large roll get a wrong quadrant. The real test split is 6 photos."
 
 make_set() {  # OUT VARIANT SIZE BLUR COUNT SEED
     [ -f "$1/manifest.json" ] || $PP data make "$1" --variant "$2" --size "$3" --blur "$4" \
@@ -32,8 +34,8 @@ make_set() {  # OUT VARIANT SIZE BLUR COUNT SEED
 }
 
 # 1-2. Data.
-make_set "$D/train-noC-s1" noC 1 0 10000 101
-make_set "$D/train-noC-s2" noC 2 0 8000 102
+make_set "$D/train-noC-s1" noC 1 0 40000 101
+make_set "$D/train-noC-s2" noC 2 0 12000 102
 for size in 1 2; do
     make_set "$D/rehearse-noC-s$size" noC "$size" 0 600 $((300 + size))
     for blur in 0 1 2 3; do
@@ -51,13 +53,14 @@ for size in 1 2; do
     done
 done
 
-# 3. A and C in parallel (SGD + momentum, cosine schedule, best epoch on val, early stop).
-train_run() {  # NAME DATA EPOCHS LR PATIENCE SEED
-    [ -f "$R/$1/best.pt" ] || $PP train "$2" --out "$R/$1" --epochs "$3" --batch-size 16 \
-        --lr "$4" --patience "$5" --seed "$6" --threads 1 > "$R/$1.log" 2>&1
+# 3. A and C in parallel (Adam, cosine schedule, batch norm, best epoch on val).
+train_run() {  # NAME DATA EPOCHS LR SEED
+    [ -f "$R/$1/best.pt" ] || $PP train "$2" --out "$R/$1" --epochs "$3" --batch-size 32 \
+        --optimizer adam --lr "$4" --weight-decay 0 --patience 0 --seed "$5" --threads 1 \
+        > "$R/$1.log" 2>&1
 }
-train_run "$PROFILE-noC-80x60" "$D/train-noC-s1" 24 0.002 6 1 &
-train_run "$PROFILE-noC-160x120" "$D/train-noC-s2" 12 0.001 4 2 &
+train_run "$PROFILE-noC-80x60" "$D/train-noC-s1" 12 0.003 1 &
+train_run "$PROFILE-noC-160x120" "$D/train-noC-s2" 12 0.002 2 &
 wait
 
 # 4. Fine-tuning on the real train split (+ rehearsal), 15 epochs as in the thesis.
@@ -66,7 +69,7 @@ for size in 1 2; do
     run=$PROFILE-noC-$wh
     [ -f "$R/$run-real/best.pt" ] || $PP train "$D"/real-s$size-b{0,1,2,3} \
         "$D/rehearse-noC-s$size" --init "$R/$run/best.pt" --out "$R/$run-real" \
-        --epochs 15 --batch-size 16 --lr 0.0005 --patience 0 --seed "$size" --threads 1
+        --epochs 15 --batch-size 16 --lr 0.001 --patience 0 --seed "$size" --threads 1
 
     # 5. Export (accuracy on the test splits goes in the card).
     for name in "$run" "$run-real"; do

@@ -115,9 +115,7 @@ def test_roll_of_pose_inverts_look_at(x, y, z, roll):
     assert roll_of_pose(R) == pytest.approx(roll, abs=1e-6)
 
 
-def test_default_roll_range_covers_the_real_photos():
+def test_real_photos_are_hand_held_at_any_roll():
     rolls = measure_rolls(REAL / "labels.csv")
     assert len(rolls) == 26
-    lo, hi = load_profile("chessboard").roll_deg
-    assert lo <= rolls.min() and rolls.max() <= hi
-    assert rolls.max() - rolls.min() > 270  # hand-held: nearly every roll occurs
+    assert rolls.min() < -110 and rolls.max() > 170  # nearly every roll occurs
