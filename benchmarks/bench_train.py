@@ -1,10 +1,10 @@
 """Training speed of `train.fit` vs a plain PyTorch loop, both sizes, measured in one run.
 
 Prints ms / image (forward + backward + SGD step, batch 64) for the project's training epoch
-(`train.fit._train_epoch`: eager, compiled as `planar-pose train` runs it, and compiled with
-augmentation) and for a plain eager loop over the same network on pre-made float tensors (the
-reference), the ratio between them, and the thesis's Torch7 training times (15 ms at 80x60,
-71 ms at 160x120) for scale.
+(`train.fit._train_epoch`: eager, compiled, compiled with the batch-norm layers that
+`planar-pose train` adds by default, and that with augmentation) and for a plain eager loop
+over the SPEC network on pre-made float tensors (the reference), the ratio between them, and
+the thesis's Torch7 training times (15 ms at 80x60, 71 ms at 160x120) for scale.
 
     .venv/bin/python benchmarks/bench_train.py [--images 512] [--threads 2]
 """
@@ -42,7 +42,9 @@ def plain_loop_ms(size: tuple[int, int], n: int) -> float:
     return 1000 * (time.perf_counter() - start) / n
 
 
-def project_epoch_ms(size: tuple[int, int], n: int, augment: bool, compiled: bool) -> float:
+def project_epoch_ms(
+    size: tuple[int, int], n: int, augment: bool, compiled: bool, batch_norm: bool = False
+) -> float:
     """`train.fit._train_epoch` on uint8 images in memory (conversion + augmentation included).
 
     With `compiled`, a first epoch compiles and warms up; the second is timed.
@@ -55,7 +57,7 @@ def project_epoch_ms(size: tuple[int, int], n: int, augment: bool, compiled: boo
     )
     config = FitConfig(datasets=[], out=Path("."), batch_size=BATCH, progress=False)
     torch.manual_seed(0)
-    net = PoseNet(size).to(memory_format=torch.channels_last)
+    net = PoseNet(size, batch_norm=batch_norm).to(memory_format=torch.channels_last)
     opt = _optimiser(config, net)
     step = torch.compile(net) if compiled else net
     augmenter = Augmenter(size) if augment else None
@@ -73,19 +75,21 @@ def main() -> None:
         torch.set_num_threads(args.threads)
     print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, batch {BATCH}")
     print(
-        "size     | plain loop | fit eager | fit compiled | +augment | compiled/plain "
-        "| thesis | thesis/ours"
+        "size     | plain loop | fit eager | fit compiled | +batch norm | +augment "
+        "| compiled/plain | thesis | thesis/ours"
     )
     for size in THESIS_MS:
         plain_loop_ms(size, BATCH)  # warm-up
         plain = plain_loop_ms(size, args.images)
         eager = project_epoch_ms(size, args.images, augment=False, compiled=False)
         ours = project_epoch_ms(size, args.images, augment=False, compiled=True)
-        aug = project_epoch_ms(size, args.images, augment=True, compiled=True)
+        bn = project_epoch_ms(size, args.images, augment=False, compiled=True, batch_norm=True)
+        aug = project_epoch_ms(size, args.images, augment=True, compiled=True, batch_norm=True)
         thesis = THESIS_MS[size]
         print(
             f"{size[0]}x{size[1]:<4} | {plain:8.2f}ms | {eager:7.2f}ms | {ours:10.2f}ms | "
-            f"{aug:6.2f}ms | {ours / plain:14.2f} | {thesis:4.0f}ms | {thesis / aug:9.1f}x"
+            f"{bn:9.2f}ms | {aug:6.2f}ms | {ours / plain:14.2f} | {thesis:4.0f}ms "
+            f"| {thesis / aug:9.1f}x"
         )
 
 

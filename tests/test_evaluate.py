@@ -51,6 +51,20 @@ def test_perfect_predictions():
     assert np.array_equal(np.array(m["confusion"]), 3 * np.eye(9, dtype=int))
 
 
+def test_region_breakdown_of_object_images():
+    # Truth: 1 (near x+ y+) four times, 7 (far x- y-) twice, 0 once. Predictions: 1 right,
+    # 5 (far x+ y+: side right, distance wrong), 3 (near x- y-: half turn, distance right),
+    # 0 (missed), 7 right, 4 (near x+ y-: adjacent side, distance wrong); 0 -> 2 is ignored.
+    y_true = np.array([1, 1, 1, 1, 7, 7, 0])
+    y_pred = np.array([1, 5, 3, 0, 7, 4, 2])
+    regions = compute_metrics(y_true, y_pred, 1.0)["regions"]
+    assert regions == pytest.approx(
+        {"detected": 5 / 6, "side": 3 / 6, "distance": 3 / 6, "opposite_side": 1 / 6}
+    )
+    none_shown = compute_metrics(np.zeros(3, int), np.array([0, 1, 0]), 1.0)["regions"]
+    assert none_shown == dict.fromkeys(("detected", "side", "distance", "opposite_side"))
+
+
 def test_bad_inputs_are_refused():
     with pytest.raises(ValueError, match="2 labels but 3 predictions"):
         confusion_matrix(np.array([0, 1]), np.array([0, 1, 2]))
@@ -88,6 +102,7 @@ def test_report_writes_json_markdown_and_plots(tmp_path):
     assert len(doc["results"]["net-a"]["set2"]["confusion"]) == 9
     text = md.read_text()
     assert "| net-a | 100.0 |" in text
+    assert "## Right x/y side (%)" in text and "x/y side right 100.0 %" in text
     assert "](../out/plots/grid.png)" in text
     pngs = sorted(p.name for p in (tmp_path / "out" / "plots").glob("*.png"))
     assert pngs == ["grid.png", "net-a__set1.png", "net-a__set2.png", "net-b__set1.png"]

@@ -43,10 +43,11 @@ def compute_metrics(y_true: np.ndarray, y_pred: np.ndarray, ms_per_image: float)
 
     Returns a JSON-ready dict: `count`, `accuracy` (global, in [0, 1]), `per_class_accuracy`,
     `precision`, `recall`, `f1` (9 values each), `confusion` (9x9 counts, rows = ground
-    truth), `ms_per_image`. Per-class accuracy is the share of a class's images classified
-    correctly (the confusion diagonal over its row, like recall). A value whose denominator is
-    zero is None: precision of a class never predicted, recall of a class absent from the
-    ground truth, F1 of a class absent from both.
+    truth), `ms_per_image`, and `regions`: what the predictions on images that show the
+    object (classes 1-8) get right (`region_breakdown`). Per-class accuracy is the share of a
+    class's images classified correctly (the confusion diagonal over its row, like recall). A
+    value whose denominator is zero is None: precision of a class never predicted, recall of
+    a class absent from the ground truth, F1 of a class absent from both.
     """
     cm = confusion_matrix(y_true, y_pred)
     total = int(cm.sum())
@@ -67,6 +68,31 @@ def compute_metrics(y_true: np.ndarray, y_pred: np.ndarray, ms_per_image: float)
         "f1": f1,
         "confusion": cm.tolist(),
         "ms_per_image": float(ms_per_image),
+        "regions": region_breakdown(cm),
+    }
+
+
+def region_breakdown(cm: np.ndarray) -> dict[str, float | None]:
+    """Shares of the object images (true class 1-8) of a 9x9 confusion matrix whose prediction
+
+    * `detected`: is an object class (1-8);
+    * `side`: has the right x/y quadrant (distance ignored);
+    * `distance`: has the right near / far half;
+    * `opposite_side`: has the diagonally opposite quadrant (a half turn of the object).
+
+    None when no image shows the object.
+    """
+    classes = np.arange(NUM_CLASSES)
+    quadrant = np.where(classes == 0, 0, (classes - 1) % 4 + 1)
+    far = classes > 4
+    obj = cm[1:, 1:]  # object images predicted as object classes
+    q_true, q_pred = quadrant[1:, None], quadrant[None, 1:]
+    total = cm[1:].sum()
+    return {
+        "detected": _ratio(obj.sum(), total),
+        "side": _ratio(obj[q_true == q_pred].sum(), total),
+        "distance": _ratio(obj[far[1:, None] == far[None, 1:]].sum(), total),
+        "opposite_side": _ratio(obj[(q_pred - q_true) % 4 == 2].sum(), total),
     }
 
 

@@ -97,17 +97,33 @@ def plot_grid(results: dict[str, dict[str, dict]], path: Path) -> None:
 def grid_table(results: dict[str, dict[str, dict]], key: str = "accuracy") -> list[str]:
     """Markdown table of one metric, models as rows, data sets as columns.
 
-    "accuracy" is shown in %, "ms_per_image" in ms.
+    "ms_per_image" is shown in ms; "accuracy" and the `regions` keys ("side", ...) in %.
     """
+
+    def cell(metrics: dict) -> str:
+        if key == "ms_per_image":
+            return f"{metrics[key]:.2f}"
+        return _pct(metrics[key] if key in metrics else metrics.get("regions", {}).get(key))
+
     datasets = list(dict.fromkeys(d for m in results for d in results[m]))
     lines = ["| model | " + " | ".join(datasets) + " |", "|---" * (len(datasets) + 1) + "|"]
     for model, row in results.items():
-        cells = [
-            "" if d not in row else _pct(row[d][key]) if key == "accuracy" else f"{row[d][key]:.2f}"
-            for d in datasets
-        ]
+        cells = ["" if d not in row else cell(row[d]) for d in datasets]
         lines.append(f"| {model} | " + " | ".join(cells) + " |")
     return lines
+
+
+def _regions_line(metrics: dict) -> list[str]:
+    """What the predictions on images showing the object get right (empty if there are none)."""
+    regions = metrics.get("regions") or {}
+    if regions.get("detected") is None:
+        return []
+    return [
+        f"Images showing the object: detected {_pct(regions['detected'])} %, x/y side right "
+        f"{_pct(regions['side'])} %, near/far right {_pct(regions['distance'])} %, opposite "
+        f"side (a half turn) {_pct(regions['opposite_side'])} %.",
+        "",
+    ]
 
 
 def cell_section(model: str, dataset: str, metrics: dict, image: str) -> list[str]:
@@ -118,6 +134,7 @@ def cell_section(model: str, dataset: str, metrics: dict, image: str) -> list[st
         f"{metrics['count']} images, accuracy {_pct(metrics['accuracy'])} %, class 0 accuracy "
         f"{_pct(metrics['per_class_accuracy'][0])} %, {metrics['ms_per_image']:.2f} ms / image.",
         "",
+        *_regions_line(metrics),
         "| class | region | accuracy % | precision % | recall % | F1 % |",
         "|---|---|---|---|---|---|",
     ]
@@ -170,7 +187,14 @@ def write_report(
         grid_png = plots / "grid.png"
         plot_grid(results, grid_png)
         lines += [f"![accuracy grid]({link(grid_png)})", ""]
-    lines += ["## Details", ""]
+    lines += [
+        "## Right x/y side (%), distance ignored, on the images that show the object",
+        "",
+        *grid_table(results, "side"),
+        "",
+        "## Details",
+        "",
+    ]
     for model, row in results.items():
         for dataset, metrics in row.items():
             png = plots / f"{_slug(model)}__{_slug(dataset)}.png"
