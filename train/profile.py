@@ -16,7 +16,7 @@ length in cm, every angle in degrees; only `texture`, `width_cm` and `height_cm`
     box_max_cm = [36.86, 36.86, 92.40]
 
     [camera]
-    roll_deg = [-180.0, 180.0]     # roll about the optical axis, uniform in this range
+    roll_deg = [-5.0, 5.0]         # roll about the optical axis, uniform in this range
     focal_scale = [0.6, 1.1]       # fx, fy multiplied by a factor uniform in this range
     lattice_radii_cm = [...]       # hemispheres of the camera lattice (SPEC section 4)
     lattice_heights_cm = [...]     # their centres (0, 0, h)
