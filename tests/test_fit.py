@@ -127,6 +127,9 @@ def test_errors_are_clear(tiny_set, tmp_path):
     )
     with pytest.raises(TrainingError, match="takes 160x120 images but the data sets are 80x60"):
         fit(_config(tiny_set, tmp_path / "run", init=tmp_path / "big.pt"))
+    fit(_config(tiny_set, tmp_path / "bn", epochs=1))
+    with pytest.raises(TrainingError, match="trained with --batch-norm: resume with the same"):
+        fit(_config(tiny_set, tmp_path / "bn", epochs=2, batch_norm=False), resume=True)
 
 
 def test_cli_errors_exit_nonzero_with_a_message(tiny_set, tmp_path):

@@ -178,7 +178,7 @@ def export(
     from train.model import fold_batch_norm
 
     trained, checkpoint = load_network(checkpoint_path)
-    net = fold_batch_norm(trained.eval()).eval()
+    net = fold_batch_norm(trained).eval()  # the plain SPEC network
     raw = onnx_bytes(net)
     session = ort.InferenceSession(raw, providers=["CPUExecutionProvider"])
 

@@ -265,9 +265,12 @@ def fit(config: FitConfig, resume: bool = False) -> dict[str, Any]:
     }
     if resume:
         last = config.out / "last.pt"
-        _, saved = load_network(last)
+        saved_net, saved = load_network(last)
         if tuple(saved["size"]) != size:
             raise TrainingError(f"{last} was trained on other image sizes than these data sets")
+        if saved_net.batch_norm != net.batch_norm:
+            flag = "--batch-norm" if saved_net.batch_norm else "--no-batch-norm"
+            raise TrainingError(f"{last} was trained with {flag}: resume with the same option")
         net.load_state_dict(saved["model"])
         opt.load_state_dict(saved["optimizer"])
         sched.load_state_dict(saved["scheduler"])
