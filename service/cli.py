@@ -8,8 +8,14 @@ from typing import Annotated, Any
 import typer
 from pydantic import ValidationError
 from rich.console import Console
+from rich.markup import escape
 
 err = Console(stderr=True)
+
+
+def _error(message: str) -> None:
+    """Print `error: message` on stderr as is (no markup, no wrapping inside paths)."""
+    err.print(f"[bold red]error:[/] {escape(message)}", soft_wrap=True)
 
 
 def serve(
@@ -39,14 +45,14 @@ def serve(
     try:
         settings = Settings(**{k: v for k, v in overrides.items() if v is not None})
     except ValidationError as exc:
-        err.print(f"[bold red]error:[/] invalid settings:\n{exc}")
+        _error(f"invalid settings:\n{exc}")
         raise typer.Exit(2) from None
     path = settings.resolved_model_path
     if not path.is_file():
-        err.print(f"[bold red]error:[/] model file not found: {path}")
+        _error(f"model file not found: {path}")
         raise typer.Exit(2)
     if settings.log_level.lower() not in uvicorn.config.LOG_LEVELS:
-        err.print(f"[bold red]error:[/] unknown log level {settings.log_level!r}")
+        _error(f"unknown log level {settings.log_level!r}")
         raise typer.Exit(2)
     uvicorn.run(
         create_app(settings),

@@ -7,14 +7,18 @@ from typing import Any
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 
 err = Console(stderr=True)
 out = Console()
 
 
 def fail(message: str, code: int = 1) -> typer.Exit:
-    """Print `error: message` on stderr; return the typer.Exit(code) for the caller to raise."""
-    err.print(f"[bold red]error:[/] {message}")
+    """Print `error: message` on stderr; return the typer.Exit(code) for the caller to raise.
+
+    The message is printed as is: no rich markup, no wrapping inside paths.
+    """
+    err.print(f"[bold red]error:[/] {escape(message)}", soft_wrap=True)
     return typer.Exit(code)
 
 
