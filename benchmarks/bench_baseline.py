@@ -1,10 +1,10 @@
 """Time per image of the feature baseline vs the CNN, and of the box generators, in one run.
 
-On the 26 real photographs (train/real/chessboard-stereo) resized to each network size:
+On the 26 real photographs (train/assets/real/chessboard-stereo) resized to each network size:
 
-* the CNN: an ONNX model through `train.evaluate.onnx_predictor` (the service's
+* the CNN: an ONNX model through `train.network.evaluate.onnx_predictor` (the service's
   preprocessing + onnxruntime), batch 64 and batch 1;
-* the feature baseline (`train.baseline`, SIFT and ORB, images enlarged to 320 px wide);
+* the feature baseline (`train.compare.baseline`, SIFT and ORB, images enlarged to 320 px wide);
 * box generation on the 640x480 photos: the service's sliding-window grid vs
   `service.proposals.propose_boxes`.
 
@@ -24,13 +24,13 @@ import numpy as np
 from service.preprocess import resize_rgb
 from service.proposals import propose_boxes
 from service.sliding import SlidingWindows
-from train.baseline import BaselineConfig, FeatureBaseline
-from train.calibration import Calibration
-from train.evaluate import onnx_predictor, predict_all
+from train.compare.baseline import BaselineConfig, FeatureBaseline
+from train.network.evaluate import onnx_predictor, predict_all
 from train.profile import load_profile
-from train.realset import read_rgb
+from train.real.calibration import Calibration
+from train.real.realset import read_rgb
 
-REAL = Path(__file__).resolve().parent.parent / "train" / "real" / "chessboard-stereo"
+REAL = Path(__file__).resolve().parent.parent / "train" / "assets" / "real" / "chessboard-stereo"
 
 
 def best_of(repeat: int, run) -> float:  # noqa: ANN001

@@ -2,7 +2,7 @@
 
 Prints, in one run:
 
-* images / second rendered in memory (`train.datasets.render_in_memory`, noC, blur 2, jitter
+* images / second rendered in memory (`train.synth.generate.render_in_memory`, noC, blur 2, jitter
   on) at 160x120 and 80x60, in this process (OpenCV single-threaded, as in the workers) and
   with `--workers` processes (started and warmed up before timing), their ratio and the ratio
   to the target of 5000 img/s;
@@ -29,7 +29,8 @@ from pathlib import Path
 
 import cv2
 
-from train.datasets import (
+from train.profile import load_profile
+from train.synth.generate import (
     CHUNK,
     DatasetSpec,
     default_workers,
@@ -37,7 +38,6 @@ from train.datasets import (
     make_datasets,
     render_in_memory,
 )
-from train.profile import load_profile
 
 TARGET_IMG_S = 5000.0
 TARGET_GRID_S = 60.0

@@ -1,8 +1,8 @@
 """HTTP service throughput and latency vs the same work in-process, whole vs sliding mode.
 
 One run starts `planar-pose serve` on a free port (access log off) and, for a 640x480 JPEG
-(train/real/chessboard-stereo/left01.jpg re-encoded as a 3-channel JPEG, so decoding costs what
-a colour photo costs), at concurrency 1, 8 and 32, in whole and sliding mode:
+(train/assets/real/chessboard-stereo/left01.jpg re-encoded as a 3-channel JPEG, so decoding
+costs what a colour photo costs), at concurrency 1, 8 and 32, in whole and sliding mode:
 
 * HTTP: requests/s, p50/p99 latency, server CPU ms per request, from `wrk` (C, one thread,
   raw image body) or, without wrk, an httpx async client in a separate process;
@@ -42,7 +42,7 @@ from service.predictor import Predictor
 from service.settings import Settings
 
 ROOT = Path(__file__).resolve().parent.parent
-PHOTO = ROOT / "train" / "real" / "chessboard-stereo" / "left01.jpg"
+PHOTO = ROOT / "train" / "assets" / "real" / "chessboard-stereo" / "left01.jpg"
 CONCURRENCY = (1, 8, 32)
 MODES = ("whole", "sliding")
 

@@ -1,7 +1,7 @@
-"""Training speed of `train.fit` vs a plain PyTorch loop, both sizes, measured in one run.
+"""Training speed of `train.network.fit` vs a plain PyTorch loop, both sizes, measured in one run.
 
 Prints ms / image (forward + backward + SGD step, batch 64) for the project's training epoch
-(`train.fit._train_epoch`: eager, compiled, compiled with the batch-norm layers that
+(`train.network.fit._train_epoch`: eager, compiled, compiled with the batch-norm layers that
 `planar-pose train` adds by default, and that with augmentation) and for a plain eager loop
 over the SPEC network on pre-made float tensors (the reference), the ratio between them, and
 the thesis's Torch7 training times (15 ms at 80x60, 71 ms at 160x120) for scale.
@@ -19,8 +19,8 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from train.fit import Augmenter, FitConfig, Split, _optimiser, _train_epoch
-from train.model import PoseNet
+from train.network.fit import Augmenter, FitConfig, Split, _optimiser, _train_epoch
+from train.network.model import PoseNet
 
 THESIS_MS = {(80, 60): 15.0, (160, 120): 71.0}
 BATCH = 64
@@ -45,7 +45,7 @@ def plain_loop_ms(size: tuple[int, int], n: int) -> float:
 def project_epoch_ms(
     size: tuple[int, int], n: int, augment: bool, compiled: bool, batch_norm: bool = False
 ) -> float:
-    """`train.fit._train_epoch` on uint8 images in memory (conversion + augmentation included).
+    """`train.network.fit._train_epoch` on uint8 images in memory (conversion, augmentation).
 
     With `compiled`, a first epoch compiles and warms up; the second is timed.
     """

@@ -40,7 +40,7 @@ for size in 1 2; do
     make_set "$D/rehearse-noC-s$size" noC "$size" 0 600 $((300 + size))
     for blur in 0 1 2 3; do
         [ -f "$D/real-s$size-b$blur/manifest.json" ] || $PP realset \
-            train/real/chessboard-stereo "$D/real-s$size-b$blur" --size "$size" --blur "$blur" \
+            train/assets/real/chessboard-stereo "$D/real-s$size-b$blur" --size "$size" --blur "$blur" \
             --profile "$PROFILE" --seed 0
     done
 done

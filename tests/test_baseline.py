@@ -12,13 +12,13 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from train.baseline import BaselineConfig, FeatureBaseline, dataset_cameras, tune
-from train.calibration import Camera
 from train.cli import app
-from train.corners import texture_to_object
+from train.compare.baseline import BaselineConfig, FeatureBaseline, dataset_cameras, tune
 from train.geometry import homography_from_pose, intrinsics, look_at, pose_class, translation
+from train.real.calibration import Camera
+from train.real.corners import texture_to_object
 
-REAL = Path(__file__).resolve().parent.parent / "train" / "real" / "chessboard-stereo"
+REAL = Path(__file__).resolve().parent.parent / "train" / "assets" / "real" / "chessboard-stereo"
 W_CM, H_CM = 25.0, 17.5
 CENTRES = [
     (10, 8, 30), (-10, 8, 30), (-10, -8, 30), (10, -8, 30),
@@ -121,7 +121,7 @@ def test_dataset_cameras(tmp_path):
     assert np.allclose(cams[1].K, intrinsics((160, 120), 0.75))
     assert np.allclose(cams[0].K, intrinsics((160, 120)))
 
-    real = {"real": True, "source": "train/real/chessboard-stereo"}
+    real = {"real": True, "source": "train/assets/real/chessboard-stereo"}
     _write_set(tmp_path / "real", [{"file": "right03.png", "class": 1}], real)
     (cam,) = dataset_cameras(tmp_path / "real", ["right03.png"], (80, 60))
     calibration = json.loads((REAL / "calibration.json").read_text())
@@ -140,7 +140,7 @@ def test_cli_errors(tmp_path):
 
 
 def test_cli_writes_the_evaluate_layout(tmp_path):
-    from train.realset import build_real_dataset
+    from train.real.realset import build_real_dataset
 
     ds = tmp_path / "real-s1-b0"
     build_real_dataset(REAL, ds, size=1, blur=0, profile="chessboard", seed=0)

@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from train.blur import KERNELS, blur_image, gaussian_kernel, gaussian_taps, size_index
+from train.synth.blur import KERNELS, blur_image, gaussian_kernel, gaussian_taps, size_index
 
 
 def _fspecial(k: int, sigma: float) -> np.ndarray:

@@ -14,7 +14,7 @@ from train.cli import app
 from train.profile import PROFILES_DIR
 
 runner = CliRunner()
-REAL = Path(__file__).resolve().parent.parent / "train" / "real" / "chessboard-stereo"
+REAL = Path(__file__).resolve().parent.parent / "train" / "assets" / "real" / "chessboard-stereo"
 
 
 def _run(*args: str):

@@ -10,12 +10,12 @@ import pytest
 from typer.testing import CliRunner
 
 from train.cli import app
-from train.compare import detection_variants, encode_png, load_split
-from train.evaluate import evaluate_predictor, onnx_predictor
-from train.realset import build_real_dataset
+from train.compare.run import detection_variants, encode_png, load_split
+from train.network.evaluate import evaluate_predictor, onnx_predictor
+from train.real.realset import build_real_dataset
 
 ROOT = Path(__file__).resolve().parent.parent
-SOURCE = ROOT / "train" / "real" / "chessboard-stereo"
+SOURCE = ROOT / "train" / "assets" / "real" / "chessboard-stereo"
 MODEL = ROOT / "models" / "default.onnx"
 runner = CliRunner()
 

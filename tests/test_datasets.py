@@ -11,15 +11,9 @@ import numpy as np
 import pytest
 
 from service.preprocess import decode_image, resize_rgb
-from train.datasets import (
-    DatasetError,
-    DatasetSpec,
-    balanced_assignment,
-    load_dataset,
-    make_dataset,
-    render_in_memory,
-)
+from train.dataset import DatasetError, load_dataset
 from train.profile import load_profile
+from train.synth.generate import DatasetSpec, balanced_assignment, make_dataset, render_in_memory
 
 PROFILE = load_profile("chessboard")
 
@@ -47,7 +41,7 @@ def test_manifest_and_files(small_set):
     out, manifest = small_set
     assert json.loads((out / "manifest.json").read_text()) == manifest
     assert manifest["profile"]["name"] == "chessboard"
-    assert manifest["profile"]["texture"] == "train/profiles/chessboard/texture.png"
+    assert manifest["profile"]["texture"] == "train/assets/profiles/chessboard/texture.png"
     assert manifest["size"] == [80, 60] and manifest["variant"] == "noC"
     assert (manifest["blur"], manifest["seed"], manifest["count"]) == (2, 7, 90)
     assert manifest["counts"] == {"train": 54, "val": 18, "test": 18}

@@ -10,8 +10,8 @@ import pytest
 from typer.testing import CliRunner
 
 from train.cli import app
-from train.evaluate import compute_metrics, confusion_matrix, predict_all
-from train.report import write_report
+from train.network.evaluate import compute_metrics, confusion_matrix, predict_all
+from train.network.report import write_report
 
 runner = CliRunner()
 
@@ -113,13 +113,15 @@ def model_and_set(tmp_path_factory):
     """A tiny exported model (random weights) and the real photos as an 80x60 data set."""
     import torch
 
-    from train.export import export
-    from train.fit import CHECKPOINT_FORMAT
-    from train.model import PoseNet
-    from train.realset import build_real_dataset
+    from train.network.export import export
+    from train.network.fit import CHECKPOINT_FORMAT
+    from train.network.model import PoseNet
+    from train.real.realset import build_real_dataset
 
     root = tmp_path_factory.mktemp("eval")
-    source = Path(__file__).resolve().parent.parent / "train" / "real" / "chessboard-stereo"
+    source = (
+        Path(__file__).resolve().parent.parent / "train" / "assets" / "real" / "chessboard-stereo"
+    )
     build_real_dataset(source, root / "real", size=1, blur=0, profile="chessboard", seed=0)
     torch.manual_seed(0)
     ckpt = {

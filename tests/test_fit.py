@@ -10,10 +10,9 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
-import train.fit as fit_module
+import train.network.fit as fit_module
 from train.cli import app
-from train.datasets import DatasetSpec, make_dataset
-from train.fit import (
+from train.network.fit import (
     Augmenter,
     FitConfig,
     TrainingError,
@@ -23,6 +22,7 @@ from train.fit import (
     load_split,
 )
 from train.profile import load_profile
+from train.synth.generate import DatasetSpec, make_dataset
 
 runner = CliRunner()
 

@@ -11,15 +11,15 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from train.calibration import Calibration, default_camera
 from train.cli import app
-from train.corners import ChessboardPattern, detect_chessboard, texture_to_object
-from train.datasets import load_dataset
+from train.dataset import load_dataset
 from train.geometry import homography_from_pose, intrinsics, look_at, pose_class, translation
-from train.label import compare_to_truth, label_folder, read_corner_csv
 from train.profile import load_profile
+from train.real.calibration import Calibration, default_camera
+from train.real.corners import ChessboardPattern, detect_chessboard, texture_to_object
+from train.real.label import compare_to_truth, label_folder, read_corner_csv
 
-SOURCE = Path(__file__).resolve().parent.parent / "train" / "real" / "chessboard-stereo"
+SOURCE = Path(__file__).resolve().parent.parent / "train" / "assets" / "real" / "chessboard-stereo"
 runner = CliRunner()
 
 

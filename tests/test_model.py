@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from train.model import (
+from train.network.model import (
     L2Pool2d,
     PoseNet,
     channel_stats,

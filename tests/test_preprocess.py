@@ -22,7 +22,7 @@ from service.preprocess import (
     to_network_input,
 )
 
-REAL = Path(__file__).resolve().parent.parent / "train" / "real" / "chessboard-stereo"
+REAL = Path(__file__).resolve().parent.parent / "train" / "assets" / "real" / "chessboard-stereo"
 PHOTO = (REAL / "left01.jpg").read_bytes()
 
 

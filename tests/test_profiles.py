@@ -19,7 +19,7 @@ from train.profile import (
     roll_of_pose,
 )
 
-REAL = Path(__file__).resolve().parent.parent / "train" / "real" / "chessboard-stereo"
+REAL = Path(__file__).resolve().parent.parent / "train" / "assets" / "real" / "chessboard-stereo"
 
 
 def _copy_profile(tmp_path: Path, text: str | None = None) -> Path:
@@ -38,7 +38,7 @@ def test_default_profile():
     assert p.geometry.box_max == (36.86, 36.86, 92.40)
     assert p.texture_rgb().shape == (140, 200, 3)
     entry = p.manifest_entry()
-    assert entry["texture"] == "train/profiles/chessboard/texture.png"
+    assert entry["texture"] == "train/assets/profiles/chessboard/texture.png"
     assert {"name", "width_cm", "height_cm", "z_split_cm", "texture"} <= set(entry)
 
 

@@ -11,7 +11,7 @@ import pytest
 
 from service.proposals import fit_aspect, propose_boxes
 
-TEXTURE = Path(__file__).resolve().parent.parent / "train" / "real" / "chessboard-stereo"
+TEXTURE = Path(__file__).resolve().parent.parent / "train" / "assets" / "real" / "chessboard-stereo"
 
 
 def _iou(a: np.ndarray, b: np.ndarray) -> float:

@@ -12,11 +12,11 @@ import pytest
 from typer.testing import CliRunner
 
 from train.cli import app
-from train.datasets import load_dataset
+from train.dataset import load_dataset
 from train.geometry import pose_class
-from train.realset import build_real_dataset, moment_of, optical_axis_target, split_moments
+from train.real.realset import build_real_dataset, moment_of, optical_axis_target, split_moments
 
-SOURCE = Path(__file__).resolve().parent.parent / "train" / "real" / "chessboard-stereo"
+SOURCE = Path(__file__).resolve().parent.parent / "train" / "assets" / "real" / "chessboard-stereo"
 runner = CliRunner()
 
 

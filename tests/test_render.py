@@ -9,10 +9,10 @@ import cv2
 import numpy as np
 import pytest
 
-from train.background import BackgroundPool, procedural_backgrounds
 from train.geometry import intrinsics, look_at, pose_class, project_points, translation
 from train.profile import load_profile
-from train.render import Renderer, View, draw_views, render_view
+from train.synth.background import BackgroundPool, procedural_backgrounds
+from train.synth.render import Renderer, View, draw_views, render_view
 
 SIZE = (160, 120)
 
@@ -25,7 +25,7 @@ def profile():
 def _square_centres() -> tuple[np.ndarray, np.ndarray]:
     """Centres (70, 3) cm of the 10 x 7 squares and their colour (True = black).
 
-    Texture rule (train/real/chessboard-stereo/README.md): the bottom-left square is black,
+    Texture rule (train/assets/real/chessboard-stereo/README.md): the bottom-left square is black,
     colours alternate; column c from -x, row r from -y.
     """
     c, r = np.meshgrid(np.arange(10), np.arange(7))
@@ -122,9 +122,11 @@ def test_render_is_deterministic_and_class_zero_has_no_object(profile):
 
 
 def test_real_photo_crops_avoid_the_board():
-    from train.background import board_polygon, real_photo_crops
+    from train.synth.background import board_polygon, real_photo_crops
 
-    folder = Path(__file__).resolve().parent.parent / "train" / "real" / "chessboard-stereo"
+    folder = (
+        Path(__file__).resolve().parent.parent / "train" / "assets" / "real" / "chessboard-stereo"
+    )
     crops = real_photo_crops(folder)
     assert len(crops) >= 10
     corners = {}

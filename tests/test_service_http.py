@@ -29,7 +29,7 @@ from service.regions import region_of_class
 from service.settings import DEFAULT_MODEL, Settings
 
 ROOT = Path(__file__).resolve().parent.parent
-REAL = ROOT / "train" / "real" / "chessboard-stereo"
+REAL = ROOT / "train" / "assets" / "real" / "chessboard-stereo"
 CARD = json.loads(DEFAULT_MODEL.with_suffix(".json").read_text())
 
 

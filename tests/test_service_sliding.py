@@ -19,7 +19,7 @@ from service.sliding import (
     working_copy,
 )
 
-REAL = Path(__file__).resolve().parent.parent / "train" / "real" / "chessboard-stereo"
+REAL = Path(__file__).resolve().parent.parent / "train" / "assets" / "real" / "chessboard-stereo"
 GRID = SlidingWindows(aspect=4 / 3, scales=(1.0, 0.8, 0.6), stride=20, max_windows=256)
 
 

@@ -1,7 +1,7 @@
 """Object profiles: what the renderer needs to know about one planar object (SPEC sections 2-5).
 
 A profile is a folder (or any TOML file) holding a `profile.toml` and a front-on texture image.
-`load_profile("chessboard")` finds `train/profiles/chessboard/profile.toml`; a path to a
+`load_profile("chessboard")` finds `train/assets/profiles/chessboard/profile.toml`; a path to a
 profile file or to its folder works too, so new objects need no code change. Format (every
 length in cm, every angle in degrees; only `texture`, `width_cm` and `height_cm` are required):
 
@@ -42,10 +42,10 @@ from typing import Any
 import cv2
 import numpy as np
 
+from train import ASSETS_DIR, repo_relative
 from train.geometry import RegionGeometry, camera_lattice, look_at, pose_class
 
-PROFILES_DIR = Path(__file__).resolve().parent / "profiles"
-REPO_ROOT = Path(__file__).resolve().parent.parent
+PROFILES_DIR = ASSETS_DIR / "profiles"
 PROFILE_FILE = "profile.toml"
 
 
@@ -117,16 +117,8 @@ class Profile:
         }
 
 
-def repo_relative(path: Path) -> str:
-    """`path` relative to the repository root (POSIX) when inside it, else absolute."""
-    try:
-        return path.resolve().relative_to(REPO_ROOT).as_posix()
-    except ValueError:
-        return str(path.resolve())
-
-
 def available_profiles() -> list[str]:
-    """Names of the profiles shipped under train/profiles."""
+    """Names of the profiles shipped under train/assets/profiles."""
     return sorted(p.parent.name for p in PROFILES_DIR.glob(f"*/{PROFILE_FILE}"))
 
 
@@ -173,7 +165,7 @@ def _triple(table: dict[str, Any], key: str, default: tuple, where: str) -> tupl
 
 
 def load_profile(name_or_path: str | Path) -> Profile:
-    """Load a profile by name (a folder under train/profiles) or by path (file or folder).
+    """Load a profile by name (a folder under train/assets/profiles) or by path (file or folder).
 
     Raises ProfileError (a ValueError) with a precise message for an unknown profile, an
     unparsable file, a missing/unreadable texture or a bad size, range or box.

@@ -22,7 +22,7 @@ app = typer.Typer(
 )
 
 ProfileOption = Annotated[
-    str, typer.Option(help="Profile name (train/profiles/NAME) or path to a profile.toml.")
+    str, typer.Option(help="Profile name (train/assets/profiles/NAME) or path to a profile.toml.")
 ]
 JitterOption = Annotated[
     bool, typer.Option("--jitter/--no-jitter", help="Photometric jitter (gain, noise, JPEG).")
@@ -33,7 +33,7 @@ WorkersOption = Annotated[
 
 
 def _workers(workers: int) -> int:
-    from train.datasets import default_workers
+    from train.synth.generate import default_workers
 
     return workers or default_workers()
 
@@ -42,7 +42,8 @@ def _make(jobs: list[tuple[Any, Path]], overwrite: bool, workers: int) -> list[d
     """Write the sets with a progress bar; print a summary table."""
     from tqdm import tqdm
 
-    from train.datasets import DatasetError, check_outputs, make_datasets
+    from train.dataset import DatasetError
+    from train.synth.generate import check_outputs, make_datasets
 
     guard(lambda: check_outputs([path for _, path in jobs], overwrite), code=2)
     total = sum(spec.count for spec, _ in jobs)
@@ -84,7 +85,7 @@ def make(
     workers: WorkersOption = 0,
 ) -> None:
     """Render one synthetic data set: OUT/images/*.png, OUT/labels.csv, OUT/manifest.json."""
-    from train.datasets import DatasetSpec
+    from train.synth.generate import DatasetSpec
 
     prof = profile_or_exit(profile)
     spec = guard(lambda: DatasetSpec(variant, size, blur, count, seed, prof, jitter), code=2)
@@ -102,7 +103,7 @@ def grid(
     workers: WorkersOption = 0,
 ) -> None:
     """Render the 16 SPEC sets {C, noC} x size {1, 2} x blur {0..3} as OUT_ROOT/noC-s1-b0 etc."""
-    from train.datasets import grid_specs
+    from train.synth.generate import grid_specs
 
     prof = profile_or_exit(profile)
     specs = guard(lambda: grid_specs(count, seed, prof, jitter), code=2)
@@ -119,7 +120,7 @@ def sheet(
     seed: int = 0,
 ) -> None:
     """Draw a contact sheet: one row of samples per class, labelled in words."""
-    from train.sheet import contact_sheet
+    from train.synth.sheet import contact_sheet
 
     if split not in ("train", "val", "test", "all"):
         raise fail(f"--split must be train, val, test or all, got {split!r}", code=2)

@@ -49,7 +49,7 @@ def train(
     ] = True,
 ) -> None:
     """Train (or with --init fine-tune) the pose network on the train split; keep the best val."""
-    from train.fit import FitConfig, fit
+    from train.network.fit import FitConfig, fit
 
     for path in datasets:
         if not path.is_dir():
@@ -105,9 +105,9 @@ def evaluate(
     """Evaluate model(s) on data set(s): metrics.json, Markdown, plots (grid if several)."""
     from tqdm import tqdm
 
-    from train.datasets import load_dataset
-    from train.evaluate import evaluate_predictor, load_predictor
-    from train.report import write_report
+    from train.dataset import load_dataset
+    from train.network.evaluate import evaluate_predictor, load_predictor
+    from train.network.report import write_report
 
     _check_split(split)
     models = [p for p in paths if p.suffix in (".onnx", ".pt")]
@@ -166,7 +166,7 @@ def export(
     """Export a checkpoint to ONNX (probabilities, dynamic batch) with its model card."""
     import re
 
-    from train.export import export as run_export
+    from train.network.export import export as run_export
 
     _check_split(split)
     if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.-]*", name):
@@ -193,7 +193,7 @@ def realset(
     seed: Annotated[int, typer.Option(help="Seed of the train/val/test split.")] = 0,
 ) -> None:
     """Turn real photos with camera centres into a data set (split by stereo moment)."""
-    from train.realset import build_real_dataset
+    from train.real.realset import build_real_dataset
 
     if size not in (1, 2):
         raise fail(f"--size must be 1 (80x60) or 2 (160x120), got {size}", code=2)

@@ -38,8 +38,8 @@ def label(
     """
     from tqdm import tqdm
 
-    from train.calibration import Calibration
-    from train.label import compare_to_truth, label_folder, list_images, read_corner_csv
+    from train.real.calibration import Calibration
+    from train.real.label import compare_to_truth, label_folder, list_images, read_corner_csv
 
     guard(lambda: list_images(images_dir))
     prof = profile_or_exit(profile)
@@ -92,9 +92,9 @@ def baseline(
     ] = 0,
 ) -> None:
     """Feature baseline (SIFT/ORB, RANSAC, IPPE PnP) on data set(s): metrics.json + report."""
-    from train.baseline import FEATURE_CHOICES, BaselineConfig
-    from train.compare import run_baseline_on
-    from train.report import write_report
+    from train.compare.baseline import FEATURE_CHOICES, BaselineConfig
+    from train.compare.run import run_baseline_on
+    from train.network.report import write_report
 
     if features not in FEATURE_CHOICES:
         raise fail(f"--features must be one of {', '.join(FEATURE_CHOICES)}", code=2)
@@ -165,8 +165,8 @@ def compare(
     tune: Annotated[bool, typer.Option(help="Tune the baseline on each val split.")] = True,
 ) -> None:
     """CNN (onnxruntime) vs feature baseline, per data set, in one run: Markdown + plots."""
-    from train.baseline import FEATURE_CHOICES
-    from train.compare import CompareConfig, run_comparison
+    from train.compare.baseline import FEATURE_CHOICES
+    from train.compare.run import CompareConfig, run_comparison
 
     if features not in FEATURE_CHOICES:
         raise fail(f"--features must be one of {', '.join(FEATURE_CHOICES)}", code=2)

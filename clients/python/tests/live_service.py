@@ -19,7 +19,7 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[3]
 MODEL = REPO / "models" / "default.onnx"
-REAL = REPO / "train" / "real" / "chessboard-stereo"
+REAL = REPO / "train" / "assets" / "real" / "chessboard-stereo"
 API_KEY = "client-tests-key"
 MAX_IMAGES = 8  # per request, so that "too many images" is cheap to send
 STARTUP_TIMEOUT_S = 90.0  # importing onnxruntime on a loaded 2-core machine is slow

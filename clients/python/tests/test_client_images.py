@@ -14,7 +14,7 @@ import pytest
 from planar_pose_client import PoseClient, encode_png
 from planar_pose_client.images import sniff_type, to_upload
 
-REAL = Path(__file__).resolve().parents[3] / "train/real/chessboard-stereo"
+REAL = Path(__file__).resolve().parents[3] / "train/assets/real/chessboard-stereo"
 
 
 def _decode(png: bytes) -> np.ndarray:

@@ -19,7 +19,7 @@ from planar_pose_client import (
 )
 from scripted_server import Script, error_body, prediction_body, serve
 
-PHOTO = Path(__file__).resolve().parents[3] / "train/real/chessboard-stereo/left01.jpg"
+PHOTO = Path(__file__).resolve().parents[3] / "train/assets/real/chessboard-stereo/left01.jpg"
 NOT_READY = (503, error_body("not_ready", "model is loading"))
 FAST: dict[str, Any] = {"backoff": 0.01, "backoff_max": 0.05}  # keep the test quick
 

@@ -1,7 +1,7 @@
 """Evaluation (SPEC section 10): classifier predictions on a data set and the metrics on them.
 
 `compute_metrics` is the one place where accuracy, per-class precision / recall / F-measure and
-the confusion matrix are computed; `train.report.write_report` turns its results into
+the confusion matrix are computed; `train.network.report.write_report` turns its results into
 metrics.json, Markdown and plots. Both are shared with the feature baseline.
 """
 
@@ -121,7 +121,7 @@ def checkpoint_predictor(path: Path) -> tuple[Predictor, tuple[int, int], dict]:
     """Load a training checkpoint with PyTorch -> (predictor, input size (W, H), its config)."""
     import torch
 
-    from train.fit import load_network
+    from train.network.fit import load_network
 
     net, checkpoint = load_network(path)
     net.eval()

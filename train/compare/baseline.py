@@ -1,7 +1,7 @@
 """The feature-based baseline (SPEC section 9): local features, RANSAC homography, planar PnP.
 
 For each image: SIFT and/or ORB features (OpenCV), matched to the profile's front-on texture
-with Lowe's ratio test (`train.corners.TextureMatcher`), a RANSAC homography
+with Lowe's ratio test (`train.real.corners.TextureMatcher`), a RANSAC homography
 (`cv2.findHomography`), the four object corners mapped through it, planar PnP with IPPE
 (`cv2.solvePnP(..., flags=cv2.SOLVEPNP_IPPE)`), the camera centre c = -R^T t and SPEC section
 3's class. No homography (too few matches or inliers, degenerate or mirrored H) means class 0.
@@ -30,10 +30,11 @@ from typing import Any
 import cv2
 import numpy as np
 
-from train.calibration import Calibration, Camera
-from train.corners import FEATURES, ImageFeatures, MatchResult, TextureMatcher
-from train.evaluate import compute_metrics
+from train import REPO_ROOT
 from train.geometry import apply_homography, camera_centre, intrinsics, pose_class
+from train.network.evaluate import compute_metrics
+from train.real.calibration import Calibration, Camera
+from train.real.corners import FEATURES, ImageFeatures, MatchResult, TextureMatcher
 
 FEATURE_CHOICES = (*FEATURES, "both")
 #: The validation grid of `tune`: Lowe ratios x RANSAC thresholds (pixels of the image).
@@ -160,7 +161,7 @@ def dataset_cameras(folder: Path, files: Sequence[str], size: tuple[int, int]) -
     if manifest.get("real") and manifest.get("source"):
         source = Path(manifest["source"])
         if not source.is_absolute():
-            source = Path(__file__).resolve().parent.parent / source
+            source = REPO_ROOT / source
         if (source / "calibration.json").is_file():
             cal = Calibration.load(source / "calibration.json")
             return [cal.for_image(Path(f).name, size) for f in files]
@@ -229,7 +230,7 @@ def evaluate_baseline(
     cameras: Sequence[Camera],
     progress: Callable[[int], Any] | None = None,
 ) -> tuple[dict, dict[str, int]]:
-    """SPEC 10 metrics (`train.evaluate.compute_metrics`) and the failure reasons."""
+    """SPEC 10 metrics (`train.network.evaluate.compute_metrics`) and the failure reasons."""
     preds, ms = run_baseline(baseline, images, cameras, progress)
     metrics = compute_metrics(labels, np.array([p.label for p in preds]), ms)
     return metrics, failure_summary(preds)

@@ -1,8 +1,8 @@
 """Evaluation reports: metrics.json, a Markdown page and matplotlib plots (SPEC section 10).
 
 `results` everywhere is {model name: {data set name: metrics}}, where metrics is the dict of
-`train.evaluate.compute_metrics`. One model is a grid with one row; the thesis-style table has
-models as rows and data sets as columns.
+`train.network.evaluate.compute_metrics`. One model is a grid with one row; the thesis-style
+table has models as rows and data sets as columns.
 """
 
 from __future__ import annotations

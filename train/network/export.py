@@ -17,18 +17,18 @@ from typing import Any
 import numpy as np
 
 from service.regions import NUM_CLASSES, class_descriptions, region_of_class
+from train import REPO_ROOT
 
 OPSET = 17
 INPUT_NAME = "image"
 OUTPUT_NAME = "probabilities"
-REPO_ROOT = Path(__file__).resolve().parent.parent
 
 
 def onnx_bytes(net: Any) -> bytes:
     """Serialise a PoseNet (eval mode) to ONNX bytes: softmax output, dynamic batch."""
     import torch
 
-    from train.model import Probabilities
+    from train.network.model import Probabilities
 
     w, h = net.size
     wrapper = Probabilities(net).eval()
@@ -87,7 +87,7 @@ def build_card(
     version: str,
     notes: str,
 ) -> dict[str, Any]:
-    """The model card dict (see module doc) from a checkpoint written by `train.fit`."""
+    """The model card dict (see module doc) from a checkpoint written by `train.network.fit`."""
     profile = profile_card(checkpoint.get("profile", {}))
     z_split = float(profile.get("z_split_cm", 60.0))
     descriptions = class_descriptions(z_split)
@@ -140,8 +140,8 @@ def with_card(model_bytes: bytes, card: dict[str, Any]) -> bytes:
 
 def accuracy_on(predict: Any, datasets: list[Path], split: str) -> dict[str, dict[str, Any]]:
     """{data set folder name: {accuracy, class0_accuracy, count, split}} of a predictor."""
-    from train.datasets import load_dataset
-    from train.evaluate import evaluate_predictor
+    from train.dataset import load_dataset
+    from train.network.evaluate import evaluate_predictor
 
     out: dict[str, dict[str, Any]] = {}
     for path in datasets:
@@ -173,9 +173,9 @@ def export(
     """
     import onnxruntime as ort
 
-    from train.evaluate import network_batch
-    from train.fit import load_network
-    from train.model import fold_batch_norm
+    from train.network.evaluate import network_batch
+    from train.network.fit import load_network
+    from train.network.model import fold_batch_norm
 
     trained, checkpoint = load_network(checkpoint_path)
     net = fold_batch_norm(trained).eval()  # the plain SPEC network

@@ -3,9 +3,10 @@
 Everything is measured in one run on one machine, so times compare as ratios:
 
 * per data set (size, blur, synthetic or real): accuracy of each ONNX model whose input size
-  matches the data set (`train.evaluate.onnx_predictor` + `evaluate_predictor`: the service's
-  preprocessing, batches of 64) and of the feature baseline (`train.baseline`, tuned on the
-  data set's val split), ms per image of both and their ratio;
+  matches the data set (`train.network.evaluate.onnx_predictor` + `evaluate_predictor`: the
+  service's preprocessing, batches of 64) and of the feature baseline
+  (`train.compare.baseline`, tuned on the data set's val split), ms per image of both and
+  their ratio;
 * on real data sets: accuracy per blur level, models marked as fine-tuned on real photos or
   not (from their model card);
 * detection variants (SPEC section 9) through the service's own `service.predictor.Predictor`
@@ -14,7 +15,7 @@ Everything is measured in one run on one machine, so times compare as ratios:
   working copy and on a 4x larger one.
 
 Outputs: the Markdown report (default docs/comparison.md), and next to it a folder with
-metrics.json (the `planar-pose evaluate` layout, via `train.report.write_report`), the
+metrics.json (the `planar-pose evaluate` layout, via `train.network.report.write_report`), the
 per-cell report and the PNG plots.
 """
 
@@ -33,9 +34,15 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from train.baseline import BaselineConfig, FeatureBaseline, dataset_cameras, evaluate_baseline
-from train.baseline import tune as tune_baseline
-from train.evaluate import compute_metrics, evaluate_predictor, onnx_predictor
+from train import REPO_ROOT
+from train.compare.baseline import (
+    BaselineConfig,
+    FeatureBaseline,
+    dataset_cameras,
+    evaluate_baseline,
+)
+from train.compare.baseline import tune as tune_baseline
+from train.network.evaluate import compute_metrics, evaluate_predictor, onnx_predictor
 
 #: Proposals per image in the objectness mode; about the sliding window count at 1.5x.
 PROPOSALS_MAX = 20
@@ -68,9 +75,9 @@ class Split:
 
 
 def load_split(folder: Path, split: str, limit: int = 0) -> Split:
-    """One split ("all" for every image) of a data set via `train.datasets.load_dataset`,
+    """One split ("all" for every image) of a data set via `train.dataset.load_dataset`,
     the first `limit` images if limit > 0 (the data set's own order)."""
-    from train.datasets import load_dataset
+    from train.dataset import load_dataset
 
     data = load_dataset(folder, split=None if split == "all" else split)
     n = len(data.labels) if limit <= 0 else min(limit, len(data.labels))
@@ -108,13 +115,12 @@ def _profile_of(folder: Path, override: str | None) -> Any:
     try:
         return load_profile(name or "chessboard")
     except ValueError:
-        # A profile kept outside train/profiles: its folder holds the recorded texture.
+        # A profile kept outside train/assets/profiles: its folder holds the recorded texture.
         texture = entry.get("texture") if isinstance(entry, dict) else None
         if not texture:
             raise
         path = Path(texture)
-        root = Path(__file__).resolve().parent.parent
-        return load_profile((path if path.is_absolute() else root / path).parent)
+        return load_profile((path if path.is_absolute() else REPO_ROOT / path).parent)
 
 
 def make_baseline(folder: Path, config: BaselineConfig, profile: str | None) -> FeatureBaseline:
@@ -190,7 +196,7 @@ def photo_set(folder: Path, z_split: float) -> tuple[list[bytes], np.ndarray, li
     import csv
 
     from train.geometry import pose_class
-    from train.realset import moment_of, split_moments
+    from train.real.realset import moment_of, split_moments
 
     with (folder / "labels.csv").open(newline="") as fh:
         rows = list(csv.DictReader(fh))
@@ -339,7 +345,7 @@ def _plot_times(rows: list[dict], names: list[str], path: Path) -> None:
 def run_comparison(config: CompareConfig) -> dict[str, Any]:
     """Measure everything (module docstring), write the reports; return a summary with
     `columns`, `rows` (strings for a console table) and `files` written."""
-    from train.report import write_report
+    from train.network.report import write_report
 
     if not config.models:
         raise ValueError("give at least one ONNX model")

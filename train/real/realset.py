@@ -4,7 +4,7 @@ The source folder has images and a labels.csv with at least `file, cam_x, cam_y,
 camera centre in the object frame, cm) and, optionally, OpenCV `rvec0..2` (object -> camera
 rotation) used to find where the optical axis meets the object plane (the "target").
 Each image is read, turned to RGB, resized to the network size with the service's area
-resize, blurred with a SPEC level (`train.blur`) and saved as PNG; its class comes from
+resize, blurred with a SPEC level (`train.synth.blur`) and saved as PNG; its class comes from
 `train.geometry.pose_class` with the profile's z split.
 
 Stereo pairs (`leftNN` / `rightNN`) are taken at the same moment: the train / val / test split
@@ -23,8 +23,9 @@ import cv2
 import numpy as np
 
 from service.preprocess import resize_rgb
-from train.blur import SIZES
+from train import repo_relative
 from train.geometry import pose_class
+from train.synth.blur import SIZES
 
 SPLITS = ("train", "val", "test")
 
@@ -85,10 +86,10 @@ def build_real_dataset(
     (`train.profile.roll_of_pose`) and the focal length relative to the SPEC one when the
     source gives `rvec0..2` and `fx`, `width`.
     """
-    from train.blur import blur_image
-    from train.datasets import write_labels
     from train.geometry import SPEC_FOCAL_160
     from train.profile import load_profile, roll_of_pose
+    from train.synth.blur import blur_image
+    from train.synth.generate import write_labels
 
     prof = load_profile(profile)
     z_split = float(prof.geometry.z_split_cm)
@@ -134,7 +135,7 @@ def build_real_dataset(
         "generator_version": "1.0",
         "variant": "real",
         "real": True,
-        "source": _repo_relative(source),
+        "source": repo_relative(source),
         "profile": prof.manifest_entry(),
         "size": list(wh),
         "blur": blur,
@@ -146,11 +147,3 @@ def build_real_dataset(
     }
     (out / "manifest.json").write_text(json.dumps(manifest, indent=1) + "\n")
     return manifest
-
-
-def _repo_relative(path: Path) -> str:
-    root = Path(__file__).resolve().parent.parent
-    try:
-        return path.resolve().relative_to(root).as_posix()
-    except ValueError:
-        return str(path)

@@ -1,6 +1,6 @@
 """Labelling real photographs (SPEC section 7): corners -> homography -> pose -> class.
 
-For each photograph: the object is found automatically (`train.corners`: the chessboard
+For each photograph: the object is found automatically (`train.real.corners`: the chessboard
 detector for a chessboard profile, SIFT matching to the profile texture otherwise) or taken
 from a CSV of clicked corners; the points are undistorted with the camera's calibration; the
 object-plane -> image homography comes from the normalised DLT over all points
@@ -27,9 +27,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from train.calibration import Calibration, Camera, default_camera
-from train.corners import ChessboardPattern, Correspondences, TextureMatcher, detect_chessboard
-from train.datasets import LABEL_COLUMNS
+from train.dataset import LABEL_COLUMNS
 from train.geometry import (
     SPEC_FOCAL_160,
     camera_centre,
@@ -38,7 +36,9 @@ from train.geometry import (
     pose_from_homography,
 )
 from train.profile import roll_of_pose
-from train.realset import moment_of, optical_axis_target, split_moments
+from train.real.calibration import Calibration, Camera, default_camera
+from train.real.corners import ChessboardPattern, Correspondences, TextureMatcher, detect_chessboard
+from train.real.realset import moment_of, optical_axis_target, split_moments
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".webp", ".tif", ".tiff")
 CORNER_COLUMNS = [f"corner_{a}{i}" for i in range(4) for a in "xy"]

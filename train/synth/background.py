@@ -2,9 +2,9 @@
 
 Sources, all RGB uint8:
 
-* `train/backgrounds/photos/`: scikit-image sample photographs (CC0 / public domain);
-* `train/backgrounds/real/`: crops of the real chessboard photos that do not contain the
-  board (made by `real_photo_crops`, see train/backgrounds/README.md);
+* `train/assets/backgrounds/photos/`: scikit-image sample photographs (CC0 / public domain);
+* `train/assets/backgrounds/real/`: crops of the real chessboard photos that do not contain the
+  board (made by `real_photo_crops`, see train/assets/backgrounds/README.md);
 * procedural textures (value noise, gradients, stripes, blobs, clutter), drawn from a fixed
   seed so every data set sees the same pool.
 
@@ -21,9 +21,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from train import ASSETS_DIR
 from train.geometry import apply_homography, dlt_homography
 
-BACKGROUNDS_DIR = Path(__file__).resolve().parent / "backgrounds"
+BACKGROUNDS_DIR = ASSETS_DIR / "backgrounds"
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png")
 N_PROCEDURAL = 48
 
@@ -103,7 +104,7 @@ def board_polygon(
     """Image polygon (4, 2) px of the board grown by `grow_cm` around its inner-corner grid.
 
     `corners_px` (4, 2): the inner-grid rectangle corners (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y) as
-    in train/real/*/labels.csv; `inner_cm` = (width, height) of that grid.
+    in train/assets/real/*/labels.csv; `inner_cm` = (width, height) of that grid.
     """
     w, h = inner_cm[0] / 2, inner_cm[1] / 2
     inner = np.array([[-w, -h], [w, -h], [w, h], [-w, h]])

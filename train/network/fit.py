@@ -28,7 +28,7 @@ import torch
 import torch.nn.functional as F
 from tqdm import tqdm
 
-from train.model import PoseNet, channel_stats, check_size
+from train.network.model import PoseNet, channel_stats, check_size
 
 CHECKPOINT_FORMAT = "planar-pose-checkpoint/1"
 
@@ -83,7 +83,7 @@ def load_split(paths: list[Path], split: str) -> tuple[Split, list[dict[str, Any
 
     Raises TrainingError for a missing folder, mixed image sizes or an empty split.
     """
-    from train.datasets import load_dataset
+    from train.dataset import load_dataset
 
     images, labels, blurs, infos = [], [], [], []
     for path in paths:
@@ -109,7 +109,7 @@ class Augmenter:
     """On-the-fly augmentation of a training batch, RGB uint8 [B, H, W, 3] -> same shape.
 
     * blur: an image of a blur-0 data set gets, with probability `p_blur`, a SPEC blur level
-      drawn from 1..3 (the same kernels as the data sets, `train.blur`), so that one network
+      drawn from 1..3 (the same kernels as the data sets, `train.synth.blur`), so that one network
       sees all levels;
     * photometric: contrast x U(0.7, 1.3), brightness + U(-25, 25), per-channel gain
       U(0.9, 1.1), grey level with probability `p_grey` (real photos may be grey), Gaussian
@@ -126,7 +126,7 @@ class Augmenter:
     def __call__(
         self, images: np.ndarray, blur: np.ndarray, rng: np.random.Generator
     ) -> np.ndarray:
-        from train.blur import blur_image
+        from train.synth.blur import blur_image
 
         n = len(images)
         out = images.copy()

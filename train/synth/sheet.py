@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 
 from service.regions import NUM_CLASSES, region_of_class
-from train.datasets import load_dataset
+from train.dataset import load_dataset
 
 LABEL_WIDTH = 190  # px of the text column
 GAP = 2  # px between tiles

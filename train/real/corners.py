@@ -8,7 +8,7 @@ image pixels (u, v) where they are seen (raw pixels of the photograph, lens dist
   back to `cv2.findChessboardCorners` + `cv2.cornerSubPix`). The detector's own corner order is
   ambiguous; the object frame is fixed by two rules: the frame is right-handed with the camera
   in front of the board (z > 0), and the square diagonally outside the (-X, -Y) inner corner is
-  black (the colour parity rule of train/real/chessboard-stereo/README.md).
+  black (the colour parity rule of train/assets/real/chessboard-stereo/README.md).
 * `TextureMatcher`: local features (SIFT or ORB) of the photograph matched to the profile's
   front-on texture (Lowe's ratio test), then a RANSAC homography (`cv2.findHomography`).
 """

@@ -22,9 +22,6 @@ from functools import cache
 import cv2
 import numpy as np
 
-from train.background import BackgroundPool
-from train.blur import blur_image
-from train.corners import texture_to_object
 from train.geometry import (
     homography_from_pose,
     intrinsics,
@@ -34,6 +31,9 @@ from train.geometry import (
     translation,
 )
 from train.profile import Profile
+from train.real.corners import texture_to_object
+from train.synth.background import BackgroundPool
+from train.synth.blur import blur_image
 
 VARIANTS = ("C", "noC")
 NOC_HALF_CM = 3.0  # noC targets: uniform in [-3, 3] x [-3, 3] cm around the object centre

@@ -5,7 +5,7 @@ Calibration JSON, either one camera
     {"K": [[fx, 0, cx], [0, fy, cy], [0, 0, 1]], "dist": [k1, k2, p1, p2, k3],
      "image_size_wh": [W, H]}
 
-or several, as train/real/chessboard-stereo/calibration.json has them
+or several, as train/assets/real/chessboard-stereo/calibration.json has them
 
     {"cameras": {"left": {"K": ..., "dist_k1k2p1p2k3": [...], "image_size_wh": [W, H],
                           "per_image": {"left01.jpg": {...}, ...}}, "right": {...}}}

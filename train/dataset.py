@@ -1,0 +1,202 @@
+"""Reading a data set folder (synthetic or real, SPEC section 7) into arrays, with a cache.
+
+On disk a data set is a folder a person can open:
+
+* `images/...`: the images (any size; resized on load);
+* `labels.csv`: one row per image, at least `file` (relative to the folder), `class` (0..8)
+  and `split` (train / val / test); `LABEL_COLUMNS` for synthetic sets (camera centre and
+  look-at target in cm, object frame; SPEC blur level; roll in degrees; focal-length scale);
+* `manifest.json`: generator and version, profile, size [W, H], counts.
+
+`train.synth.generate` writes synthetic sets, `train.real.realset` real ones.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import io
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from service.preprocess import ImageDecodeError, decode_image, resize_rgb
+
+SPLITS = ("train", "val", "test")
+NUM_CLASSES = 9
+#: Bumped when the decoded cache format changes.
+CACHE_VERSION = "1.0"
+CACHE_DIR = ".cache"
+LABEL_COLUMNS = [
+    "file",
+    "class",
+    "cam_x",
+    "cam_y",
+    "cam_z",
+    "target_x",
+    "target_y",
+    "target_z",
+    "blur",
+    "split",
+    "roll_deg",
+    "focal_scale",
+]
+
+
+class DatasetError(ValueError):
+    """A data set that cannot be made (bad arguments, existing folder) or read."""
+
+
+@dataclass
+class LoadedDataset:
+    """A data set (or one split of it) in memory.
+
+    `images` uint8 [N, H, W, 3] RGB, `labels` int64 [N] classes 0..8, `rows` the labels.csv
+    rows of these images (all columns as strings), `manifest` the parsed manifest.json.
+    """
+
+    path: Path
+    images: np.ndarray
+    labels: np.ndarray
+    rows: list[dict[str, str]]
+    manifest: dict[str, Any]
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """Image size (W, H) in pixels."""
+        return int(self.images.shape[2]), int(self.images.shape[1])
+
+    def column(self, name: str) -> list[str]:
+        """One labels.csv column of these images."""
+        return [row[name] for row in self.rows]
+
+
+def _read_table(path: Path) -> tuple[bytes, list[dict[str, str]]]:
+    labels = path / "labels.csv"
+    if not path.is_dir():
+        raise DatasetError(f"data set folder not found: {path}")
+    if not labels.is_file():
+        raise DatasetError(f"not a data set (no labels.csv): {path}")
+    raw = labels.read_bytes()
+    try:
+        rows = list(csv.DictReader(io.StringIO(raw.decode("utf-8"))))
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise DatasetError(f"{labels}: not a readable CSV ({exc})") from exc
+    if not rows:
+        raise DatasetError(f"{labels} has no rows")
+    missing = {"file", "class", "split"} - set(rows[0])
+    if missing:
+        raise DatasetError(f"{labels} lacks column(s) {sorted(missing)}")
+    for n, row in enumerate(rows, start=2):
+        if row["split"] not in SPLITS:
+            raise DatasetError(
+                f"{labels} line {n}: split must be train/val/test, got {row['split']!r}"
+            )
+        if not (row["class"] or "").isdigit() or int(row["class"]) >= NUM_CLASSES:
+            raise DatasetError(f"{labels} line {n}: class must be 0..8, got {row['class']!r}")
+    return raw, rows
+
+
+def _read_manifest(path: Path) -> dict[str, Any]:
+    file = path / "manifest.json"
+    if not file.is_file():
+        raise DatasetError(f"not a data set (no manifest.json): {path}")
+    try:
+        manifest = json.loads(file.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise DatasetError(f"{file}: not valid JSON ({exc})") from exc
+    if not isinstance(manifest, dict):
+        raise DatasetError(f"{file}: expected a JSON object")
+    return manifest
+
+
+def _decode_all(path: Path, rows: list[dict[str, str]], size: tuple[int, int]) -> np.ndarray:
+    w, h = size
+    images = np.empty((len(rows), h, w, 3), np.uint8)
+    for i, row in enumerate(rows):
+        file = path / row["file"]
+        try:
+            images[i] = resize_rgb(decode_image(file.read_bytes()), size)
+        except FileNotFoundError:
+            raise DatasetError(
+                f"{path}: image {row['file']} listed in labels.csv is missing"
+            ) from None
+        except (OSError, ImageDecodeError) as exc:
+            raise DatasetError(f"{path}: cannot read image {row['file']} ({exc})") from exc
+    return images
+
+
+def _cache_key(raw_labels: bytes, size: tuple[int, int]) -> str:
+    return hashlib.sha256(raw_labels + f"|{size[0]}x{size[1]}|{CACHE_VERSION}".encode()).hexdigest()
+
+
+def _cached_images(
+    path: Path, raw: bytes, rows: list[dict[str, str]], size: tuple[int, int]
+) -> np.ndarray:
+    """All images of the set [N, H, W, 3] from `.cache/` or decoded (then cached).
+
+    The cache is keyed by the bytes of labels.csv and the size; a failure to write it (e.g. a
+    read-only folder) only costs the next load a decode.
+    """
+    cache = path / CACHE_DIR
+    key = _cache_key(raw, size)
+    array, key_file = (
+        cache / f"images-{size[0]}x{size[1]}.npy",
+        cache / f"images-{size[0]}x{size[1]}.key",
+    )
+    if array.is_file() and key_file.is_file() and key_file.read_text() == key:
+        try:
+            images = np.load(array, mmap_mode="r")
+            if images.shape == (len(rows), size[1], size[0], 3):
+                return images
+        except (OSError, ValueError):
+            pass
+    images = _decode_all(path, rows, size)
+    try:
+        cache.mkdir(exist_ok=True)
+        tmp = array.with_suffix(f".{os.getpid()}.tmp")
+        with tmp.open("wb") as fh:
+            np.save(fh, images)
+        os.replace(tmp, array)
+        key_file.write_text(key)
+    except OSError:
+        pass
+    return images
+
+
+def load_dataset(
+    path: Path | str, split: str | None = None, size: tuple[int, int] | None = None
+) -> LoadedDataset:
+    """Load a data set folder (synthetic or real) -> LoadedDataset.
+
+    `split`: train, val or test (None: every image, in labels.csv order). `size` (W, H):
+    resize to it (default: the manifest's size). Images are decoded and resized with
+    `service.preprocess` (as in serving) and cached in `<path>/.cache/` (an .npy per size,
+    invalidated when labels.csv changes). Raises DatasetError for a missing or corrupt set.
+    """
+    path = Path(path)
+    if split is not None and split not in SPLITS:
+        raise DatasetError(f"split must be train, val, test or None, got {split!r}")
+    raw, rows = _read_table(path)
+    manifest = _read_manifest(path)
+    if size is None:
+        try:
+            size = (int(manifest["size"][0]), int(manifest["size"][1]))
+        except (KeyError, TypeError, ValueError, IndexError):
+            raise DatasetError(f"{path / 'manifest.json'}: no valid size [W, H]") from None
+    images = _cached_images(path, raw, rows, tuple(size))
+    if split is None:
+        index = np.arange(len(rows))
+    else:
+        index = np.array([i for i, r in enumerate(rows) if r["split"] == split], dtype=np.int64)
+    selected = (
+        np.ascontiguousarray(images[index])
+        if len(index)
+        else np.empty((0, size[1], size[0], 3), np.uint8)
+    )
+    labels = np.array([int(rows[i]["class"]) for i in index], dtype=np.int64)
+    return LoadedDataset(path, selected, labels, [rows[i] for i in index], manifest)
