@@ -107,6 +107,62 @@ def parity_contrast(means: np.ndarray, sx: int, sy: int) -> float:
     return float(m[~even].mean() - m[even].mean())
 
 
+def find_grid(
+    grey: np.ndarray, pattern: ChessboardPattern, max_side: int = 1600
+) -> np.ndarray | None:
+    """Inner corners (rows * cols, 2) raw px of `grey` in the detector's order, or None.
+
+    Images larger than `max_side` are searched at a reduced scale, then the corners are
+    refined at full resolution (`cv2.cornerSubPix`), which keeps phone photos fast.
+    """
+    scale = min(1.0, max_side / max(grey.shape))
+    if scale == 1.0:
+        return _find_grid(grey, pattern)
+    small = cv2.resize(grey, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+    raw = _find_grid(small, pattern)
+    if raw is None:
+        return None
+    pts = ((raw + 0.5) / scale - 0.5).astype(np.float32).reshape(-1, 1, 2)
+    spacing = np.median(
+        np.linalg.norm(np.diff(raw.reshape(pattern.inner_rows, -1, 2), axis=1), axis=2)
+    )
+    win = int(np.clip(0.25 * spacing / scale, 3, 25))
+    criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 0.01)
+    return (
+        cv2.cornerSubPix(grey, pts, (win, win), (-1, -1), criteria)
+        .reshape(-1, 2)
+        .astype(np.float64)
+    )
+
+
+def orient_grid(
+    grey: np.ndarray,
+    raw: np.ndarray,
+    pattern: ChessboardPattern,
+    undistort: Callable[[np.ndarray], np.ndarray],
+    A: np.ndarray,
+) -> tuple[np.ndarray, float]:
+    """Object coordinates (N, 2) cm of the detected corners `raw` (N, 2) and the parity
+    confidence in [0, 1].
+
+    Of the four sign choices (sx, sy) of the detector's (column, row) axes, the two
+    right-handed ones put the camera at z > 0 (tested through `undistort` and intrinsics `A`);
+    of those (a half turn apart) the one with the black square diagonally outside the
+    (-X, -Y) corner wins. Confidence: the parity contrast over the spread (5th-95th
+    percentile) of the square means; about 1 for a clear board, near 0 when the colours
+    cannot be told apart (then the half turn is a guess).
+    """
+    grid = pattern.grid_xy()
+    R, t = pose_from_homography(dlt_homography(grid, undistort(raw)), A)
+    front = camera_centre(R, t)[2] > 0
+    candidates = [(1, 1), (-1, -1)] if front else [(1, -1), (-1, 1)]
+    means = square_means(grey, raw, pattern.inner_cols, pattern.inner_rows)
+    sx, sy = max(candidates, key=lambda s: parity_contrast(means, *s))
+    spread = float(np.percentile(means, 95) - np.percentile(means, 5))
+    confidence = parity_contrast(means, sx, sy) / spread if spread > 1e-6 else 0.0
+    return grid * np.array([sx, sy]), float(np.clip(confidence, 0.0, 1.0))
+
+
 def detect_chessboard(
     image: np.ndarray,
     pattern: ChessboardPattern,
@@ -115,23 +171,15 @@ def detect_chessboard(
 ) -> Correspondences | None:
     """Inner chessboard corners of `image` (RGB or grey) with their object coordinates, or None.
 
-    `undistort` maps raw pixels (N, 2) to ideal pinhole pixels of intrinsics `A` (3, 3); it is
-    used to tell the front of the board from its mirror image. Orientation: of the four sign
-    choices (sx, sy) of the detector's (column, row) axes, the two right-handed ones put the
-    camera at z > 0; of those (a half turn apart) the one with the black square diagonally
-    outside the (-X, -Y) corner wins (largest parity contrast).
+    `undistort` maps raw pixels (N, 2) to ideal pinhole pixels of intrinsics `A` (3, 3); the
+    orientation rule is `orient_grid`'s.
     """
     grey = to_grey(image)
-    raw = _find_grid(grey, pattern)
+    raw = find_grid(grey, pattern)
     if raw is None:
         return None
-    grid = pattern.grid_xy()
-    R, t = pose_from_homography(dlt_homography(grid, undistort(raw)), A)
-    front = camera_centre(R, t)[2] > 0
-    candidates = [(1, 1), (-1, -1)] if front else [(1, -1), (-1, 1)]
-    means = square_means(grey, raw, pattern.inner_cols, pattern.inner_rows)
-    sx, sy = max(candidates, key=lambda s: parity_contrast(means, *s))
-    return Correspondences(object_xy=grid * np.array([sx, sy]), image_uv=raw, method="chessboard")
+    object_xy, _ = orient_grid(grey, raw, pattern, undistort, A)
+    return Correspondences(object_xy=object_xy, image_uv=raw, method="chessboard")
 
 
 @dataclass(frozen=True)

@@ -221,7 +221,7 @@ def list_images(folder: Path) -> list[Path]:
     return images
 
 
-def _row(file: str, lab: Label, size: tuple[int, int], split: str) -> dict[str, Any]:
+def row_of(file: str, lab: Label, size: tuple[int, int], split: str) -> dict[str, Any]:
     rvec, _ = cv2.Rodrigues(lab.R)
     target = optical_axis_target(lab.centre, rvec.ravel())
     K, d = lab.camera.K, np.resize(lab.camera.dist, 5) if lab.camera.dist.size else np.zeros(5)
@@ -302,7 +302,7 @@ def label_folder(
         labelled.append((f"images/{path.name}", lab, size))
 
     splits = split_moments([moment_of(f) for f, _, _ in labelled], seed)
-    rows = [_row(f, lab, size, splits[moment_of(f)]) for f, lab, size in labelled]
+    rows = [row_of(f, lab, size, splits[moment_of(f)]) for f, lab, size in labelled]
     with (out / "labels.csv").open("w", newline="") as fh:
         writer = csv.DictWriter(fh, fieldnames=LABEL_COLUMNS + EXTRA_COLUMNS)
         writer.writeheader()

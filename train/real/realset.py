@@ -24,6 +24,7 @@ import numpy as np
 
 from service.preprocess import resize_rgb
 from train import repo_relative
+from train.dataset import LABEL_COLUMNS
 from train.geometry import pose_class
 from train.synth.blur import SIZES
 
@@ -144,6 +145,108 @@ def build_real_dataset(
         "counts": counts,
         "class_counts": classes,
         "split_by": "moment (stereo pairs stay together)",
+    }
+    (out / "manifest.json").write_text(json.dumps(manifest, indent=1) + "\n")
+    return manifest
+
+
+#: Columns of a corpus data set: the data set ones, the source and the camera at the set's size.
+CORPUS_SET_COLUMNS = [
+    *LABEL_COLUMNS, "source", "original", "fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3",
+]  # fmt: skip
+
+
+def read_splits(path: Path) -> dict[str, str]:
+    """splits.toml of a corpus: {source id: train | val | test} from its [splits] table."""
+    import tomllib
+
+    if not path.is_file():
+        raise FileNotFoundError(f"corpus split file not found: {path}")
+    try:
+        table = tomllib.loads(path.read_text(encoding="utf-8")).get("splits", {})
+    except tomllib.TOMLDecodeError as exc:
+        raise ValueError(f"{path}: not valid TOML ({exc})") from None
+    bad = {k: v for k, v in table.items() if v not in SPLITS}
+    if bad:
+        raise ValueError(f"{path}: splits must be train, val or test, got {bad}")
+    return dict(table)
+
+
+def corpus_sources(corpus: Path) -> list[Path]:
+    """The labelled source folders of a corpus (boards/* and negatives/*), sorted."""
+    found = sorted(p.parent for p in corpus.glob("*/*/labels.csv"))
+    if not found:
+        raise ValueError(f"no labelled source (*/*/labels.csv) in {corpus}")
+    return found
+
+
+def _scaled_camera(row: dict[str, str], wh: tuple[int, int]) -> dict[str, str]:
+    """fx, fy, cx, cy of a stored photo rescaled to the set's size wh (W, H) (pixel centres
+    kept; the distortion coefficients, in normalised coordinates, stay the same)."""
+    if not row.get("fx"):
+        return {}
+    sx, sy = wh[0] / float(row["width"]), wh[1] / float(row["height"])
+    cam = {"fx": float(row["fx"]) * sx, "fy": float(row["fy"]) * sy}
+    cam |= {"cx": (float(row["cx"]) + 0.5) * sx - 0.5, "cy": (float(row["cy"]) + 0.5) * sy - 0.5}
+    out = {k: f"{v:.4f}" for k, v in cam.items()}
+    return out | {k: row.get(k, "") for k in ("k1", "k2", "p1", "p2", "k3")}
+
+
+def build_corpus_dataset(
+    corpus: Path, out: Path, size: int, blur: int, profile: str
+) -> dict[str, Any]:
+    """One data set (SPEC size, blur level) from every source of `corpus`, split by source.
+
+    `corpus/splits.toml` names the split of every source: a source's photos all go to one
+    split, so the test split holds cameras and scenes never used for training or selection.
+    The images are resized to the network size (the service's area resize, aspect ratio not
+    kept, as in serving) and blurred with the SPEC level.
+    """
+    from train.profile import load_profile
+    from train.synth.blur import blur_image
+
+    prof = load_profile(profile)
+    z_split = float(prof.geometry.z_split_cm)
+    splits = read_splits(corpus / "splits.toml")
+    sources = corpus_sources(corpus)
+    missing = [s.name for s in sources if s.name not in splits]
+    if missing:
+        raise ValueError(f"{corpus / 'splits.toml'} gives no split for: {', '.join(missing)}")
+    wh = SIZES[size]
+    (out / "images").mkdir(parents=True, exist_ok=True)
+    labels = []
+    for src in sources:
+        with (src / "labels.csv").open(newline="") as fh:
+            rows = list(csv.DictReader(fh))
+        for row in rows:
+            image = blur_image(resize_rgb(read_rgb(src / row["file"]), wh), blur, wh)
+            name = f"images/{src.name}__{Path(row['file']).stem}.png"
+            cv2.imwrite(str(out / name), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
+            label = {k: row.get(k, "") for k in LABEL_COLUMNS}
+            if row.get("cam_z"):
+                cam = np.array([float(row[f"cam_{a}"]) for a in "xyz"])
+                label["class"] = int(pose_class(cam, z_split))
+            label |= {"file": name, "blur": blur, "split": splits[src.name], "source": src.name}
+            label |= {"original": row.get("original", "")} | _scaled_camera(row, wh)
+            labels.append(label)
+    with (out / "labels.csv").open("w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=CORPUS_SET_COLUMNS, lineterminator="\n")
+        writer.writeheader()
+        writer.writerows(labels)
+    manifest = {
+        "generator": "planar-pose realset (corpus)",
+        "generator_version": "1.0",
+        "variant": "real",
+        "real": True,
+        "source": repo_relative(corpus),
+        "profile": prof.manifest_entry(),
+        "size": list(wh),
+        "blur": blur,
+        "count": len(labels),
+        "counts": {s: sum(r["split"] == s for r in labels) for s in SPLITS},
+        "class_counts": np.bincount([int(r["class"]) for r in labels], minlength=9).tolist(),
+        "split_by": "source (corpus/splits.toml)",
+        "sources": {s: sorted({r["source"] for r in labels if r["split"] == s}) for s in SPLITS},
     }
     (out / "manifest.json").write_text(json.dumps(manifest, indent=1) + "\n")
     return manifest

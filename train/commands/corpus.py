@@ -1,0 +1,152 @@
+"""CLI of the real-photo corpus: `corpus add | check | sets | report`.
+
+No torch here: labelling is OpenCV.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+from train import ASSETS_DIR
+from train.commands.common import err, fail, guard, out, profile_or_exit
+
+CORPUS = ASSETS_DIR / "real" / "corpus"
+CorpusOption = Annotated[Path, typer.Option("--corpus", help="Corpus folder.")]
+
+app = typer.Typer(
+    name="corpus",
+    help="The corpus of real photographs: label sources, check labels, build data sets.",
+    no_args_is_help=True,
+)
+
+
+def _progress(desc: str) -> Any:
+    from tqdm import tqdm
+
+    return lambda paths: tqdm(paths, desc=desc, unit="photo", leave=False)
+
+
+@app.command()
+def add(
+    staged: Annotated[list[Path], typer.Argument(help="Staged source folder(s).")],
+    negatives: Annotated[
+        bool, typer.Option(help="The sources show no board (class 0 photos).")
+    ] = False,
+    corpus: CorpusOption = CORPUS,
+    profile: Annotated[str, typer.Option(help="Object profile.")] = "chessboard",
+) -> None:
+    """Label staged sources (images/, LICENSE, source.json) into the corpus.
+
+    Board sources: corners, calibration from the source's own views, pose, class; photos
+    stored at most 640 px. Negative sources: stored after checking that no board is found.
+    """
+    from train.real.corpus import import_negatives, label_source
+
+    prof = profile_or_exit(profile)
+    kind = "negatives" if negatives else "boards"
+    for src in staged:
+        dest = corpus / kind / src.name
+        step = import_negatives if negatives else label_source
+        m = guard(lambda src=src, dest=dest, step=step: step(src, dest, prof, _progress(src.name)))
+        cal = "; ".join(
+            f"{c['method']}, RMS {c['rms_px']:.2f} px" for c in m.get("calibration", [])
+        )
+        out.print(
+            f"{src.name}: {m['count']} of {m['photos']} photos kept"
+            + (f", class counts {m['class_counts']}" if not negatives else "")
+            + (f"; {cal}" if cal else "")
+        )
+        for reason, n in m.get("failed_by_reason", {}).items():
+            err.print(f"  dropped {n}: {reason}")
+        if m["count"] == 0:
+            raise fail(f"no photo of {src} could be used (see {dest / 'failed.txt'})")
+
+
+@app.command()
+def check(
+    corpus: CorpusOption = CORPUS,
+    profile: Annotated[str, typer.Option(help="Object profile.")] = "chessboard",
+) -> None:
+    """Relabel every board photo with an independent labeller; print the class agreement."""
+    from train.real.corpus_report import check_summary
+
+    stats = guard(lambda: run_check(corpus, profile_or_exit(profile)))
+    for name, (agree, found) in stats["per_source"].items():
+        out.print(f"{name}: {agree} / {found} agree")
+    out.print(check_summary(stats))
+
+
+def run_check(corpus: Path, prof: Any) -> dict[str, Any]:
+    """Independent labeller over the corpus's board sources: agreement counts."""
+    import numpy as np
+
+    from train.real.crosscheck import crosscheck_folder
+    from train.real.label import chessboard_pattern
+    from train.real.realset import corpus_sources
+
+    pattern = chessboard_pattern(prof)
+    if pattern is None:
+        raise ValueError(f"profile {prof.name!r} is not a chessboard")
+    per_source: dict[str, tuple[int, int]] = {}
+    diffs: list[float] = []
+    count = 0
+    for src in corpus_sources(corpus):
+        if src.parent.name != "boards":
+            continue
+        rows = crosscheck_folder(src, pattern, float(prof.geometry.z_split_cm))
+        found = [r for r in rows if r["independent_class"] is not None]
+        agree = sum(r["class"] == r["independent_class"] for r in found)
+        per_source[src.name] = (agree, len(found))
+        diffs += [r["centre_diff_cm"] for r in found]
+        count += len(rows)
+    found_all = sum(f for _, f in per_source.values())
+    agree_all = sum(a for a, _ in per_source.values())
+    return {
+        "count": count,
+        "found": found_all,
+        "agree": agree_all,
+        "agreement": agree_all / found_all if found_all else None,
+        "median_diff_cm": float(np.median(diffs)) if diffs else float("nan"),
+        "per_source": per_source,
+    }
+
+
+@app.command()
+def sets(
+    out_dir: Annotated[Path, typer.Argument(help="Folder for the data sets real-s{S}-b{B}.")],
+    size: Annotated[list[int], typer.Option(help="SPEC sizes (1 = 80x60, 2 = 160x120).")] = [1, 2],  # noqa: B006
+    blur: Annotated[list[int], typer.Option(help="SPEC blur levels.")] = [0, 1, 2, 3],  # noqa: B006
+    corpus: CorpusOption = CORPUS,
+    profile: Annotated[str, typer.Option(help="Object profile (z split).")] = "chessboard",
+) -> None:
+    """Build the real data sets (one per size and blur level), split by source."""
+    from train.real.realset import build_corpus_dataset
+
+    if any(s not in (1, 2) for s in size):
+        raise fail(f"--size must be 1 or 2, got {size}", code=2)
+    if any(not 0 <= b <= 3 for b in blur):
+        raise fail(f"--blur must be in 0..3, got {blur}", code=2)
+    profile_or_exit(profile)
+    for s in size:
+        for b in blur:
+            dest = out_dir / f"real-s{s}-b{b}"
+            m = guard(lambda s=s, b=b, dest=dest: build_corpus_dataset(corpus, dest, s, b, profile))
+            out.print(f"[green]wrote[/] {dest}: {m['counts']}, classes {m['class_counts']}")
+
+
+@app.command()
+def report(
+    corpus: CorpusOption = CORPUS,
+    profile: Annotated[str, typer.Option(help="Object profile.")] = "chessboard",
+    with_check: Annotated[bool, typer.Option("--check/--no-check", help="Run `check`.")] = True,
+) -> None:
+    """Write the corpus README (tables per source, region and split) and contact sheets."""
+    from train.real.corpus_report import write_corpus_readme
+
+    prof = profile_or_exit(profile)
+    stats = guard(lambda: run_check(corpus, prof)) if with_check else None
+    path = guard(lambda: write_corpus_readme(corpus, stats))
+    out.print(f"[green]wrote[/] {path}")
