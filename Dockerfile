@@ -1,17 +1,19 @@
-# planar-pose inference service (see README "Service").
-# Stage "build": a venv with the base install (`pip install .`: no torch, no training extras).
-# Stage "runtime": slim Python, that venv, the default model, a non-root user.
+# planar-pose inference service (reference: docs/service.md).
+# Stage "build": a venv with the base install (`pip install .` of service/ only: no torch, no
+# training code; setuptools' package search finds no `train` in this context).
+# Stage "runtime": slim Python, that venv, the model folder, a non-root user.
 #   docker build -t planar-pose .  &&  docker run -p 8000:8000 planar-pose
-# tests/test_docker_recipe.py replays this file's install and command outside Docker.
+# BASE_IMAGE lets a locally made stand-in of python:3.11-slim be used (docs/service.md).
+ARG BASE_IMAGE=python:3.11-slim
 
-FROM python:3.11-slim AS build
+FROM ${BASE_IMAGE} AS build
 WORKDIR /src
 COPY pyproject.toml README.md ./
 COPY service ./service
-COPY train ./train
-RUN python -m venv /opt/venv && /opt/venv/bin/pip install --no-cache-dir .
+RUN python -m venv /opt/venv && /opt/venv/bin/pip install --no-cache-dir . \
+    && /opt/venv/bin/pip uninstall --yes --quiet pip
 
-FROM python:3.11-slim AS runtime
+FROM ${BASE_IMAGE} AS runtime
 RUN groupadd --system --gid 10001 pose \
     && useradd --system --uid 10001 --gid pose --no-create-home --shell /usr/sbin/nologin pose
 COPY --from=build /opt/venv /opt/venv
@@ -25,4 +27,4 @@ USER 10001:10001
 EXPOSE 8000
 HEALTHCHECK --interval=15s --timeout=3s --start-period=10s --retries=3 \
     CMD ["python", "-c", "import urllib.request as u; u.urlopen('http://127.0.0.1:8000/healthz', timeout=2)"]
-CMD ["planar-pose", "serve", "--host", "0.0.0.0", "--port", "8000"]
+CMD ["planar-pose-serve", "--host", "0.0.0.0", "--port", "8000"]

@@ -1,9 +1,9 @@
 #!/usr/bin/env bash
 # Create .venv at the repo root, install the service (no torch) and serve the shipped default
-# model on http://127.0.0.1:8000 (docs at /docs). Extra arguments go to `planar-pose serve`.
+# model on http://127.0.0.1:8000 (docs at /docs). Extra arguments go to `planar-pose-serve`.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 [ -x .venv/bin/python ] || python3 -m venv .venv
 .venv/bin/python -m pip install -q --upgrade pip
 .venv/bin/python -m pip install -q -e .
-exec .venv/bin/planar-pose serve "$@"
+exec .venv/bin/planar-pose-serve "$@"

@@ -1,4 +1,8 @@
-"""`planar-pose serve`: run the HTTP service with uvicorn (settings: flags > POSE_* env)."""
+"""`planar-pose-serve` (also `planar-pose serve`): run the HTTP service with uvicorn.
+
+Settings: flags > POSE_* environment > defaults. This module imports nothing from `train`, so
+the serving install (and the container image) needs no training code.
+"""
 
 from __future__ import annotations
 
@@ -67,3 +71,15 @@ def serve(
 #: The service commands; `train.cli` merges them into the `planar-pose` app.
 app = typer.Typer()
 app.command()(serve)
+
+
+#: `planar-pose-serve`: the same command on its own.
+serve_app = typer.Typer(
+    name="planar-pose-serve", pretty_exceptions_enable=False, add_completion=False
+)
+serve_app.command()(serve)
+
+
+def main() -> None:
+    """Entry point of the `planar-pose-serve` script."""
+    serve_app()

@@ -49,6 +49,11 @@ class Metrics:
             registry=self.registry,
         )
 
+    def observe(self, mode: str, images: int, inference_s: float) -> None:
+        """Count a request's images and time its batched network call."""
+        self.images.labels(mode).inc(images)
+        self.inference.labels(mode).observe(inference_s)
+
     def render(self) -> bytes:
         return generate_latest(self.registry)
 

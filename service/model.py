@@ -85,6 +85,7 @@ class PoseModel:
 
     def predict(self, batch: np.ndarray) -> np.ndarray:
         """float32 [N, 3, H, W] in [0, 1] -> probabilities float64 [N, 9], rows summing to 1."""
-        (probs,) = self.session.run(None, {self.input_name: batch})
-        probs = np.asarray(probs, dtype=np.float64)
-        return probs / probs.sum(axis=1, keepdims=True)
+        (raw,) = self.session.run(None, {self.input_name: batch})
+        probs: np.ndarray = np.asarray(raw, dtype=np.float64)
+        normalised: np.ndarray = probs / probs.sum(axis=1, keepdims=True)
+        return normalised

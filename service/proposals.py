@@ -71,7 +71,8 @@ def _box_sums(integral: np.ndarray, boxes: np.ndarray) -> np.ndarray:
     """Sums of the image whose integral image is `integral` over integer boxes (N, 4)."""
     x0, y0 = boxes[:, 0], boxes[:, 1]
     x1, y1 = x0 + boxes[:, 2], y0 + boxes[:, 3]
-    return integral[y1, x1] - integral[y0, x1] - integral[y1, x0] + integral[y0, x0]
+    sums: np.ndarray = integral[y1, x1] - integral[y0, x1] - integral[y1, x0] + integral[y0, x0]
+    return sums
 
 
 def edge_scores(edges: np.ndarray, boxes: np.ndarray) -> np.ndarray:
@@ -88,7 +89,8 @@ def edge_scores(edges: np.ndarray, boxes: np.ndarray) -> np.ndarray:
     outer_boxes = np.column_stack([x0, y0, x1 - x0, y1 - y0])
     ring = _box_sums(integral, outer_boxes) - inner
     ring_area = np.maximum(outer_boxes[:, 2] * outer_boxes[:, 3] - inner_area, 1)
-    return inner / inner_area - ring / ring_area
+    scores: np.ndarray = inner / inner_area - ring / ring_area
+    return scores
 
 
 def propose_boxes(rgb: np.ndarray, aspect: float, max_boxes: int) -> np.ndarray:

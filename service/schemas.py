@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
 from pydantic import BaseModel, Field
 
@@ -72,3 +72,17 @@ class ErrorResponse(BaseModel):
 class Status(BaseModel):
     status: str = Field(examples=["ok"])
     model: str | None = None
+
+
+#: OpenAPI `responses` of the error statuses, all in the one error shape.
+ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {
+    code: {"model": ErrorResponse, "description": text}
+    for code, text in {
+        400: "Undecodable or empty image, malformed body.",
+        401: "API key missing or wrong (when POSE_API_KEY is set).",
+        413: "Body too large, too many images, or too many pixels in an image.",
+        415: "Unsupported content type.",
+        422: "Bad parameters (e.g. mode).",
+        503: "Model not loaded (yet).",
+    }.items()
+}

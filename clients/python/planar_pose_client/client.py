@@ -22,9 +22,10 @@ from .images import ImageInput
 from .models import Mode, ModelCard, Prediction
 
 H = TypeVar("H", httpx.Client, httpx.AsyncClient)
+T = TypeVar("T", httpx.BaseTransport, httpx.AsyncBaseTransport)
 
 
-class _ClientBase(ABC, Generic[H]):
+class _ClientBase(ABC, Generic[H, T]):
     """Construction shared by both clients; `_connect` opens their kind of httpx client."""
 
     def __init__(
@@ -36,6 +37,7 @@ class _ClientBase(ABC, Generic[H]):
         retries: int = 2,
         backoff: float = 0.25,
         backoff_max: float = 5.0,
+        transport: T | None = None,
     ) -> None:
         """
         base_url: where the service listens, e.g. "http://127.0.0.1:8000".
@@ -44,11 +46,16 @@ class _ClientBase(ABC, Generic[H]):
         retries: extra attempts after a connection failure or a 502/503/504 answer (never on
             other errors); backoff, backoff_max: first wait and cap in seconds, doubled per
             retry, with jitter (see RetryPolicy).
+        transport: an httpx transport to send through instead of the network, e.g.
+            `httpx.MockTransport(handler)` in tests or `httpx.ASGITransport(app)` (async).
         Raises ValueError for a base_url that is not http(s)://host[:port].
         """
         retry = RetryPolicy(retries, backoff, backoff_max)
         self._core = ClientCore(base_url, api_key, timeout, retry)
-        self._http: H = self._connect(self._core.http_options())
+        options = self._core.http_options()
+        if transport is not None:
+            options["transport"] = transport
+        self._http: H = self._connect(options)
 
     @abstractmethod
     def _connect(self, options: dict[str, Any]) -> H:
@@ -59,7 +66,7 @@ class _ClientBase(ABC, Generic[H]):
         return self._core.base_url
 
 
-class PoseClient(_ClientBase[httpx.Client]):
+class PoseClient(_ClientBase[httpx.Client, httpx.BaseTransport]):
     """Blocking client of the planar-pose service. Use it as a context manager (or call
     `close`) to release its connections."""
 
@@ -118,7 +125,7 @@ class PoseClient(_ClientBase[httpx.Client]):
             retry += 1
 
 
-class AsyncPoseClient(_ClientBase[httpx.AsyncClient]):
+class AsyncPoseClient(_ClientBase[httpx.AsyncClient, httpx.AsyncBaseTransport]):
     """Asyncio client of the planar-pose service: the methods of PoseClient as coroutines.
     Use it with `async with` (or await `aclose`) to release its connections."""
 

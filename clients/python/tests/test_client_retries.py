@@ -1,12 +1,14 @@
-"""Retries, backoff and connection failures, watched on a scripted local server."""
+"""Retries, backoff and connection failures, watched through `httpx.MockTransport`."""
 
 from __future__ import annotations
 
 import asyncio
 import socket
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import httpx
 import pytest
 from planar_pose_client import (
     AsyncPoseClient,
@@ -17,19 +19,71 @@ from planar_pose_client import (
     RetryPolicy,
     ServiceUnavailable,
 )
-from scripted_server import Script, error_body, prediction_body, serve
 
 PHOTO = Path(__file__).resolve().parents[3] / "train/assets/real/chessboard-stereo/left01.jpg"
-NOT_READY = (503, error_body("not_ready", "model is loading"))
 FAST: dict[str, Any] = {"backoff": 0.01, "backoff_max": 0.05}  # keep the test quick
+URL = "http://pose.test"
+
+
+def prediction_body(filenames: list[str]) -> dict[str, Any]:
+    """A valid POST /v1/predict answer for `filenames`, all of class 6 (far, x-, y+)."""
+    probabilities = [0.02] * 9
+    probabilities[6] = 0.84
+    result = {
+        "class_id": 6,
+        "region": {"present": True, "depth": "far", "x": "-", "y": "+", "label": "far, x-, y+"},
+        "probabilities": probabilities,
+        "confidence": 0.84,
+        "box": None,
+        "elapsed_ms": 1.5,
+    }
+    return {
+        "model": "fake",
+        "mode": "whole",
+        "results": [{"filename": name, **result} for name in filenames],
+    }
+
+
+def error_body(code: str, message: str) -> dict[str, Any]:
+    return {"error": {"code": code, "message": message}}
+
+
+NOT_READY = (503, error_body("not_ready", "model is loading"))
+
+
+@dataclass
+class Script:
+    """Answers in order, the last one repeating: (status, JSON-able body, or str sent as
+    text/html); `requests` records what the client sent."""
+
+    answers: list[tuple[int, Any]]
+    requests: list[httpx.Request] = field(default_factory=list)
+
+    def __call__(self, request: httpx.Request) -> httpx.Response:
+        request.read()
+        self.requests.append(request)
+        status, body = self.answers[min(len(self.requests), len(self.answers)) - 1]
+        if isinstance(body, str):  # e.g. a proxy's HTML error page
+            return httpx.Response(status, text=body, headers={"content-type": "text/html"})
+        return httpx.Response(status, json=body)
+
+    def sync(self) -> httpx.MockTransport:
+        return httpx.MockTransport(self)
+
+    def paths(self) -> list[tuple[str, str]]:
+        return [(r.method, f"{r.url.path}?{r.url.query.decode()}") for r in self.requests]
+
+
+def client(script: Script, **kw: Any) -> PoseClient:
+    return PoseClient(URL, transport=script.sync(), **kw)
 
 
 def test_503_twice_then_success_is_retried():
     script = Script([NOT_READY, NOT_READY, (200, prediction_body(["left01.jpg"]))])
-    with serve(script) as url, PoseClient(url, retries=2, **FAST) as client:
-        prediction = client.predict(PHOTO)
+    with client(script, retries=2, **FAST) as c:
+        prediction = c.predict(PHOTO)
     assert len(script.requests) == 3
-    assert all(r[:2] == ("POST", "/v1/predict?mode=whole") for r in script.requests)
+    assert script.paths() == [("POST", "/v1/predict?mode=whole")] * 3
     assert prediction.filename == "left01.jpg" and prediction.class_id == 6
     assert prediction.label == "far, x-, y+" and prediction.present
 
@@ -37,24 +91,20 @@ def test_503_twice_then_success_is_retried():
 def test_async_503_twice_then_success_is_retried():
     script = Script([NOT_READY, NOT_READY, (200, prediction_body(["a.png", "left01.jpg"]))])
 
-    async def call(url: str):
-        async with AsyncPoseClient(url, retries=3, **FAST) as client:
-            return await client.predict_many([PHOTO.read_bytes(), PHOTO])
+    async def call() -> list[Any]:
+        transport = httpx.MockTransport(script)
+        async with AsyncPoseClient(URL, retries=3, transport=transport, **FAST) as c:
+            return await c.predict_many([PHOTO.read_bytes(), PHOTO])
 
-    with serve(script) as url:
-        predictions = asyncio.run(call(url))
+    predictions = asyncio.run(call())
     assert len(script.requests) == 3
     assert [p.filename for p in predictions] == ["a.png", "left01.jpg"]
 
 
 def test_503_beyond_the_retries_raises_service_unavailable():
     script = Script([NOT_READY])
-    with (
-        serve(script) as url,
-        PoseClient(url, retries=1, **FAST) as client,
-        pytest.raises(ServiceUnavailable) as info,
-    ):
-        client.model_info()
+    with client(script, retries=1, **FAST) as c, pytest.raises(ServiceUnavailable) as info:
+        c.model_info()
     assert len(script.requests) == 2
     assert info.value.status == 503 and info.value.code == "not_ready"
     assert str(info.value) == "HTTP 503 not_ready: model is loading"
@@ -63,11 +113,10 @@ def test_503_beyond_the_retries_raises_service_unavailable():
 def test_400_is_not_retried():
     script = Script([(400, error_body("bad_image", "cannot decode")), NOT_READY])
     with (
-        serve(script) as url,
-        PoseClient(url, retries=5, **FAST) as client,
+        client(script, retries=5, **FAST) as c,
         pytest.raises(BadImageError, match="cannot decode"),
     ):
-        client.predict(b"not an image")
+        c.predict(b"not an image")
     assert len(script.requests) == 1
 
 
@@ -84,27 +133,51 @@ def test_other_statuses_and_broken_answers_are_plain_pose_errors():
             (200, "not json"),
         ]
     )
-    with serve(script) as url, PoseClient(url, retries=1, **FAST) as client:
+    with client(script, retries=1, **FAST) as c:
         with pytest.raises(PoseError) as crash:
-            client.predict(PHOTO)
+            c.predict(PHOTO)
         assert type(crash.value) is PoseError and crash.value.code == "internal_error"
         assert len(script.requests) == 1  # 500 is not retried
         with pytest.raises(PoseError) as gateway:
-            client.predict(PHOTO)
+            c.predict(PHOTO)
         assert gateway.value.status == 502 and gateway.value.code == "http_502"
         assert gateway.value.message == "<html><body>Bad gateway</body></html>"
         assert len(script.requests) == 3  # 502 is retried once
         for problem in (r"sent 1 image\(s\) but got 0", "results.0.class_id", "json_invalid|JSON"):
             with pytest.raises(PoseError, match=problem) as broken:
-                client.predict(PHOTO)
+                c.predict(PHOTO)
             assert broken.value.code == "invalid_response" and broken.value.status == 200
 
 
 def test_the_api_key_is_sent_as_a_bearer_token():
     script = Script([(200, prediction_body(["left01.jpg"]))])
-    with serve(script) as url, PoseClient(url, api_key="s3cret") as client:
-        client.predict(PHOTO)
-    assert script.requests[0][2]["Authorization"] == "Bearer s3cret"
+    with client(script, api_key="s3cret") as c:
+        c.predict(PHOTO)
+    assert script.requests[0].headers["Authorization"] == "Bearer s3cret"
+
+
+def test_transport_errors_are_retried_then_reported():
+    """A dropped connection (no answer) counts as an attempt; the last error is reported."""
+    attempts: list[httpx.Request] = []
+
+    def flaky(request: httpx.Request) -> httpx.Response:
+        attempts.append(request)
+        if len(attempts) < 3:
+            raise httpx.RemoteProtocolError("server disconnected", request=request)
+        return httpx.Response(200, json=prediction_body(["left01.jpg"]))
+
+    with PoseClient(URL, retries=2, transport=httpx.MockTransport(flaky), **FAST) as c:
+        assert c.predict(PHOTO).class_id == 6
+    assert len(attempts) == 3
+
+    def timeout(request: httpx.Request) -> httpx.Response:
+        raise httpx.ReadTimeout("read timed out", request=request)
+
+    with (
+        PoseClient(URL, retries=1, transport=httpx.MockTransport(timeout), **FAST) as c,
+        pytest.raises(PoseConnectionError, match=r"timed out \(ReadTimeout\) \(2 attempts\)"),
+    ):
+        c.model_info()
 
 
 def _refused_url() -> str:

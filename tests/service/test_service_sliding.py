@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
+from service_support import REAL
 
 from service.model import PoseModel
 from service.predictor import Predictor
@@ -19,7 +18,6 @@ from service.sliding import (
     working_copy,
 )
 
-REAL = Path(__file__).resolve().parent.parent / "train" / "assets" / "real" / "chessboard-stereo"
 GRID = SlidingWindows(aspect=4 / 3, scales=(1.0, 0.8, 0.6), stride=20, max_windows=256)
 
 

@@ -20,31 +20,39 @@ from pathlib import Path
 
 import httpx
 import pytest
-from test_service_http import PHOTO, ROOT, check_answer, free_port, live_server
+from service_support import PHOTO, ROOT, check_answer, free_port, live_server
 
 DOCKERFILE = ROOT / "Dockerfile"
 
 
-def instructions(text: str) -> list[list[tuple[str, str]]]:
-    """Dockerfile -> stages, each a list of (INSTRUCTION, arguments); continuations joined."""
+def instructions(text: str) -> tuple[dict[str, str], list[list[tuple[str, str]]]]:
+    """Dockerfile -> (ARGs before the first FROM with their defaults, stages), each stage a
+    list of (INSTRUCTION, arguments); continuations joined, ${ARG} in FROM substituted."""
     joined = re.sub(r"\\\n\s*", " ", text)
+    args: dict[str, str] = {}
     stages: list[list[tuple[str, str]]] = []
     for line in joined.splitlines():
         line = line.strip()
         if not line or line.startswith("#"):
             continue
-        word, _, args = line.partition(" ")
-        if word.upper() == "FROM":
+        word, _, rest = line.partition(" ")
+        word, rest = word.upper(), rest.strip()
+        if word == "ARG" and not stages:
+            name, _, default = rest.partition("=")
+            args[name] = default
+            continue
+        if word == "FROM":
             stages.append([])
-        stages[-1].append((word.upper(), args.strip()))
-    return stages
+            rest = re.sub(r"\$\{(\w+)\}", lambda m: args[m.group(1)], rest)
+        stages[-1].append((word, rest))
+    return args, stages
 
 
 def args_of(stage: list[tuple[str, str]], word: str) -> list[str]:
     return [args for w, args in stage if w == word]
 
 
-STAGES = instructions(DOCKERFILE.read_text())
+BUILD_ARGS, STAGES = instructions(DOCKERFILE.read_text())
 BUILD, RUNTIME = STAGES
 
 
@@ -56,8 +64,9 @@ def exec_form(args: str) -> list[str]:
 
 def test_recipe_shape() -> None:
     assert len(STAGES) == 2
-    base = args_of(RUNTIME, "FROM")[0]
-    assert re.match(r"python:3\.1\d+-slim\b", base), base
+    assert re.fullmatch(r"python:3\.1\d+-slim", BUILD_ARGS["BASE_IMAGE"])
+    for stage in STAGES:
+        assert args_of(stage, "FROM")[0].startswith(BUILD_ARGS["BASE_IMAGE"] + " AS ")
     assert args_of(RUNTIME, "EXPOSE") == ["8000"]
     user = args_of(RUNTIME, "USER")[-1]
     assert user not in ("root", "0")
@@ -66,7 +75,9 @@ def test_recipe_shape() -> None:
     assert not any("torch" in args for stage in STAGES for _, args in stage)
     healthcheck = args_of(RUNTIME, "HEALTHCHECK")[0]
     assert "/healthz" in healthcheck and "curl" not in healthcheck
-    assert exec_form(args_of(RUNTIME, "CMD")[0])[:2] == ["planar-pose", "serve"]
+    assert exec_form(args_of(RUNTIME, "CMD")[0])[0] == "planar-pose-serve"
+    copied = " ".join(args_of(BUILD, "COPY") + args_of(RUNTIME, "COPY"))
+    assert "train" not in copied, copied  # no training code or data in the image
 
 
 def mapper(tmp: Path) -> Callable[[str], str]:
@@ -101,6 +112,7 @@ def copy_into(
                 shutil.copy2(src, out)
 
 
+@pytest.mark.slow
 def test_image_install_and_command_outside_docker(tmp_path: Path) -> None:
     to_tmp = mapper(tmp_path)
     clean = {k: v for k, v in os.environ.items() if not k.startswith(("POSE_", "VIRTUAL_ENV"))}
@@ -171,8 +183,18 @@ def test_image_install_and_command_outside_docker(tmp_path: Path) -> None:
         assert r.status_code == 200, r.text
         check_answer(r.json(), "sliding", [(640, 480)])
         assert httpx.get(base + "/v1/model").json()["name"] == "default"
+    no_train = subprocess.run(
+        [str(venv_python), "-c", "import train"], env=env, cwd=cwd, capture_output=True, text=True
+    )
+    assert no_train.returncode != 0 and "No module named 'train'" in no_train.stderr
 
 
-@pytest.mark.parametrize("line", ["pyproject.toml", "service/", "train/", "models/default.onnx"])
+@pytest.mark.parametrize("line", ["pyproject.toml", "README.md", "service/", "models/*.onnx"])
 def test_dockerignore_keeps_what_the_build_copies(line: str) -> None:
     assert f"!{line}" in (ROOT / ".dockerignore").read_text().splitlines()
+
+
+def test_dockerignore_keeps_training_code_out() -> None:
+    lines = (ROOT / ".dockerignore").read_text().splitlines()
+    assert "**" in lines  # everything is excluded unless listed
+    assert not any(line.startswith("!train") for line in lines)

@@ -1,4 +1,5 @@
-"""service.settings and `planar-pose serve`: environment parsing, bad settings -> exit 2."""
+"""service.settings and `planar-pose-serve` (also `planar-pose serve`): environment parsing,
+bad settings -> exit 2, no training code imported."""
 
 from __future__ import annotations
 
@@ -11,8 +12,8 @@ import pytest
 from pydantic import ValidationError
 from typer.testing import CliRunner
 
+from service.cli import serve_app as app
 from service.settings import DEFAULT_MODEL, Settings
-from train.cli import app
 
 
 def test_defaults_serve_the_shipped_model(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -51,19 +52,19 @@ runner = CliRunner()
 
 
 def test_serve_missing_model_exits_2(tmp_path: Path) -> None:
-    result = runner.invoke(app, ["serve", "--model", str(tmp_path / "none.onnx")])
+    result = runner.invoke(app, ["--model", str(tmp_path / "none.onnx")])
     assert result.exit_code == 2
     assert "model file not found" in result.output
 
 
 def test_serve_bad_environment_exits_2(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("POSE_MAX_PIXELS", "lots")
-    result = runner.invoke(app, ["serve"])
+    result = runner.invoke(app, [])
     assert result.exit_code == 2 and "max_pixels" in result.output
 
 
 def test_serve_bad_port_flag_exits_2() -> None:
-    assert runner.invoke(app, ["serve", "--port", "70000"]).exit_code == 2
+    assert runner.invoke(app, ["--port", "70000"]).exit_code == 2
 
 
 def test_uvicorn_entry_with_bad_environment_says_why() -> None:
@@ -78,3 +79,20 @@ def test_uvicorn_entry_with_bad_environment_says_why() -> None:
     assert done.returncode == 1
     assert "invalid settings" in done.stderr and "max_images" in done.stderr
     assert "Traceback" not in done.stderr
+
+
+def test_the_service_imports_no_training_code() -> None:
+    code = (
+        "import sys, service.app, service.cli\n"
+        "print(sorted(m for m in sys.modules if m == 'train' or m.startswith(('train.', 'torch'))))"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "[]"
+
+
+def test_planar_pose_serve_still_works_from_the_training_cli(tmp_path: Path) -> None:
+    from train.cli import app as train_app
+
+    result = runner.invoke(train_app, ["serve", "--model", str(tmp_path / "none.onnx")])
+    assert result.exit_code == 2 and "model file not found" in result.output

@@ -3,15 +3,12 @@ without duplicates, deterministic, and one of them around a pasted object."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import cv2
 import numpy as np
 import pytest
+from service_support import REAL as TEXTURE
 
 from service.proposals import fit_aspect, propose_boxes
-
-TEXTURE = Path(__file__).resolve().parent.parent / "train" / "assets" / "real" / "chessboard-stereo"
 
 
 def _iou(a: np.ndarray, b: np.ndarray) -> float:

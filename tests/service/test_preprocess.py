@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import struct
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -11,6 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from image_bytes import png_claiming, with_exif_orientation
+from service_support import REAL
 
 from service.preprocess import (
     ImageDecodeError,
@@ -22,7 +22,6 @@ from service.preprocess import (
     to_network_input,
 )
 
-REAL = Path(__file__).resolve().parent.parent / "train" / "assets" / "real" / "chessboard-stereo"
 PHOTO = (REAL / "left01.jpg").read_bytes()
 
 

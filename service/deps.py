@@ -1,0 +1,74 @@
+"""Typed FastAPI dependencies reading `request.app.state.pose` (tests override them with
+`app.dependency_overrides[get_predictor] = ...`)."""
+
+from __future__ import annotations
+
+import secrets
+from typing import Annotated
+
+import anyio
+from fastapi import Depends, Request
+
+from service.errors import ApiError
+from service.metrics import Metrics
+from service.predictor import Predictor
+from service.settings import Settings
+from service.state import ServiceState
+
+
+def get_state(request: Request) -> ServiceState:
+    """The app's shared state (set by `create_app`)."""
+    state: ServiceState = request.app.state.pose
+    return state
+
+
+StateDep = Annotated[ServiceState, Depends(get_state)]
+
+
+def get_settings(state: StateDep) -> Settings:
+    return state.settings
+
+
+def get_metrics(state: StateDep) -> Metrics:
+    return state.metrics
+
+
+def get_limiter(state: StateDep) -> anyio.CapacityLimiter:
+    """At most `Settings.workers` inference jobs at once; more requests queue."""
+    return state.jobs
+
+
+def get_predictor(state: StateDep) -> Predictor:
+    """The loaded predictor, or 503 `not_ready` with the reason."""
+    if state.predictor is None:
+        raise ApiError(503, "not_ready", state.problem)
+    return state.predictor
+
+
+SettingsDep = Annotated[Settings, Depends(get_settings)]
+MetricsDep = Annotated[Metrics, Depends(get_metrics)]
+LimiterDep = Annotated[anyio.CapacityLimiter, Depends(get_limiter)]
+PredictorDep = Annotated[Predictor, Depends(get_predictor)]
+
+
+def authorise(request: Request, settings: SettingsDep) -> None:
+    """401 unless the request carries the API key (`Authorization: Bearer` or `X-API-Key`),
+    when `POSE_API_KEY` is set."""
+    if settings.api_key is None:
+        return
+    given = request.headers.get("x-api-key")
+    scheme, _, token = request.headers.get("authorization", "").partition(" ")
+    if given is None and scheme.lower() == "bearer":
+        given = token.strip()
+    expected = settings.api_key.get_secret_value().encode()
+    if given is None or not secrets.compare_digest(given.encode(), expected):
+        raise ApiError(
+            401,
+            "unauthorized",
+            "missing or wrong API key: send `Authorization: Bearer <key>` or `X-API-Key`",
+            {"WWW-Authenticate": "Bearer"},
+        )
+
+
+#: Route dependency list for endpoints behind the API key.
+AUTHORISED = [Depends(authorise)]

@@ -1,0 +1,1 @@
+"""One APIRouter module per concern; `service.app.ROUTERS` lists the ones served."""

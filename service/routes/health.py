@@ -1,0 +1,30 @@
+"""Liveness, readiness and Prometheus metrics (never behind the API key)."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter
+from fastapi.responses import Response
+
+from service.deps import MetricsDep, PredictorDep
+from service.metrics import Metrics
+from service.schemas import ERROR_RESPONSES, Status
+
+router = APIRouter(tags=["health"])
+
+
+@router.get("/healthz", response_model=Status, response_model_exclude_none=True)
+async def healthz() -> Status:
+    """The process is up (liveness)."""
+    return Status(status="ok")
+
+
+@router.get("/readyz", response_model=Status, responses={503: ERROR_RESPONSES[503]})
+async def readyz(predictor: PredictorDep) -> Status:
+    """The model is loaded and requests can be answered (readiness)."""
+    return Status(status="ready", model=predictor.model.name)
+
+
+@router.get("/metrics", response_class=Response)
+async def prometheus(metrics: MetricsDep) -> Response:
+    """Prometheus text format."""
+    return Response(metrics.render(), media_type=Metrics.content_type)

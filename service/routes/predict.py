@@ -1,0 +1,89 @@
+"""POST /v1/predict: images in, pose classes out."""
+
+from __future__ import annotations
+
+from typing import Annotated, Any
+
+import anyio
+from fastapi import APIRouter, Query, Request
+
+from service.deps import AUTHORISED, LimiterDep, MetricsDep, PredictorDep, SettingsDep
+from service.errors import ApiError
+from service.predictor import Prediction, Predictor
+from service.preprocess import ImageDecodeError, ImageTooLargeError
+from service.schemas import ERROR_RESPONSES, Mode, PredictResponse
+from service.uploads import read_images
+
+router = APIRouter(tags=["predict"], dependencies=AUTHORISED)
+
+#: OpenAPI of the body, which the endpoint reads itself (multipart or one raw image).
+PREDICT_BODY: dict[str, Any] = {
+    "requestBody": {
+        "required": True,
+        "content": {
+            "multipart/form-data": {
+                "schema": {
+                    "type": "object",
+                    "properties": {
+                        "image": {
+                            "type": "array",
+                            "items": {"type": "string", "format": "binary"},
+                            "description": "One or many images (JPEG, PNG, WebP, BMP, GIF).",
+                        }
+                    },
+                    "required": ["image"],
+                }
+            },
+            "image/*": {"schema": {"type": "string", "format": "binary"}},
+        },
+    }
+}
+
+ModeQuery = Annotated[
+    Mode,
+    Query(
+        description="whole: the image as is; sliding: best window of a grid; "
+        "proposals: best object proposal (SPEC 9)."
+    ),
+]
+
+
+async def run_prediction(
+    request: Request,
+    predictor: Predictor,
+    mode: Mode,
+    max_images: int,
+    limiter: anyio.CapacityLimiter,
+) -> Prediction:
+    """Read the request's images and classify them in a worker thread; errors as ApiError."""
+    images = await read_images(request, max_images)
+    try:
+        return await anyio.to_thread.run_sync(predictor.predict, images, mode, limiter=limiter)
+    except ImageTooLargeError as exc:
+        raise ApiError(413, "image_too_large", str(exc)) from None
+    except ImageDecodeError as exc:
+        raise ApiError(400, "undecodable_image", str(exc)) from None
+
+
+@router.post(
+    "/v1/predict",
+    response_model=PredictResponse,
+    responses=ERROR_RESPONSES,
+    openapi_extra=PREDICT_BODY,
+    summary="Pose class of one or many images",
+)
+async def predict(
+    request: Request,
+    predictor: PredictorDep,
+    settings: SettingsDep,
+    limiter: LimiterDep,
+    metrics: MetricsDep,
+    mode: ModeQuery = "whole",
+) -> PredictResponse:
+    """Send images as multipart field `image` (repeat it for many) or one raw image body.
+
+    All images of a request go through one batched network call.
+    """
+    prediction = await run_prediction(request, predictor, mode, settings.max_images, limiter)
+    metrics.observe(mode, len(prediction.results), prediction.inference_s)
+    return PredictResponse(model=predictor.model.name, mode=mode, results=prediction.results)

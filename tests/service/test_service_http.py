@@ -1,0 +1,288 @@
+"""The HTTP contract in-process (TestClient over the app, model loaded): every image kind in
+every mode, batching, the model card, metrics, a hostile corpus (each answered with its status
+and JSON error, the next request still answered the same), API keys, CORS, readiness and
+crashes. What needs a real socket is in test_service_live.py."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import pytest
+from conftest import AppFactory
+from fastapi.testclient import TestClient
+from image_bytes import png_claiming, with_exif_orientation
+from service_support import CARD, JPEG, PHOTO, REAL, check_answer, encode
+
+from service.deps import get_predictor
+from service.model import PoseModel
+from service.predictor import Predictor
+from service.settings import DEFAULT_MODEL, Settings
+
+# --- inputs ----------------------------------------------------------------------------------
+
+
+BGR = cv2.imread(str(REAL / "right05.jpg"), cv2.IMREAD_COLOR)
+GREY = cv2.imread(str(REAL / "left03.jpg"), cv2.IMREAD_GRAYSCALE)
+
+# name -> (bytes, content type, (width, height) after EXIF orientation)
+IMAGES: dict[str, tuple[bytes, str, tuple[int, int]]] = {
+    "jpeg": (PHOTO, "image/jpeg", (640, 480)),
+    "png": (encode(".png", BGR), "image/png", (640, 480)),
+    "webp": (encode(".webp", BGR), "image/webp", (640, 480)),
+    "bmp": (encode(".bmp", BGR), "image/bmp", (640, 480)),
+    "gif": (encode(".gif", BGR), "image/gif", (640, 480)),
+    "grey-png": (encode(".png", GREY), "image/png", (640, 480)),
+    "rgba-png": (encode(".png", cv2.cvtColor(BGR, cv2.COLOR_BGR2BGRA)), "image/png", (640, 480)),
+    "16bit-png": (encode(".png", GREY.astype(np.uint16) * 257), "image/png", (640, 480)),
+    "exif-rotated": (with_exif_orientation(PHOTO, 6), "image/jpeg", (480, 640)),
+    "tiny-1x1": (encode(".png", np.full((1, 1, 3), 200, np.uint8)), "image/png", (1, 1)),
+    "small-crop": (encode(".jpg", BGR[100:200, 300:420]), "image/jpeg", (120, 100)),
+}
+
+
+# --- happy paths -----------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("mode", ["whole", "sliding", "proposals"])
+@pytest.mark.parametrize("name", list(IMAGES))
+def test_raw_body_every_kind_of_image(client: TestClient, name: str, mode: str) -> None:
+    data, media, size = IMAGES[name]
+    r = client.post(
+        "/v1/predict", params={"mode": mode}, content=data, headers={"content-type": media}
+    )
+    assert r.status_code == 200, r.text
+    check_answer(r.json(), mode, [size])
+    assert r.json()["results"][0]["filename"] is None
+
+
+def inference_count(client: TestClient, mode: str) -> float:
+    text = client.get("/metrics").text
+    prefix = f'pose_inference_seconds_count{{mode="{mode}"}} '
+    lines = text.splitlines()
+    return next((float(ln[len(prefix) :]) for ln in lines if ln.startswith(prefix)), 0.0)
+
+
+@pytest.mark.parametrize("mode", ["whole", "sliding", "proposals"])
+def test_many_images_one_batched_call(client: TestClient, mode: str) -> None:
+    names = ["jpeg", "png", "exif-rotated", "tiny-1x1", "grey-png"]
+    files = [("image", (f"{n}.img", IMAGES[n][0], IMAGES[n][1])) for n in names]
+    calls = inference_count(client, mode)
+    r = client.post("/v1/predict", params={"mode": mode}, files=files)
+    assert r.status_code == 200, r.text
+    body = r.json()
+    check_answer(body, mode, [IMAGES[n][2] for n in names])
+    assert [res["filename"] for res in body["results"]] == [f"{n}.img" for n in names]
+    assert inference_count(client, mode) == calls + 1  # one onnxruntime run for all images
+    for n, res in zip(names, body["results"], strict=True):
+        alone = client.post(
+            "/v1/predict", params={"mode": mode}, files=[("image", (n, *IMAGES[n][:2]))]
+        )
+        assert alone.json()["results"][0]["class_id"] == res["class_id"]
+        assert np.allclose(
+            alone.json()["results"][0]["probabilities"], res["probabilities"], atol=1e-5
+        )
+
+
+def test_model_card_health_ready_docs(client: TestClient) -> None:
+    card = client.get("/v1/model").json()
+    assert card["name"] == CARD["name"] and card["input"] == CARD["input"]
+    assert len(card["classes"]) == 9
+    assert client.get("/healthz").json()["status"] == "ok"
+    assert client.get("/readyz").json() == {"status": "ready", "model": CARD["name"]}
+    assert client.get("/docs").status_code == 200
+    spec = client.get("/openapi.json").json()["paths"]["/v1/predict"]["post"]
+    assert {"multipart/form-data", "image/*"} <= set(spec["requestBody"]["content"])
+
+
+def test_metrics_count_requests_by_route_and_status(client: TestClient) -> None:
+    client.post("/v1/predict", content=b"", headers={"content-type": "image/png"})
+    r = client.get("/metrics")
+    assert r.status_code == 200 and r.headers["content-type"].startswith("text/plain")
+    text = r.text
+    assert 'pose_http_requests_total{method="POST",route="/v1/predict",status="400"}' in text
+    assert 'pose_http_request_duration_seconds_bucket{le="0.005",route="/v1/predict"}' in text
+    assert 'pose_images_processed_total{mode="whole"}' in text
+
+
+# --- hostile corpus --------------------------------------------------------------------------
+
+
+TOO_MANY = [("image", (f"{i}.jpg", PHOTO, "image/jpeg")) for i in range(17)]
+
+HOSTILE: dict[str, tuple[dict[str, Any], int, str]] = {
+    "zero-bytes": (
+        {"content": b"", "headers": {"content-type": "image/jpeg"}},
+        400,
+        "undecodable_image",
+    ),
+    "truncated-jpeg": (
+        {"content": PHOTO[: len(PHOTO) // 2], "headers": {"content-type": "image/jpeg"}},
+        400,
+        "undecodable_image",
+    ),
+    "text-as-image": (
+        {"content": b"hello, I am text" * 20, "headers": {"content-type": "image/png"}},
+        400,
+        "undecodable_image",
+    ),
+    "png-header-only": (
+        {"content": png_claiming(40, 30, padding=64), "headers": {"content-type": "image/png"}},
+        400,
+        "undecodable_image",
+    ),
+    "wrong-content-type": (
+        {"content": PHOTO, "headers": {"content-type": "text/plain"}},
+        415,
+        "unsupported_media_type",
+    ),
+    "no-content-type": ({"content": PHOTO}, 415, "unsupported_media_type"),
+    "svg": (
+        {"content": b"<svg/>", "headers": {"content-type": "image/svg+xml"}},
+        415,
+        "unsupported_media_type",
+    ),
+    "tiff-part": (
+        {"files": [("image", ("a.tif", PHOTO, "image/tiff"))]},
+        415,
+        "unsupported_media_type",
+    ),
+    "png-50000x50000": (
+        {
+            "content": png_claiming(50_000, 50_000, padding=64),
+            "headers": {"content-type": "image/png"},
+        },
+        413,
+        "image_too_large",
+    ),
+    "oversize-body": (
+        {"content": bytes(21 * 1_048_576), "headers": {"content-type": "image/png"}},
+        413,
+        "payload_too_large",
+    ),
+    "too-many-images": ({"files": TOO_MANY}, 413, "too_many_images"),
+    "bad-mode": (
+        {"params": {"mode": "fast"}, "content": PHOTO, "headers": {"content-type": "image/jpeg"}},
+        422,
+        "invalid_parameters",
+    ),
+    "no-image-field": (
+        {"files": [("photo", ("a.jpg", PHOTO, "image/jpeg"))]},
+        422,
+        "invalid_parameters",
+    ),
+    "text-field": (
+        {"data": {"image": "x"}, "files": [("x", ("a", b"1", "image/png"))]},
+        422,
+        "invalid_parameters",
+    ),
+    "broken-multipart": (
+        {
+            "content": b"--x\r\nContent-Disposition: form-data\r\n\r\nzz",
+            "headers": {"content-type": "multipart/form-data; boundary=x"},
+        },
+        400,
+        "bad_request",
+    ),
+}
+
+
+@pytest.fixture(scope="module")
+def baseline(client: TestClient) -> dict[str, Any]:
+    r = client.post("/v1/predict", content=PHOTO, headers=JPEG)
+    return r.json()["results"][0]
+
+
+@pytest.mark.parametrize("name", list(HOSTILE))
+def test_hostile_input_gets_its_error_and_the_server_stays_up(
+    client: TestClient, baseline: dict[str, Any], name: str
+) -> None:
+    kwargs, status, code = HOSTILE[name]
+    r = client.post("/v1/predict", **kwargs)
+    assert r.status_code == status, r.text
+    assert r.json()["error"]["code"] == code
+    assert set(r.json()["error"]) == {"code", "message"} and "Traceback" not in r.text
+    after = client.post("/v1/predict", content=PHOTO, headers=JPEG)
+    assert after.status_code == 200
+    assert after.json()["results"][0]["probabilities"] == baseline["probabilities"]
+
+
+def test_not_found_and_wrong_method_are_json(client: TestClient) -> None:
+    assert client.get("/nope").json()["error"]["code"] == "not_found"
+    assert client.get("/v1/predict").json()["error"]["code"] == "method_not_allowed"
+
+
+# --- API key, CORS, readiness, crashes ------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def keyed(app_factory: AppFactory):
+    with app_factory(api_key="s3cret", cors_origins=["https://app.example"]) as c:
+        yield c
+
+
+@pytest.mark.parametrize(
+    ("headers", "status"),
+    [
+        ({}, 401),
+        ({"authorization": "Bearer wrong"}, 401),
+        ({"authorization": "Basic s3cret"}, 401),
+        ({"x-api-key": "s3cre"}, 401),
+        ({"authorization": "Bearer s3cret"}, 200),
+        ({"x-api-key": "s3cret"}, 200),
+    ],
+)
+def test_api_key(keyed: TestClient, headers: dict[str, str], status: int) -> None:
+    r = keyed.post("/v1/predict", content=PHOTO, headers={**JPEG, **headers})
+    assert r.status_code == status
+    assert keyed.get("/v1/model", headers=headers).status_code == status
+    if status == 401:
+        assert r.json()["error"]["code"] == "unauthorized"
+        assert r.headers["www-authenticate"] == "Bearer"
+    for open_path in ("/healthz", "/readyz", "/metrics"):
+        assert keyed.get(open_path).status_code == 200
+
+
+def test_cors_preflight(keyed: TestClient) -> None:
+    r = keyed.options(
+        "/v1/predict",
+        headers={"origin": "https://app.example", "access-control-request-method": "POST"},
+    )
+    assert r.headers["access-control-allow-origin"] == "https://app.example"
+
+
+def test_not_ready_without_model(app_factory: AppFactory, tmp_path: Path) -> None:
+    with app_factory(ready="/healthz", model_path=tmp_path / "missing.onnx") as c:
+        for _ in range(500):  # the load fails in the background
+            r = c.get("/readyz")
+            if "loading" not in r.text:
+                break
+            time.sleep(0.01)
+        assert r.status_code == 503 and r.json()["error"]["code"] == "not_ready"
+        assert "missing.onnx" in r.json()["error"]["message"]
+        r = c.post("/v1/predict", content=PHOTO, headers=JPEG)
+        assert r.status_code == 503 and r.json()["error"]["code"] == "not_ready"
+        assert c.get("/v1/model").status_code == 503
+        assert c.get("/healthz").status_code == 200
+
+
+class _Exploding(Predictor):
+    def predict(self, images: Any, mode: Any) -> Any:
+        raise RuntimeError("secret internals")
+
+
+def test_unexpected_exception_is_logged_and_answered_500(
+    app_factory: AppFactory, caplog: pytest.LogCaptureFixture
+) -> None:
+    exploding = _Exploding(PoseModel.load(DEFAULT_MODEL), Settings())
+    with app_factory(raise_server_exceptions=False) as c:
+        c.app.dependency_overrides[get_predictor] = lambda: exploding  # type: ignore[attr-defined]
+        r = c.post("/v1/predict", content=PHOTO, headers=JPEG)
+    assert r.status_code == 500
+    assert r.json() == {
+        "error": {"code": "internal_error", "message": "internal server error (logged)"}
+    }
+    assert "secret internals" in caplog.text and "Traceback" not in r.text
