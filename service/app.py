@@ -19,7 +19,7 @@ from pydantic import ValidationError
 from service.errors import install_error_handlers
 from service.limits import BodyLimitMiddleware
 from service.metrics import MetricsMiddleware
-from service.routes import health, model, predict
+from service.routes import health, model, predict, stream, web
 from service.settings import Settings
 from service.state import ServiceState
 
@@ -28,6 +28,7 @@ ROUTERS: list[APIRouter] = [
     predict.router,
     model.router,
     health.router,
+    stream.router,
 ]
 
 
@@ -50,11 +51,14 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         summary="Coarse camera pose region of a known planar object from one photograph.",
         version="1",
         lifespan=lifespan,
+        docs_url=None,  # self-hosted docs pages: service/routes/web.py
+        redoc_url=None,
     )
     app.state.pose = state = ServiceState(settings)
     install_error_handlers(app)
     for router in ROUTERS:
         app.include_router(router)
+    web.install(app)  # the page at /, /static, /docs + /redoc with packaged assets
     routes = frozenset(
         getattr(r, "path", "") for r in [*app.routes, *(r for x in ROUTERS for r in x.routes)]
     )

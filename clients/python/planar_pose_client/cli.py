@@ -3,6 +3,7 @@
     planar-pose-client predict photo1.jpg photo2.png [--mode sliding] [--json]
     planar-pose-client info [--json]
     planar-pose-client status
+    planar-pose-client watch video.mp4|0 [--mode sliding] [--out drawn.mp4]
 
 `--url` (env PLANAR_POSE_URL, default http://127.0.0.1:8000) and `--api-key`
 (env PLANAR_POSE_API_KEY) pick the service. Failures print one line `error: ...` on stderr and
@@ -16,7 +17,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from enum import IntEnum, StrEnum
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 try:
     import typer
@@ -40,6 +41,7 @@ from .errors import (
 )
 from .images import check_path
 from .models import ModelCard, Prediction
+from .stream import DEFAULT_WINDOW, FrameError, StreamItem, StreamMode, StreamPrediction
 
 
 class ExitCode(IntEnum):
@@ -220,3 +222,225 @@ def _short(value: object) -> str:
     else:
         text = str(value)
     return text if len(text) <= 100 else text[:99] + "…"
+
+
+# --- watch: a video file or a camera through the live stream -------------------------------
+
+
+class StreamModeChoice(StrEnum):
+    whole = "whole"
+    sliding = "sliding"
+    proposals = "proposals"
+
+
+@app.command()
+def watch(
+    source: Annotated[
+        str,
+        typer.Argument(
+            metavar="VIDEO_FILE_OR_CAMERA_INDEX",
+            help="A video file (anything OpenCV reads: MP4, AVI, ...) or a camera index (0, 1..).",
+        ),
+    ],
+    mode: Annotated[
+        StreamModeChoice, typer.Option("--mode", help="whole, sliding or proposals.")
+    ] = StreamModeChoice.whole,
+    smooth: Annotated[
+        float,
+        typer.Option(
+            "--smooth",
+            min=0.0,
+            max=0.99,
+            help="Smoothing factor of the probabilities over frames, 0 = off (see docs/live.md).",
+        ),
+    ] = 0.0,
+    out: Annotated[
+        Path | None,
+        typer.Option(
+            "--out",
+            help="Write the answered frames with the region drawn (MP4).",
+            show_default=False,
+        ),
+    ] = None,
+    max_frames: Annotated[
+        int | None, typer.Option("--max-frames", min=1, help="Stop after this many frames.")
+    ] = None,
+    model: Annotated[
+        str | None, typer.Option("--model", help="Model name (default: the service's).")
+    ] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="One JSON answer per line.")] = False,
+    url: UrlOption = DEFAULT_URL,
+    api_key: KeyOption = None,
+    timeout: TimeoutOption = 30.0,
+) -> None:
+    """Stream a video file or a camera through /v1/stream: one line per frame (region,
+    confidence, fps); Ctrl-C stops (and keeps what --out has written)."""
+    with _errors_as_exit_codes():
+        video = _open_video(source)
+        try:
+            summary = _watch(
+                video,
+                mode.value,
+                smooth,
+                out,
+                max_frames,
+                model,
+                as_json,
+                PoseClient(url, api_key, timeout=timeout),
+            )
+        finally:
+            video.capture.release()
+    typer.echo(summary.line(), err=as_json)
+    if summary.errors:
+        raise typer.Exit(ExitCode.BAD_INPUT)
+
+
+class _Video:
+    """An opened OpenCV capture: a file (every frame answered) or a camera (live: the service
+    may drop frames)."""
+
+    def __init__(self, capture: Any, name: str, live: bool) -> None:
+        self.capture, self.name, self.live = capture, name, live
+        fps = float(capture.get(5))  # cv2.CAP_PROP_FPS
+        self.fps = fps if 0 < fps < 1000 else 30.0
+
+
+def _cv2() -> Any:
+    try:
+        import cv2
+    except ImportError:
+        raise OSError("watch needs OpenCV: pip install 'planar-pose-client[video]'") from None
+    return cv2
+
+
+def _open_video(source: str) -> _Video:
+    """Open camera `source` (digits) or video file `source`; OSError/ValueError otherwise."""
+    cv2 = _cv2()
+    if source.isdigit():
+        capture = cv2.VideoCapture(int(source))
+        if not capture.isOpened():
+            raise OSError(f"camera {source} does not open (no such camera, or it is busy)")
+        return _Video(capture, f"camera {source}", live=True)
+    path = Path(source)
+    if not path.exists():
+        raise FileNotFoundError(f"no such video file: {path}")
+    if path.is_dir():
+        raise IsADirectoryError(f"is a directory, not a video file: {path}")
+    capture = cv2.VideoCapture(str(path))
+    if not capture.isOpened():
+        raise ValueError(f"{path}: not a video OpenCV can read")
+    return _Video(capture, str(path), live=False)
+
+
+class _Summary:
+    def __init__(self) -> None:
+        self.answered = self.dropped = self.errors = 0
+        self.seconds = 0.0
+
+    def line(self) -> str:
+        fps = self.answered / self.seconds if self.seconds > 0 else 0.0
+        return (
+            f"{self.answered} frame(s) answered, {self.dropped} dropped, {self.errors} refused, "
+            f"{fps:.1f} frames/s"
+        )
+
+
+def _frames(video: _Video, kept: dict[int, Any] | None, limit: int | None) -> Iterator[bytes]:
+    """JPEG bytes of each frame read; the decoded frame kept by index when `kept` is given."""
+    cv2 = _cv2()
+    index = 0
+    while limit is None or index < limit:
+        ok, bgr = video.capture.read()
+        if not ok:
+            if index == 0:
+                raise ValueError(f"{video.name}: no frame could be read")
+            return
+        ok, buf = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, 90])
+        if not ok:
+            raise ValueError(f"{video.name}: frame {index} could not be encoded as JPEG")
+        if kept is not None:
+            kept[index] = bgr
+        yield bytes(buf.tobytes())
+        index += 1
+
+
+def _watch(
+    video: _Video,
+    mode: StreamMode,
+    smooth: float,
+    out: Path | None,
+    max_frames: int | None,
+    model: str | None,
+    as_json: bool,
+    client: PoseClient,
+) -> _Summary:
+    """Stream the frames, print a line per answer, write `out`; return the counts."""
+    import time
+    from collections import deque
+
+    kept: dict[int, Any] | None = {} if out is not None else None
+    writer, summary = None, _Summary()
+    times: deque[float] = deque(maxlen=30)
+    start = time.perf_counter()
+    frames = _frames(video, kept, max_frames)
+    window = None if video.live else DEFAULT_WINDOW
+    try:
+        with client:
+            for item in client.stream(frames, mode, smooth, model, window):
+                times.append(time.perf_counter())
+                fps = (len(times) - 1) / (times[-1] - times[0]) if len(times) > 1 else 0.0
+                summary.dropped += item.dropped
+                typer.echo(item.model_dump_json() if as_json else _frame_line(item, fps))
+                if isinstance(item, FrameError):
+                    summary.errors += 1
+                    continue
+                summary.answered += 1
+                if kept is not None and out is not None:
+                    frame = _pop_frame(kept, item.seq)
+                    writer = writer or _writer(out, video.fps, frame)
+                    writer.write(_draw(frame, item))
+    except KeyboardInterrupt:
+        pass
+    finally:
+        summary.seconds = time.perf_counter() - start
+        if writer is not None:
+            writer.release()
+    return summary
+
+
+def _frame_line(item: StreamItem, fps: float) -> str:
+    if isinstance(item, FrameError):
+        return f"frame {item.seq:5d}  error: {item.code}: {item.message}"
+    line = f"frame {item.seq:5d}  {item.label:<20}  {item.confidence:6.1%}  {fps:7.1f} fps"
+    return line + (f"  (dropped {item.dropped})" if item.dropped else "")
+
+
+def _pop_frame(kept: dict[int, Any], seq: int) -> Any:
+    """The frame of answer `seq`; frames before it (dropped by the service) are forgotten."""
+    for old in [k for k in kept if k < seq]:
+        del kept[old]
+    return kept.pop(seq)
+
+
+def _writer(out: Path, fps: float, frame: Any) -> Any:
+    cv2 = _cv2()
+    height, width = frame.shape[:2]
+    writer = cv2.VideoWriter(str(out), cv2.VideoWriter_fourcc(*"mp4v"), fps, (width, height))
+    if not writer.isOpened():
+        raise OSError(f"cannot write the video {out} (is the folder there and writable?)")
+    return writer
+
+
+def _draw(frame: Any, item: StreamPrediction) -> Any:
+    """The frame with the best window (if any) and the region in words drawn on it."""
+    cv2 = _cv2()
+    if item.box is not None:
+        b = item.box
+        cv2.rectangle(frame, (b.x, b.y), (b.x + b.w, b.y + b.h), (40, 40, 230), 3)
+    text = f"{item.label}  {item.confidence:.0%}"
+    (tw, th), base = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, 0.7, 2)
+    cv2.rectangle(frame, (0, 0), (tw + 16, th + base + 14), (0, 0, 0), -1)
+    cv2.putText(
+        frame, text, (8, th + 8), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (255, 255, 255), 2, cv2.LINE_AA
+    )
+    return frame

@@ -11,7 +11,7 @@ from __future__ import annotations
 import asyncio
 import time
 from abc import ABC, abstractmethod
-from collections.abc import Iterable
+from collections.abc import AsyncIterable, AsyncIterator, Iterable, Iterator
 from typing import Any, Generic, TypeVar
 
 import httpx
@@ -20,6 +20,7 @@ from ._core import DEFAULT_TIMEOUT_S, ClientCore, RetryPolicy
 from .errors import PoseError
 from .images import ImageInput
 from .models import Mode, ModelCard, Prediction
+from .stream import DEFAULT_WINDOW, StreamItem, StreamMode, astream_frames, stream_frames
 
 H = TypeVar("H", httpx.Client, httpx.AsyncClient)
 T = TypeVar("T", httpx.BaseTransport, httpx.AsyncBaseTransport)
@@ -86,6 +87,19 @@ class PoseClient(_ClientBase[httpx.Client, httpx.BaseTransport]):
         """The served model's card (GET /v1/model)."""
         return self._core.parse_model_card(self._send("GET", "/v1/model"))
 
+    def stream(
+        self,
+        frames: Iterable[ImageInput],
+        mode: StreamMode = "whole",
+        smooth: float = 0.0,
+        model: str | None = None,
+        window: int | None = DEFAULT_WINDOW,
+    ) -> Iterator[StreamItem]:
+        """Send `frames` through WS /v1/stream; yield one answer per frame, in order
+        (`StreamPrediction`, or `FrameError` for a frame the service refused). See
+        `planar_pose_client.stream` for `smooth` and `window`."""
+        return stream_frames(self._core, frames, mode, smooth, model, window)
+
     def health(self) -> bool:
         """Liveness (GET /healthz, one attempt): False when unreachable or answering an error."""
         return self._probe("/healthz")
@@ -146,6 +160,18 @@ class AsyncPoseClient(_ClientBase[httpx.AsyncClient, httpx.AsyncBaseTransport]):
     async def model_info(self) -> ModelCard:
         """The served model's card (GET /v1/model)."""
         return self._core.parse_model_card(await self._send("GET", "/v1/model"))
+
+    def stream(
+        self,
+        frames: Iterable[ImageInput] | AsyncIterable[ImageInput],
+        mode: StreamMode = "whole",
+        smooth: float = 0.0,
+        model: str | None = None,
+        window: int | None = DEFAULT_WINDOW,
+    ) -> AsyncIterator[StreamItem]:
+        """`async for answer in client.stream(frames)`: PoseClient.stream for asyncio;
+        `frames` may be an async iterable."""
+        return astream_frames(self._core, frames, mode, smooth, model, window)
 
     async def health(self) -> bool:
         """Liveness (GET /healthz, one attempt): False when unreachable or answering an error."""

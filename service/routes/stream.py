@@ -1,0 +1,74 @@
+"""`WS /v1/stream?mode=whole|sliding|proposals&smooth=F&model=NAME`: live frames in, answers
+out (the protocol: `service/stream.py` and docs/live.md)."""
+
+from __future__ import annotations
+
+from weakref import WeakKeyDictionary
+
+from fastapi import APIRouter, WebSocket
+from starlette.websockets import WebSocketDisconnect
+
+from service.metrics import Metrics
+from service.predictor import Predictor
+from service.state import ServiceState
+from service.stream import (
+    CloseCode,
+    StreamMetrics,
+    StreamRefused,
+    StreamSession,
+    authorise,
+    parse_options,
+    refuse,
+)
+
+router = APIRouter(tags=["stream"])
+
+_metrics: WeakKeyDictionary[Metrics, StreamMetrics] = WeakKeyDictionary()
+
+
+def stream_metrics(metrics: Metrics) -> StreamMetrics:
+    """The stream's series in the app's registry, created on first use."""
+    if metrics not in _metrics:
+        _metrics[metrics] = StreamMetrics(metrics)
+    return _metrics[metrics]
+
+
+def find_predictor(state: ServiceState, name: str | None) -> Predictor:
+    """The predictor of model `name` (None: the default one), or StreamRefused 1013/4404."""
+    predictor = state.predictor
+    if predictor is None:
+        raise StreamRefused(CloseCode.TRY_AGAIN_LATER, "not_ready", state.problem)
+    if name is not None and name not in (predictor.model.name, "default"):
+        raise StreamRefused(
+            CloseCode.NOT_FOUND,
+            "model_not_found",
+            f"no model named {name!r}; this service serves {predictor.model.name!r}",
+        )
+    return predictor
+
+
+@router.websocket("/v1/stream")
+async def stream(websocket: WebSocket) -> None:
+    """Answer each binary frame (JPEG/PNG) with its pose class, in order (docs/live.md)."""
+    state: ServiceState = websocket.app.state.pose
+    settings = state.settings
+    await websocket.accept()
+    key = settings.api_key.get_secret_value() if settings.api_key else None
+    try:
+        await authorise(websocket, key)
+        options = parse_options(websocket.query_params)
+        predictor = find_predictor(state, options.model)
+    except StreamRefused as refused:
+        await refuse(websocket, refused)
+        return
+    except WebSocketDisconnect:
+        return
+    session = StreamSession(
+        websocket,
+        predictor,
+        options,
+        state.jobs,
+        stream_metrics(state.metrics),
+        settings.max_upload_bytes,
+    )
+    await session.run()

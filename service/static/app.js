@@ -1,0 +1,429 @@
+// The planar-pose web page: photos go to POST /v1/predict, webcam frames to WS /v1/stream.
+// Plain JavaScript, no build step, nothing loaded from another host.
+"use strict";
+
+const SVG_NS = "http://www.w3.org/2000/svg";
+const $ = (selector, root = document) => root.querySelector(selector);
+
+// Quadrant 1..4 -> (x side, y side) as in service/regions.py; class = quadrant (+4 when far).
+const QUADRANTS = { 1: ["+", "+"], 2: ["-", "+"], 3: ["-", "-"], 4: ["+", "-"] };
+
+function regionOf(classId) {
+  if (classId === 0) return { present: false, label: "object not in view" };
+  const depth = classId <= 4 ? "near" : "far";
+  const [x, y] = QUADRANTS[((classId - 1) % 4) + 1];
+  return { present: true, depth, x, y, label: `${depth}, x${x}, y${y}` };
+}
+
+const state = { card: null, camera: null };
+
+// --- errors in plain words -------------------------------------------------------------
+
+const PLAIN = {
+  unauthorized: "This service needs an API key: type it in the API key field, then try again.",
+  undecodable_image: "The service could not read this file as an image (JPEG, PNG, WebP, BMP or GIF).",
+  unsupported_media_type: "This kind of file is not accepted: send a JPEG, PNG, WebP, BMP or GIF image.",
+  payload_too_large: "The file is too large for the service.",
+  image_too_large: "The image has more pixels than the service accepts.",
+  too_many_images: "Too many images in one request.",
+  invalid_parameters: "The request had a bad setting.",
+  not_ready: "The model is not loaded yet; try again in a few seconds.",
+  model_not_found: "The service does not serve this model.",
+  internal_error: "The service failed on this request (the error is in its log).",
+  network: "Cannot reach the service: is it still running?",
+  camera: "The webcam could not be started.",
+};
+
+function explain(code, message) {
+  const plain = PLAIN[code] || "The service refused the request.";
+  return message ? `${plain} (${message})` : plain;
+}
+
+function showError(text) {
+  const box = $("#error");
+  box.textContent = text;
+  box.hidden = !text;
+}
+
+async function errorOf(response) {
+  try {
+    const body = await response.json();
+    if (body && body.error) return explain(body.error.code, body.error.message);
+  } catch (_) { /* not JSON */ }
+  return explain("", `HTTP ${response.status} ${response.statusText}`);
+}
+
+function apiKey() {
+  return $("#api-key").value.trim();
+}
+
+function authHeaders() {
+  const key = apiKey();
+  return key ? { "X-API-Key": key } : {};
+}
+
+// --- the model card --------------------------------------------------------------------
+
+async function loadCard() {
+  const status = $("#model-status");
+  let response;
+  try {
+    response = await fetch("v1/model", { headers: authHeaders() });
+  } catch (_) {
+    status.textContent = explain("network");
+    return;
+  }
+  if (!response.ok) {
+    status.textContent = await errorOf(response);
+    return;
+  }
+  state.card = await response.json();
+  status.hidden = true;
+  renderCard(state.card);
+}
+
+function accuracyText(accuracy) {
+  return Object.entries(accuracy || {}).map(([name, a]) => {
+    const kind = name.startsWith("real") ? "real photos" : "synthetic";
+    const count = a.count ? `, ${a.count} images` : "";
+    return `${name} (${kind}, ${a.split || "test"}${count}): ${(100 * a.accuracy).toFixed(1)} %`;
+  });
+}
+
+function renderCard(card) {
+  const list = $("#model-card");
+  const profile = card.profile || {};
+  const size = profile.width_cm ? ` (${profile.width_cm} × ${profile.height_cm} cm)` : "";
+  const rows = [
+    ["model", `${card.name} ${card.version || ""}`.trim()],
+    ["object", `${profile.name || "unknown"}${size}`],
+    ["input size", `${card.input[0]} × ${card.input[1]} px`],
+    ["near / far split", profile.z_split_cm ? `${profile.z_split_cm} cm from the object` : "—"],
+  ];
+  list.replaceChildren();
+  for (const [term, value] of rows) addTerm(list, term, [value]);
+  addTerm(list, "measured accuracy", accuracyText(card.accuracy));
+  list.hidden = false;
+}
+
+function addTerm(list, term, values) {
+  const dt = document.createElement("dt");
+  dt.textContent = term;
+  list.append(dt);
+  for (const value of values.length ? values : ["—"]) {
+    const dd = document.createElement("dd");
+    dd.textContent = value;
+    dd.dataset.term = term;
+    list.append(dd);
+  }
+}
+
+// --- one answer: image with box, words, octants, bars ----------------------------------
+
+function newResultCard(title) {
+  const card = $("#result-template").content.firstElementChild.cloneNode(true);
+  $(".name", card).textContent = title;
+  return card;
+}
+
+function drawView(canvas, source, width, height, result) {
+  const scale = Math.min(1, 480 / width);
+  canvas.width = Math.round(width * scale);
+  canvas.height = Math.round(height * scale);
+  const ctx = canvas.getContext("2d");
+  ctx.drawImage(source, 0, 0, canvas.width, canvas.height);
+  if (!result) return;
+  for (const det of (result.detections || []).slice(1)) {
+    strokeBox(ctx, det.box, scale, "rgba(255, 200, 0, 0.9)", 1.5, [6, 4]);
+  }
+  if (result.box) strokeBox(ctx, result.box, scale, "#e5383b", 3, []);
+}
+
+function strokeBox(ctx, box, scale, colour, width, dash) {
+  ctx.save();
+  ctx.strokeStyle = colour;
+  ctx.lineWidth = width;
+  ctx.setLineDash(dash);
+  ctx.strokeRect(box.x * scale, box.y * scale, box.w * scale, box.h * scale);
+  ctx.restore();
+}
+
+function showAnswer(card, result) {
+  card.dataset.classId = String(result.class_id);
+  const region = $(".region", card);
+  region.textContent = result.region.present
+    ? `Camera is ${result.region.label.replace(/, /g, " · ")}`
+    : "Object not in view";
+  region.dataset.label = result.region.label;
+  const where = result.box ? ` · box ${result.box.w}×${result.box.h} at (${result.box.x}, ${result.box.y})` : "";
+  $(".meta", card).textContent =
+    `class ${result.class_id} · confidence ${(100 * result.confidence).toFixed(1)} %` +
+    ` · ${result.elapsed_ms.toFixed(1)} ms${where}`;
+  $(".octants", card).replaceChildren(octantPicture(result.class_id));
+  $(".bars", card).replaceChildren(probabilityBars(result.probabilities, result.class_id));
+  $(".result-error", card).hidden = true;
+}
+
+function showResultError(card, text) {
+  const box = $(".result-error", card);
+  box.textContent = text;
+  box.hidden = false;
+  card.classList.add("failed");
+}
+
+function svg(name, attrs, text) {
+  const el = document.createElementNS(SVG_NS, name);
+  for (const [k, v] of Object.entries(attrs)) el.setAttribute(k, v);
+  if (text !== undefined) el.textContent = text;
+  return el;
+}
+
+// Two panels (near, far), each the object seen face on with its 4 quadrants around it:
+// x to the right, y up, as in the object frame of docs/SPEC.md.
+function octantPicture(classId) {
+  const root = svg("svg", { viewBox: "0 0 330 170", class: "octant-picture", role: "img",
+    "data-lit": String(classId), "aria-label": `region: ${regionOf(classId).label}` });
+  ["near", "far"].forEach((depth, i) => root.append(octantPanel(depth, i * 170, classId)));
+  if (classId === 0) {
+    root.append(svg("text", { x: 165, y: 92, class: "none-label" }, "object not in view"));
+  }
+  return root;
+}
+
+function octantPanel(depth, left, classId) {
+  const g = svg("g", { transform: `translate(${left}, 0)` });
+  g.append(svg("text", { x: 80, y: 14, class: "panel-title" }, depth));
+  for (let q = 1; q <= 4; q++) {
+    const id = depth === "near" ? q : q + 4;
+    const [x, y] = QUADRANTS[q];
+    const cell = svg("rect", { x: x === "+" ? 80 : 10, y: y === "+" ? 22 : 92, width: 70, height: 70,
+      class: id === classId ? "octant lit" : "octant", "data-class": String(id) });
+    cell.append(svg("title", {}, regionOf(id).label));
+    g.append(cell);
+    g.append(svg("text", { x: x === "+" ? 135 : 25, y: y === "+" ? 38 : 156, class: "octant-id" }, String(id)));
+  }
+  g.append(board(60, 72, 40, 28));
+  g.append(svg("text", { x: 156, y: 96, class: "axis" }, "x+"));
+  g.append(svg("text", { x: 4, y: 96, class: "axis" }, "x−"));
+  g.append(svg("text", { x: 80, y: 32, class: "axis" }, "y+"));
+  g.append(svg("text", { x: 80, y: 168, class: "axis" }, "y−"));
+  return g;
+}
+
+function board(x, y, w, h) {
+  const g = svg("g", { class: "board" });
+  g.append(svg("rect", { x, y, width: w, height: h, class: "board-frame" }));
+  const n = 4, m = 3;
+  for (let i = 0; i < n; i++) {
+    for (let j = 0; j < m; j++) {
+      if ((i + j) % 2) continue;
+      g.append(svg("rect", { x: x + (i * w) / n, y: y + (j * h) / m, width: w / n, height: h / m,
+        class: "board-square" }));
+    }
+  }
+  return g;
+}
+
+function probabilityBars(probabilities, chosen) {
+  const list = document.createElement("div");
+  list.className = "bar-list";
+  probabilities.forEach((p, k) => {
+    const row = document.createElement("div");
+    row.className = k === chosen ? "bar-row chosen" : "bar-row";
+    row.dataset.class = String(k);
+    const label = document.createElement("span");
+    label.className = "bar-label";
+    label.textContent = `${k} · ${regionOf(k).label}`;
+    const bar = document.createElement("span");
+    bar.className = "bar";
+    const fill = document.createElement("span");
+    fill.className = "fill";
+    fill.style.width = `${(100 * p).toFixed(1)}%`;
+    bar.append(fill);
+    const value = document.createElement("span");
+    value.className = "bar-value";
+    value.textContent = `${(100 * p).toFixed(1)} %`;
+    row.append(label, bar, value);
+    list.append(row);
+  });
+  return list;
+}
+
+// --- photos ----------------------------------------------------------------------------
+
+async function predictFiles(files) {
+  showError("");
+  $("#results-title").hidden = false;
+  for (const file of files) await predictFile(file);
+}
+
+async function predictFile(file) {
+  const card = newResultCard(file.name || "photo");
+  card.dataset.state = "pending";
+  $("#results").prepend(card);
+  const form = new FormData();
+  form.append("image", file, file.name || "photo");
+  const mode = $("#mode").value;
+  let response;
+  try {
+    response = await fetch(`v1/predict?mode=${encodeURIComponent(mode)}`, {
+      method: "POST", body: form, headers: authHeaders() });
+  } catch (_) {
+    showResultError(card, explain("network"));
+    card.dataset.state = "error";
+    return;
+  }
+  if (!response.ok) {
+    showResultError(card, await errorOf(response));
+    card.dataset.state = "error";
+    return;
+  }
+  const result = (await response.json()).results[0];
+  showAnswer(card, result);
+  await drawPhoto($(".view", card), file, result);
+  card.dataset.state = "done";
+}
+
+async function drawPhoto(canvas, file, result) {
+  try {
+    const bitmap = await createImageBitmap(file, { imageOrientation: "from-image" });
+    drawView(canvas, bitmap, bitmap.width, bitmap.height, result);
+    bitmap.close();
+  } catch (_) {
+    canvas.hidden = true;  // the service read it, the browser cannot show it (e.g. 16-bit PNG)
+  }
+}
+
+function setUpDrop() {
+  const drop = $("#drop");
+  for (const name of ["dragenter", "dragover"]) {
+    drop.addEventListener(name, (event) => { event.preventDefault(); drop.classList.add("over"); });
+  }
+  drop.addEventListener("dragleave", () => drop.classList.remove("over"));
+  drop.addEventListener("drop", (event) => {
+    event.preventDefault();
+    drop.classList.remove("over");
+    const files = [...(event.dataTransfer ? event.dataTransfer.files : [])];
+    if (files.length) predictFiles(files);
+    else showError("Nothing to read in what was dropped: drop image files.");
+  });
+  $("#files").addEventListener("change", (event) => {
+    predictFiles([...event.target.files]);
+    event.target.value = "";
+  });
+}
+
+// --- the webcam through the stream -----------------------------------------------------
+
+function streamUrl() {
+  const url = new URL("v1/stream", window.location.href);
+  url.protocol = url.protocol === "https:" ? "wss:" : "ws:";
+  url.searchParams.set("mode", $("#mode").value);
+  url.searchParams.set("smooth", $("#smooth").value);
+  return url.toString();
+}
+
+async function startCamera() {
+  showError("");
+  const video = $("#video");
+  let media;
+  try {
+    media = await navigator.mediaDevices.getUserMedia({ video: { width: 640, height: 480 }, audio: false });
+  } catch (err) {
+    showError(explain("camera", err && err.message ? err.message : String(err)));
+    return;
+  }
+  video.srcObject = media;
+  await video.play();
+  const cam = { media, video, ws: null, inFlight: 0, answers: [], card: newResultCard("webcam"),
+    canvas: document.createElement("canvas"), running: true };
+  state.camera = cam;
+  $("#live").hidden = false;
+  $("#live-result").replaceChildren(cam.card);
+  $("#camera").textContent = "Stop the webcam";
+  openStream(cam);
+}
+
+function openStream(cam) {
+  const ws = new WebSocket(streamUrl());
+  ws.binaryType = "arraybuffer";
+  cam.ws = ws;
+  ws.addEventListener("open", () => {
+    const key = apiKey();
+    if (key) ws.send(JSON.stringify({ api_key: key }));
+  });
+  ws.addEventListener("message", (event) => onStreamMessage(cam, JSON.parse(event.data)));
+  ws.addEventListener("close", (event) => {
+    if (cam.running && !cam.refused) {
+      showError(explain("network", `the stream closed (code ${event.code}${event.reason ? ": " + event.reason : ""})`));
+    }
+    stopCamera();
+  });
+}
+
+function onStreamMessage(cam, message) {
+  if (message.event === "ready") {
+    $("#camera-status").textContent = `Streaming to ${message.model}, mode ${message.mode}.`;
+    sendFrames(cam);
+    return;
+  }
+  if (message.error && message.seq === undefined) {  // the stream was refused
+    cam.refused = true;
+    showError(explain(message.error.code, message.error.message));
+    return;
+  }
+  cam.inFlight = Math.max(0, cam.inFlight - 1 - (message.dropped || 0));
+  if (message.error) {
+    showResultError(cam.card, explain(message.error.code, message.error.message));
+    return;
+  }
+  cam.answers.push(performance.now());
+  cam.answers = cam.answers.filter((t) => t > performance.now() - 2000);
+  $("#fps").textContent = `${(cam.answers.length / 2).toFixed(1)} frames/s`;
+  showAnswer(cam.card, message);
+  drawView($(".view", cam.card), cam.canvas, cam.canvas.width, cam.canvas.height, message);
+}
+
+// At most two frames wait for an answer (the server drops older ones anyway).
+function sendFrames(cam) {
+  if (!cam.running) return;
+  const { video, canvas, ws } = cam;
+  if (cam.inFlight < 2 && video.videoWidth && ws.readyState === WebSocket.OPEN) {
+    canvas.width = video.videoWidth;
+    canvas.height = video.videoHeight;
+    canvas.getContext("2d").drawImage(video, 0, 0);
+    cam.inFlight += 1;
+    canvas.toBlob((blob) => { if (blob && ws.readyState === WebSocket.OPEN) ws.send(blob); },
+      "image/jpeg", 0.85);
+  }
+  requestAnimationFrame(() => sendFrames(cam));
+}
+
+function stopCamera() {
+  const cam = state.camera;
+  if (!cam) return;
+  cam.running = false;
+  state.camera = null;
+  for (const track of cam.media.getTracks()) track.stop();
+  if (cam.ws && cam.ws.readyState <= WebSocket.OPEN) cam.ws.close(1000);
+  $("#camera").textContent = "Start the webcam";
+}
+
+function setUpCamera() {
+  $("#camera").addEventListener("click", () => (state.camera ? stopCamera() : startCamera()));
+  const smooth = $("#smooth");
+  smooth.addEventListener("input", () => {
+    $("#smooth-value").textContent = Number(smooth.value) ? smooth.value : "off";
+  });
+  if (!navigator.mediaDevices || !navigator.mediaDevices.getUserMedia) {
+    $("#camera").disabled = true;
+    $("#camera-status").textContent = "This browser gives no webcam here (it needs https or localhost).";
+  }
+}
+
+document.addEventListener("DOMContentLoaded", () => {
+  setUpDrop();
+  setUpCamera();
+  $("#api-key").addEventListener("change", loadCard);
+  loadCard();
+});

@@ -1,0 +1,370 @@
+"""The live stream behind `WS /v1/stream`: frames in, one answer per frame out, in order.
+
+The client sends each frame as one binary message (JPEG or PNG bytes); the server answers each
+with the per-image JSON of `/v1/predict` plus `seq` (0-based index of the binary message on
+this socket) and `dropped` (frames dropped since the previous answer). A receiving task only
+puts frames in a `FrameQueue` (a few waiting frames; when full, the OLDEST waiting frame is
+dropped: a live stream wants the latest frame, not a backlog), an answering task takes them out
+one at a time. So the memory of a socket is bounded by (queue depth + 1) frames whatever the
+client sends. A bad frame is answered with an error message and the stream goes on; when the
+socket closes, both tasks stop at once and the waiting frames are thrown away.
+
+`smooth=f` (0 <= f < 1, default 0 = off) smooths the probabilities exponentially over the
+frames: p_t = f * p_(t-1) + (1 - f) * q_t, with q_t the frame's own probabilities; class,
+confidence and region follow p_t, the box and detections stay the frame's own.
+
+The protocol is documented in docs/live.md.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import secrets
+from collections import deque
+from collections.abc import Mapping
+from dataclasses import dataclass
+from enum import IntEnum
+from typing import Any, get_args
+
+import anyio
+import numpy as np
+from prometheus_client import Counter, Gauge
+from starlette.websockets import WebSocket, WebSocketDisconnect, WebSocketState
+
+from service.metrics import Metrics
+from service.predictor import Predictor
+from service.preprocess import ImageDecodeError, ImageTooLargeError
+from service.regions import region_of_class
+from service.schemas import ImageResult, Mode, RegionOut
+
+#: Frames that may wait besides the one being answered; more and the oldest is dropped.
+QUEUE_DEPTH = 2
+#: Seconds a client without credentials in its handshake has to send `{"api_key": ...}`.
+AUTH_TIMEOUT_S = 10.0
+MODES: tuple[str, ...] = get_args(Mode)
+
+
+class CloseCode(IntEnum):
+    """WebSocket close codes the stream ends with (4xxx: the HTTP status + 4000)."""
+
+    NORMAL = 1000
+    TRY_AGAIN_LATER = 1013  # the model is not loaded (yet): HTTP 503
+    UNAUTHORIZED = 4401  # API key missing or wrong: HTTP 401
+    NOT_FOUND = 4404  # no model of that name: HTTP 404
+    INVALID_PARAMETERS = 4422  # bad mode / smooth: HTTP 422
+
+
+class StreamRefused(Exception):
+    """The stream cannot start: sent to the client as an error message, then the close code."""
+
+    def __init__(self, close: CloseCode, code: str, message: str) -> None:
+        super().__init__(message)
+        self.close, self.code, self.message = close, code, message
+
+
+@dataclass(frozen=True)
+class StreamOptions:
+    """The query parameters of `/v1/stream`."""
+
+    mode: Mode = "whole"
+    smooth: float = 0.0
+    model: str | None = None
+
+
+def parse_options(query: Mapping[str, str]) -> StreamOptions:
+    """`mode`, `smooth` and `model` from the query string, or StreamRefused 4422."""
+    mode = query.get("mode", "whole")
+    if mode not in MODES:
+        raise _invalid(f"mode: must be one of {', '.join(MODES)}, got {mode!r}")
+    text = query.get("smooth", "0")
+    try:
+        smooth = float(text)
+    except ValueError:
+        raise _invalid(f"smooth: must be a number in [0, 1), got {text!r}") from None
+    if not (math.isfinite(smooth) and 0.0 <= smooth < 1.0):
+        raise _invalid(f"smooth: must be in [0, 1) (0 = off), got {text!r}")
+    model = query.get("model") or None
+    return StreamOptions(mode, smooth, model)  # type: ignore[arg-type]  # mode checked above
+
+
+def _invalid(message: str) -> StreamRefused:
+    return StreamRefused(CloseCode.INVALID_PARAMETERS, "invalid_parameters", message)
+
+
+def _unauthorized(message: str) -> StreamRefused:
+    return StreamRefused(CloseCode.UNAUTHORIZED, "unauthorized", message)
+
+
+_KEY_HELP = (
+    "send `Authorization: Bearer <key>` or `X-API-Key` in the handshake, `?api_key=<key>` in "
+    'the URL, or {"api_key": "<key>"} as the first (text) message'
+)
+
+
+def handshake_key(websocket: WebSocket) -> str | None:
+    """The API key the handshake carries: X-API-Key, Authorization Bearer or ?api_key=."""
+    given = websocket.headers.get("x-api-key")
+    scheme, _, token = websocket.headers.get("authorization", "").partition(" ")
+    if given is None and scheme.lower() == "bearer":
+        given = token.strip()
+    return given if given is not None else websocket.query_params.get("api_key")
+
+
+async def authorise(websocket: WebSocket, expected: str | None) -> None:
+    """Return when the client holds `expected` (None = no key needed), else StreamRefused 4401.
+
+    Without a key in the handshake the first message must be the text `{"api_key": "<key>"}`
+    (a browser's WebSocket cannot set headers), within AUTH_TIMEOUT_S seconds.
+    """
+    if expected is None:
+        return
+    given = handshake_key(websocket)
+    if given is None:
+        with anyio.move_on_after(AUTH_TIMEOUT_S):
+            given = _key_of(await websocket.receive())
+        if given is None:
+            raise _unauthorized(f"no API key: {_KEY_HELP}")
+    if not secrets.compare_digest(given.encode(), expected.encode()):
+        raise _unauthorized(f"wrong API key: {_KEY_HELP}")
+
+
+def _key_of(message: Mapping[str, Any]) -> str | None:
+    if message.get("type") == "websocket.disconnect":
+        raise WebSocketDisconnect(int(message.get("code", CloseCode.NORMAL)))
+    try:
+        body = json.loads(message.get("text") or "")
+    except ValueError:
+        return None
+    key = body.get("api_key") if isinstance(body, dict) else None
+    return key if isinstance(key, str) else None
+
+
+async def refuse(websocket: WebSocket, refused: StreamRefused) -> None:
+    """Tell the client why in an error message, then close with the refusal's code."""
+    if websocket.client_state != WebSocketState.CONNECTED:
+        return
+    try:
+        await websocket.send_text(_error_json(refused.code, refused.message))
+        await websocket.close(refused.close, refused.message[:120])
+    except (WebSocketDisconnect, RuntimeError, OSError):
+        pass  # the client left first
+
+
+def _error_json(code: str, message: str, **extra: int) -> str:
+    return json.dumps({**extra, "error": {"code": code, "message": message}})
+
+
+@dataclass(frozen=True)
+class Frame:
+    seq: int
+    data: bytes
+
+
+class FrameQueue:
+    """The frames waiting to be answered: `put` never waits; beyond `depth` frames the oldest
+    is dropped and counted. Single consumer (`get`)."""
+
+    def __init__(self, depth: int = QUEUE_DEPTH) -> None:
+        if depth < 1:
+            raise ValueError("queue depth must be >= 1")
+        self._frames: deque[Frame] = deque()
+        self._depth, self._closed = depth, False
+        self._ready = anyio.Event()
+        self.dropped_since_taken = 0
+        self.dropped_total = 0
+
+    def __len__(self) -> int:
+        return len(self._frames)
+
+    @property
+    def depth(self) -> int:
+        return self._depth
+
+    def put(self, frame: Frame) -> int:
+        """Queue `frame`; return how many older frames were dropped to make room (0 or 1)."""
+        if self._closed:
+            return 0
+        dropped = 0
+        while len(self._frames) >= self._depth:
+            self._frames.popleft()
+            dropped += 1
+        self._frames.append(frame)
+        self.dropped_since_taken += dropped
+        self.dropped_total += dropped
+        self._ready.set()
+        return dropped
+
+    async def get(self) -> Frame | None:
+        """The oldest waiting frame, waiting for one; None once closed."""
+        while not self._frames:
+            if self._closed:
+                return None
+            self._ready = anyio.Event()
+            await self._ready.wait()
+        return self._frames.popleft()
+
+    def take_dropped(self) -> int:
+        """Frames dropped since the last call."""
+        count, self.dropped_since_taken = self.dropped_since_taken, 0
+        return count
+
+    def close(self) -> None:
+        """Throw the waiting frames away and wake the consumer, which then gets None."""
+        self._closed = True
+        self._frames.clear()
+        self._ready.set()
+
+
+class Smoother:
+    """Exponential smoothing of the probabilities: p = f * p_prev + (1 - f) * q (f = 0: off)."""
+
+    def __init__(self, factor: float) -> None:
+        if not 0.0 <= factor < 1.0:
+            raise ValueError("smoothing factor must be in [0, 1)")
+        self.factor = factor
+        self._state: np.ndarray | None = None
+
+    def apply(self, result: ImageResult) -> ImageResult:
+        """`result` with smoothed probabilities, class, confidence and region."""
+        if self.factor == 0.0:
+            return result
+        probs = np.asarray(result.probabilities, dtype=np.float64)
+        if self._state is not None:
+            probs = self.factor * self._state + (1.0 - self.factor) * probs
+        self._state = probs
+        class_id = int(probs.argmax())
+        return result.model_copy(
+            update={
+                "class_id": class_id,
+                "region": RegionOut(**region_of_class(class_id)),
+                "probabilities": probs.tolist(),
+                "confidence": float(probs[class_id]),
+            }
+        )
+
+
+class StreamMetrics:
+    """Prometheus series of the stream, in the app's registry; frames also count as images."""
+
+    def __init__(self, metrics: Metrics) -> None:
+        self.metrics = metrics
+        self.sessions = Gauge(
+            "pose_stream_sessions", "Open /v1/stream sockets.", registry=metrics.registry
+        )
+        self.frames = Counter(
+            "pose_stream_frames",
+            "Stream frames by mode and outcome (answered, dropped, error).",
+            ["mode", "outcome"],
+            registry=metrics.registry,
+        )
+
+
+class StreamSession:
+    """One accepted, authorised socket: receive frames, answer them in order until it closes."""
+
+    def __init__(
+        self,
+        websocket: WebSocket,
+        predictor: Predictor,
+        options: StreamOptions,
+        limiter: anyio.CapacityLimiter,
+        metrics: StreamMetrics,
+        max_frame_bytes: int,
+        depth: int = QUEUE_DEPTH,
+    ) -> None:
+        self.websocket, self.predictor, self.options = websocket, predictor, options
+        self.limiter, self.metrics, self.max_frame_bytes = limiter, metrics, max_frame_bytes
+        self.queue = FrameQueue(depth)
+        self.smoother = Smoother(options.smooth)
+
+    def hello(self) -> dict[str, Any]:
+        """The first message: the stream is open and what it runs."""
+        return {
+            "event": "ready",
+            "model": self.predictor.model.name,
+            "mode": self.options.mode,
+            "smooth": self.options.smooth,
+            "queue": self.queue.depth,
+            "max_frame_bytes": self.max_frame_bytes,
+        }
+
+    async def run(self) -> None:
+        """Serve the socket until the client closes it (or it breaks); never raises for that."""
+        self.metrics.sessions.inc()
+        try:
+            await self.websocket.send_text(json.dumps(self.hello()))
+            async with anyio.create_task_group() as tasks:
+                tasks.start_soon(self._answer_frames, tasks.cancel_scope)
+                await self._receive_frames()
+                tasks.cancel_scope.cancel()  # the client left: stop answering now
+        except (WebSocketDisconnect, OSError):
+            pass
+        finally:
+            self.queue.close()
+            self.metrics.sessions.dec()
+            dropped = self.queue.take_dropped()
+            if dropped:
+                self.metrics.frames.labels(self.options.mode, "dropped").inc(dropped)
+
+    async def _receive_frames(self) -> None:
+        """Queue every binary message until the socket closes; answer text with an error."""
+        seq = 0
+        while True:
+            message = await self.websocket.receive()
+            if message["type"] == "websocket.disconnect":
+                return
+            data = message.get("bytes")
+            if data is None:
+                await self._send(
+                    _error_json(
+                        "bad_request",
+                        "frames must be binary messages (JPEG or PNG bytes); text is only "
+                        'accepted as the first message {"api_key": ...}',
+                    )
+                )
+                continue
+            self.queue.put(Frame(seq, data))
+            seq += 1
+
+    async def _answer_frames(self, scope: anyio.CancelScope) -> None:
+        """Answer queued frames one by one, in order; stop when the socket cannot be written."""
+        try:
+            while (frame := await self.queue.get()) is not None:
+                dropped = self.queue.take_dropped()
+                if dropped:
+                    self.metrics.frames.labels(self.options.mode, "dropped").inc(dropped)
+                await self._send(await self._answer(frame, dropped))
+        except (WebSocketDisconnect, RuntimeError, OSError):
+            scope.cancel()  # the client is gone; the receiver sees it too
+
+    async def _answer(self, frame: Frame, dropped: int) -> str:
+        """The JSON message for one frame: its answer, or the error that frame caused."""
+        mode, where = self.options.mode, {"seq": frame.seq, "dropped": dropped}
+        if len(frame.data) > self.max_frame_bytes:
+            self.metrics.frames.labels(mode, "error").inc()
+            limit = self.max_frame_bytes
+            return _error_json(
+                "payload_too_large", f"frame {frame.seq} is larger than {limit} bytes", **where
+            )
+        try:
+            prediction = await anyio.to_thread.run_sync(
+                self.predictor.predict,
+                [(None, frame.data)],
+                mode,
+                limiter=self.limiter,
+                abandon_on_cancel=True,
+            )
+        except ImageDecodeError as exc:
+            self.metrics.frames.labels(mode, "error").inc()
+            code = "image_too_large" if isinstance(exc, ImageTooLargeError) else "undecodable_image"
+            text = str(exc).removeprefix("image 1: ")
+            return _error_json(code, f"frame {frame.seq}: {text}", **where)
+        self.metrics.frames.labels(mode, "answered").inc()
+        self.metrics.metrics.images.labels(mode).inc()
+        self.metrics.metrics.inference.labels(mode).observe(prediction.inference_s)
+        result = self.smoother.apply(prediction.results[0])
+        return json.dumps({**where, **result.model_dump(mode="json")})
+
+    async def _send(self, text: str) -> None:
+        await self.websocket.send_text(text)
