@@ -37,8 +37,19 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
     """Load the model in the background: /healthz answers at once, /readyz once loaded."""
     state: ServiceState = app.state.pose
     task = asyncio.create_task(asyncio.to_thread(state.load))
-    yield
-    await task
+    follow = asyncio.create_task(_follow_after(task, state))
+    try:
+        yield
+    finally:
+        follow.cancel()
+        await task
+        state.close()
+
+
+async def _follow_after(load: asyncio.Task[object], state: ServiceState) -> None:
+    """After the first load, follow reloads of the other workers and the model folder."""
+    await asyncio.wait([load])
+    await state.follow()
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:
@@ -74,7 +85,13 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     return app
 
 
-try:
-    app = create_app()
-except ValidationError as _exc:  # `uvicorn service.app:app` with bad POSE_* variables
-    raise SystemExit(f"error: invalid settings (POSE_* environment):\n{_exc}") from None
+def __getattr__(name: str) -> FastAPI:
+    """`service.app:app` (for `uvicorn service.app:app`): built from POSE_* on first use."""
+    if name != "app":
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    try:
+        application = create_app()
+    except ValidationError as exc:  # bad POSE_* variables
+        raise SystemExit(f"error: invalid settings (POSE_* environment):\n{exc}") from None
+    globals()["app"] = application
+    return application

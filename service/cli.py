@@ -1,11 +1,17 @@
 """`planar-pose-serve` (also `planar-pose serve`): run the HTTP service with uvicorn.
 
-Settings: flags > POSE_* environment > defaults. This module imports nothing from `train`, so
-the serving install (and the container image) needs no training code.
+Settings: flags > POSE_* environment > defaults. With more than one worker process, uvicorn
+starts them (each builds its app from the environment, which this command fills in) and a
+temporary runtime folder carries what they share: prometheus-client's multiprocess files,
+readiness, reloads. This module imports nothing from `train`, so the serving install (and the
+container image) needs no training code.
 """
 
 from __future__ import annotations
 
+import os
+import shutil
+import tempfile
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -13,6 +19,8 @@ import typer
 from pydantic import ValidationError
 from rich.console import Console
 from rich.markup import escape
+
+from service.settings import Settings, cpu_count
 
 err = Console(stderr=True)
 
@@ -22,56 +30,100 @@ def _error(message: str) -> None:
     err.print(f"[bold red]error:[/] {escape(message)}", soft_wrap=True)
 
 
-def serve(
-    host: Annotated[str | None, typer.Option(help="Bind address [POSE_HOST, 127.0.0.1].")] = None,
-    port: Annotated[
-        int | None, typer.Option(min=1, max=65535, help="Port [POSE_PORT, 8000].")
-    ] = None,
-    model: Annotated[
-        Path | None, typer.Option(help="ONNX model [POSE_MODEL_PATH, models/default.onnx].")
-    ] = None,
-    log_level: Annotated[
-        str | None, typer.Option(help="critical, error, warning, info, debug [POSE_LOG_LEVEL].")
-    ] = None,
-) -> None:
-    """Serve the pose model over HTTP (OpenAPI docs at /docs); SIGTERM drains requests."""
+def _settings(overrides: dict[str, Any]) -> Settings:
+    """Settings from flags and environment, or exit 2 with the reason."""
     import uvicorn
 
-    from service.app import create_app
-    from service.settings import Settings
-
-    overrides: dict[str, Any] = {
-        "host": host,
-        "port": port,
-        "model_path": model,
-        "log_level": log_level,
-    }
     try:
         settings = Settings(**{k: v for k, v in overrides.items() if v is not None})
     except ValidationError as exc:
         _error(f"invalid settings:\n{exc}")
         raise typer.Exit(2) from None
-    path = settings.resolved_model_path
-    if not path.is_file():
-        _error(f"model file not found: {path}")
+    if settings.model_path is not None and not settings.model_path.is_file():
+        _error(f"model file not found: {settings.model_path}")
+        raise typer.Exit(2)
+    if settings.model_path is None and not settings.resolved_model_dir.is_dir():
+        _error(f"model folder not found: {settings.resolved_model_dir}")
         raise typer.Exit(2)
     if settings.log_level.lower() not in uvicorn.config.LOG_LEVELS:
         _error(f"unknown log level {settings.log_level!r}")
         raise typer.Exit(2)
-    uvicorn.run(
-        create_app(settings),
-        host=settings.host,
-        port=settings.port,
-        log_level=settings.log_level.lower(),
-        access_log=settings.access_log,
-        timeout_graceful_shutdown=settings.graceful_timeout_s,
-    )
+    return settings
+
+
+def _worker_environment(settings: Settings, overrides: dict[str, Any], runtime: Path) -> None:
+    """Put the flags and the runtime folder into os.environ for the worker processes."""
+    for key, value in overrides.items():
+        if value is not None:
+            os.environ[f"POSE_{key.upper()}"] = str(value)
+    workers = settings.process_count
+    os.environ["POSE_WORKERS"] = str(workers)
+    os.environ["POSE_RUNTIME_DIR"] = str(runtime)
+    if not settings.inference_workers:  # share the CPUs between the workers
+        os.environ["POSE_INFERENCE_WORKERS"] = str(max(1, cpu_count() // workers))
+    metrics = runtime / "metrics"
+    metrics.mkdir()
+    os.environ["PROMETHEUS_MULTIPROC_DIR"] = str(metrics)
+
+
+def serve(
+    host: Annotated[str | None, typer.Option(help="Bind address [POSE_HOST, 127.0.0.1].")] = None,
+    port: Annotated[
+        int | None, typer.Option(min=1, max=65535, help="Port [POSE_PORT, 8000].")
+    ] = None,
+    workers: Annotated[
+        int | None,
+        typer.Option(min=0, help="Worker processes, 0 = one per CPU [POSE_WORKERS, 0]."),
+    ] = None,
+    model_dir: Annotated[
+        Path | None,
+        typer.Option(help="Model folder: every <name>.onnx is served [POSE_MODEL_DIR, models/]."),
+    ] = None,
+    model: Annotated[
+        Path | None,
+        typer.Option(help="One ONNX file served as the default model [POSE_MODEL_PATH]."),
+    ] = None,
+    log_level: Annotated[
+        str | None, typer.Option(help="critical, error, warning, info, debug [POSE_LOG_LEVEL].")
+    ] = None,
+) -> None:
+    """Serve the pose models over HTTP (OpenAPI docs at /docs); SIGTERM drains requests."""
+    import uvicorn
+
+    overrides: dict[str, Any] = {
+        "host": host,
+        "port": port,
+        "workers": workers,
+        "model_dir": model_dir,
+        "model_path": model,
+        "log_level": log_level,
+    }
+    settings = _settings(overrides)
+    options: dict[str, Any] = {
+        "host": settings.host,
+        "port": settings.port,
+        "log_level": settings.log_level.lower(),
+        "access_log": settings.access_log,
+        "timeout_graceful_shutdown": settings.graceful_timeout_s,
+    }
+    if settings.process_count == 1:
+        from service.app import create_app
+
+        uvicorn.run(create_app(settings), **options)
+        return
+    runtime = Path(tempfile.mkdtemp(prefix="planar-pose-serve-"))
+    try:
+        _worker_environment(settings, overrides, runtime)
+        uvicorn.run(
+            "service.app:create_app", factory=True, workers=settings.process_count, **options
+        )
+    finally:
+        shutil.rmtree(runtime, ignore_errors=True)
 
 
 #: The service commands; `train.cli` merges them into the `planar-pose` app.
 app = typer.Typer()
 app.command()(serve)
-
 
 #: `planar-pose-serve`: the same command on its own.
 serve_app = typer.Typer(

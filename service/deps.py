@@ -12,6 +12,7 @@ from fastapi import Depends, Request
 from service.errors import ApiError
 from service.metrics import Metrics
 from service.predictor import Predictor
+from service.registry import ModelRegistry, UnknownModel
 from service.settings import Settings
 from service.state import ServiceState
 
@@ -34,21 +35,41 @@ def get_metrics(state: StateDep) -> Metrics:
 
 
 def get_limiter(state: StateDep) -> anyio.CapacityLimiter:
-    """At most `Settings.workers` inference jobs at once; more requests queue."""
+    """At most `Settings.inference_jobs` inference jobs at once; more requests queue."""
     return state.jobs
 
 
 def get_predictor(state: StateDep) -> Predictor:
-    """The loaded predictor, or 503 `not_ready` with the reason."""
-    if state.predictor is None:
+    """The default model's predictor, or 503 `not_ready` with the reason."""
+    predictor = state.predictor
+    if predictor is None:
         raise ApiError(503, "not_ready", state.problem)
-    return state.predictor
+    return predictor
+
+
+def get_models(state: StateDep) -> ModelRegistry:
+    return state.models
+
+
+def get_named_predictor(name: str, state: StateDep) -> Predictor:
+    """The predictor of the model `name` (path parameter), 404 listing the known names."""
+    try:
+        return state.models.get(name)
+    except UnknownModel as exc:
+        if not state.loaded:
+            raise ApiError(503, "not_ready", state.problem) from None
+        known = ", ".join(exc.known) or "none"
+        raise ApiError(
+            404, "model_not_found", f"no model named {name!r}; served: {known}"
+        ) from None
 
 
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 MetricsDep = Annotated[Metrics, Depends(get_metrics)]
 LimiterDep = Annotated[anyio.CapacityLimiter, Depends(get_limiter)]
 PredictorDep = Annotated[Predictor, Depends(get_predictor)]
+NamedPredictorDep = Annotated[Predictor, Depends(get_named_predictor)]
+ModelsDep = Annotated[ModelRegistry, Depends(get_models)]
 
 
 def authorise(request: Request, settings: SettingsDep) -> None:

@@ -1,4 +1,5 @@
 """Every error as JSON `{"error": {"code", "message"}}` with its HTTP status; no stack traces.
+Under /v2 (the Open Inference Protocol) the protocol's shape instead: `{"error": "message"}`.
 
 Unexpected exceptions are logged here (with traceback) and answered 500 `internal_error`.
 """
@@ -38,10 +39,23 @@ class ApiError(Exception):
         self.status, self.code, self.message, self.headers = status, code, message, headers
 
 
+def is_v2(path: str) -> bool:
+    """True for the Open Inference Protocol's paths."""
+    return path == "/v2" or path.startswith("/v2/")
+
+
 def error_response(
-    status: int, code: str, message: str, headers: Mapping[str, str] | None = None
+    status: int,
+    code: str,
+    message: str,
+    headers: Mapping[str, str] | None = None,
+    path: str = "",
 ) -> JSONResponse:
-    return JSONResponse({"error": {"code": code, "message": message}}, status, headers=headers)
+    """The error answer; `path` picks the shape (/v2: the protocol's `{"error": message}`)."""
+    body: dict[str, object] = {"error": {"code": code, "message": message}}
+    if is_v2(path):
+        body = {"error": message}
+    return JSONResponse(body, status, headers=headers)
 
 
 def _validation_message(exc: RequestValidationError) -> str:
@@ -55,28 +69,31 @@ def _validation_message(exc: RequestValidationError) -> str:
 def install_error_handlers(app: FastAPI) -> None:
     """Route FastAPI/Starlette errors and crashes through the one JSON error shape."""
 
-    async def api_error(_: Request, exc: Exception) -> JSONResponse:
+    async def api_error(request: Request, exc: Exception) -> JSONResponse:
         assert isinstance(exc, ApiError)
-        return error_response(exc.status, exc.code, exc.message, exc.headers)
+        return error_response(exc.status, exc.code, exc.message, exc.headers, request.url.path)
 
-    async def http_error(_: Request, exc: Exception) -> JSONResponse:
+    async def http_error(request: Request, exc: Exception) -> JSONResponse:
         assert isinstance(exc, StarletteHTTPException)
         code = _CODES.get(exc.status_code, "error")
-        return error_response(exc.status_code, code, str(exc.detail), exc.headers)
+        path = request.url.path
+        return error_response(exc.status_code, code, str(exc.detail), exc.headers, path)
 
-    async def validation_error(_: Request, exc: Exception) -> JSONResponse:
+    async def validation_error(request: Request, exc: Exception) -> JSONResponse:
         assert isinstance(exc, RequestValidationError)
-        return error_response(422, "invalid_parameters", _validation_message(exc))
+        message = _validation_message(exc)
+        return error_response(422, "invalid_parameters", message, path=request.url.path)
 
     async def gone(request: Request, _: Exception) -> JSONResponse:
-        log.info(
-            "client left during %s %s before sending its body", request.method, request.url.path
-        )
-        return error_response(400, "client_disconnected", "the client closed the connection")
+        path = request.url.path
+        log.info("client left during %s %s before sending its body", request.method, path)
+        message = "the client closed the connection"
+        return error_response(400, "client_disconnected", message, path=path)
 
     async def crash(request: Request, exc: Exception) -> JSONResponse:
-        log.exception("unhandled error on %s %s", request.method, request.url.path, exc_info=exc)
-        return error_response(500, "internal_error", "internal server error (logged)")
+        path = request.url.path
+        log.exception("unhandled error on %s %s", request.method, path, exc_info=exc)
+        return error_response(500, "internal_error", "internal server error (logged)", path=path)
 
     app.add_exception_handler(ApiError, api_error)
     app.add_exception_handler(StarletteHTTPException, http_error)

@@ -25,10 +25,11 @@ class BodyLimitMiddleware:
         length = dict(scope["headers"]).get(b"content-length")
         if length is not None and (not length.isdigit() or int(length) > self.max_bytes):
             err = _too_large(self.max_bytes) if length.isdigit() else None
+            path = scope.get("path", "")
             response = (
-                error_response(err.status, err.code, err.message)
+                error_response(err.status, err.code, err.message, path=path)
                 if err
-                else error_response(400, "bad_request", "invalid Content-Length header")
+                else error_response(400, "bad_request", "invalid Content-Length header", path=path)
             )
             await response(scope, receive, send)
             return

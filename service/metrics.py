@@ -1,7 +1,13 @@
-"""Prometheus metrics: requests by route/status, latency, images processed, inference time."""
+"""Prometheus metrics: requests by route/status, latency, images processed, inference time.
+
+Under `planar-pose-serve --workers N` (PROMETHEUS_MULTIPROC_DIR set before the workers start)
+every worker writes its values to files there and /metrics, answered by any worker, adds up
+all of them (prometheus-client's multiprocess mode).
+"""
 
 from __future__ import annotations
 
+import os
 import time
 
 from prometheus_client import (
@@ -12,6 +18,7 @@ from prometheus_client import (
     ProcessCollector,
     generate_latest,
 )
+from prometheus_client.multiprocess import MultiProcessCollector
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 _LATENCY_BUCKETS = (0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 10.0)
@@ -24,7 +31,9 @@ class Metrics:
 
     def __init__(self) -> None:
         self.registry = CollectorRegistry()
-        ProcessCollector(registry=self.registry)
+        self.multiprocess_dir = os.environ.get("PROMETHEUS_MULTIPROC_DIR")
+        if self.multiprocess_dir is None:
+            ProcessCollector(registry=self.registry)  # per process: meaningless summed up
         self.requests = Counter(
             "pose_http_requests",
             "HTTP requests answered, by route template, method and status.",
@@ -55,7 +64,12 @@ class Metrics:
         self.inference.labels(mode).observe(inference_s)
 
     def render(self) -> bytes:
-        return generate_latest(self.registry)
+        """The text exposition: this app's registry, or every worker's files."""
+        if self.multiprocess_dir is None:
+            return generate_latest(self.registry)
+        merged = CollectorRegistry()
+        MultiProcessCollector(merged, path=self.multiprocess_dir)
+        return generate_latest(merged)
 
 
 class MetricsMiddleware:

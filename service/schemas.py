@@ -86,3 +86,30 @@ ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {
         503: "Model not loaded (yet).",
     }.items()
 }
+
+
+class ModelInfo(BaseModel):
+    """One served model, from its card."""
+
+    name: str = Field(description="Name in URLs (/v1/models/{name}/predict): the file stem.")
+    default: bool = Field(description="True for the model /v1/predict answers with.")
+    card_name: str
+    version: str | None = None
+    profile: str | None = Field(default=None, description="The object the model knows.")
+    input: list[int] = Field(description="Network input (W, H) in pixels.")
+    accuracy: dict[str, Any] = Field(default_factory=dict, description="Measured, per data set.")
+
+
+class ModelsResponse(BaseModel):
+    default: str = Field(description="Name of the default model.")
+    models: list[ModelInfo]
+    problems: dict[str, str] = Field(
+        default_factory=dict, description="Model files that could not be loaded, and why."
+    )
+
+
+class ReloadResponse(BaseModel):
+    models: list[str] = Field(description="Names served after the reload.")
+    loaded: list[str] = Field(description="Loaded anew (new or changed files).")
+    removed: list[str] = Field(description="No longer served (files gone).")
+    problems: dict[str, str] = Field(description="Files refused; a model keeps its old session.")

@@ -14,7 +14,8 @@ from pydantic import Field, SecretStr, field_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
-DEFAULT_MODEL = REPO_ROOT / "models" / "default.onnx"
+DEFAULT_MODEL_DIR = REPO_ROOT / "models"
+DEFAULT_MODEL = DEFAULT_MODEL_DIR / "default.onnx"
 
 
 def _split_list(value: Any) -> Any:
@@ -31,8 +32,28 @@ class Settings(BaseSettings):
 
     model_config = SettingsConfigDict(env_prefix="POSE_", protected_namespaces=())
 
+    model_dir: Path | None = Field(
+        default=None,
+        description="Model folder: every <name>.onnx (with its card) is served; default models/.",
+    )
+    default_model: str = Field(
+        default="default", description="The folder's model that /v1/predict answers with."
+    )
     model_path: Path | None = Field(
-        default=None, description="ONNX model; default models/default.onnx at the repo root."
+        default=None,
+        description="Serve this ONNX file as the default model instead of the folder's "
+        "(with POSE_MODEL_DIR also set: the folder's other models too).",
+    )
+    model_watch_s: float = Field(
+        default=0.0, ge=0, description="Poll the model folder every this many s, 0 = only reload."
+    )
+    workers: int = Field(
+        default=0, ge=0, description="Server processes (planar-pose-serve), 0 = one per CPU."
+    )
+    runtime_dir: Path | None = Field(
+        default=None,
+        description="Shared by the worker processes (readiness, reloads, metrics); set by "
+        "planar-pose-serve, not by hand.",
     )
     host: str = "127.0.0.1"
     port: int = Field(default=8000, ge=1, le=65535)
@@ -91,11 +112,27 @@ class Settings(BaseSettings):
         return None if value == "" else value
 
     @property
-    def workers(self) -> int:
+    def inference_jobs(self) -> int:
         """Concurrent inference jobs: `inference_workers` or the CPUs this process may use."""
-        return self.inference_workers or len(os.sched_getaffinity(0))
+        return self.inference_workers or cpu_count()
+
+    @property
+    def process_count(self) -> int:
+        """Server processes: `workers` or one per CPU."""
+        return self.workers or cpu_count()
+
+    @property
+    def resolved_model_dir(self) -> Path:
+        return self.model_dir if self.model_dir is not None else DEFAULT_MODEL_DIR
 
     @property
     def resolved_model_path(self) -> Path:
-        """The ONNX file to load: `model_path` or the shipped default."""
-        return self.model_path if self.model_path is not None else DEFAULT_MODEL
+        """The default model's ONNX file: `model_path` or `<model dir>/<default_model>.onnx`."""
+        if self.model_path is not None:
+            return self.model_path
+        return self.resolved_model_dir / f"{self.default_model}.onnx"
+
+
+def cpu_count() -> int:
+    """The CPUs this process may run on."""
+    return len(os.sched_getaffinity(0))

@@ -1,18 +1,23 @@
-"""What the routes share, kept on `app.state.pose`: settings, metrics, the inference limiter
-and the predictor once the model has loaded (or why it has not)."""
+"""What the routes share, kept on `app.state.pose`: settings, metrics, the inference limiter,
+the served models, and (under `planar-pose-serve --workers N`) the other workers."""
 
 from __future__ import annotations
 
+import asyncio
 import logging
 
 import anyio
 
 from service.metrics import Metrics
-from service.model import ModelLoadError, PoseModel
 from service.predictor import Predictor
+from service.registry import ModelRegistry, ReloadReport
 from service.settings import Settings
+from service.workers import WorkerRuntime
 
 log = logging.getLogger("uvicorn.error.pose")  # printed by uvicorn's handlers
+
+#: Seconds between two looks at the other workers' reloads.
+SYNC_INTERVAL_S = 0.5
 
 
 class ServiceState:
@@ -22,19 +27,73 @@ class ServiceState:
         self.settings = settings
         self.metrics = Metrics()
         # CPU-bound jobs beyond one per core only thrash caches and lengthen the tail: queue them.
-        self.jobs = anyio.CapacityLimiter(settings.workers)
-        self.predictor: Predictor | None = None
-        self.problem = "model is loading"
+        self.jobs = anyio.CapacityLimiter(settings.inference_jobs)
+        self.models = ModelRegistry(settings)
+        self.loaded = False
+        self.runtime = (
+            WorkerRuntime(settings.runtime_dir, settings.process_count)
+            if settings.runtime_dir is not None
+            else None
+        )
 
-    def load(self) -> None:
-        """Load the model (blocking; run in a thread at startup). Failures go to `problem`."""
-        settings = self.settings
-        path = settings.resolved_model_path
-        try:
-            model = PoseModel.load(path, settings.intra_op_threads, settings.inter_op_threads)
-        except ModelLoadError as exc:
-            self.problem = f"model not loaded: {exc}"
-            log.error("%s", self.problem)
+    @property
+    def predictor(self) -> Predictor | None:
+        """The default model's predictor (what /v1/predict uses), None until loaded."""
+        return self.models.default()
+
+    @property
+    def problem(self) -> str:
+        """Why there is no default predictor."""
+        if not self.loaded:
+            return "model is loading"
+        name = self.settings.default_model
+        if name in self.models.problems:
+            return f"model not loaded: {self.models.problems[name]}"
+        served = ", ".join(self.models.names) or "none"
+        folder = self.settings.resolved_model_dir
+        return f"model not loaded: no {name}.onnx in {folder} (served: {served})"
+
+    def not_ready(self) -> str | None:
+        """None when requests can be answered by every worker, else why not."""
+        if self.predictor is None:
+            return self.problem
+        if self.runtime is not None:
+            count = self.runtime.ready_count()
+            if count < self.runtime.expected:
+                return f"{count} of {self.runtime.expected} workers have loaded their models"
+        return None
+
+    def load(self) -> ReloadReport:
+        """(Re)load this worker's models (blocking: run it in a thread)."""
+        report = self.models.reload()
+        self.loaded = True
+        if self.runtime is not None and self.predictor is not None:
+            self.runtime.mark_ready()
+        return report
+
+    def reload_everywhere(self) -> ReloadReport:
+        """Reload here now and make every other worker reload too."""
+        report = self.load()
+        if self.runtime is not None:
+            self.runtime.bump()
+        return report
+
+    async def follow(self) -> None:
+        """Background task: reload when another worker was asked to, or (POSE_MODEL_WATCH_S)
+        when a model file changed. Runs until cancelled."""
+        watch = self.settings.model_watch_s
+        if self.runtime is None and watch == 0:
             return
-        self.predictor = Predictor(model, settings)
-        log.info("model %s loaded from %s, input %s", model.name, path, model.input_size)
+        interval = watch if self.runtime is None else min(SYNC_INTERVAL_S, watch or SYNC_INTERVAL_S)
+        last = await asyncio.to_thread(self.models.folder_signature)
+        while True:
+            await asyncio.sleep(interval)
+            asked = self.runtime is not None and self.runtime.reload_asked()
+            now = await asyncio.to_thread(self.models.folder_signature) if watch else last
+            if asked or now != last:
+                await asyncio.to_thread(self.load)
+                last = now
+
+    def close(self) -> None:
+        if self.runtime is not None:
+            self.runtime.unmark()

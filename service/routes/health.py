@@ -5,7 +5,8 @@ from __future__ import annotations
 from fastapi import APIRouter
 from fastapi.responses import Response
 
-from service.deps import MetricsDep, PredictorDep
+from service.deps import MetricsDep, StateDep
+from service.errors import ApiError
 from service.metrics import Metrics
 from service.schemas import ERROR_RESPONSES, Status
 
@@ -19,9 +20,12 @@ async def healthz() -> Status:
 
 
 @router.get("/readyz", response_model=Status, responses={503: ERROR_RESPONSES[503]})
-async def readyz(predictor: PredictorDep) -> Status:
-    """The model is loaded and requests can be answered (readiness)."""
-    return Status(status="ready", model=predictor.model.name)
+async def readyz(state: StateDep) -> Status:
+    """The default model is loaded (in every worker) and requests can be answered."""
+    problem = state.not_ready()
+    if problem is not None or state.predictor is None:
+        raise ApiError(503, "not_ready", problem or state.problem)
+    return Status(status="ready", model=state.predictor.model.name)
 
 
 @router.get("/metrics", response_class=Response)

@@ -7,7 +7,14 @@ from typing import Annotated, Any
 import anyio
 from fastapi import APIRouter, Query, Request
 
-from service.deps import AUTHORISED, LimiterDep, MetricsDep, PredictorDep, SettingsDep
+from service.deps import (
+    AUTHORISED,
+    LimiterDep,
+    MetricsDep,
+    NamedPredictorDep,
+    PredictorDep,
+    SettingsDep,
+)
 from service.errors import ApiError
 from service.predictor import Prediction, Predictor
 from service.preprocess import ImageDecodeError, ImageTooLargeError
@@ -84,6 +91,27 @@ async def predict(
 
     All images of a request go through one batched network call.
     """
+    prediction = await run_prediction(request, predictor, mode, settings.max_images, limiter)
+    metrics.observe(mode, len(prediction.results), prediction.inference_s)
+    return PredictResponse(model=predictor.model.name, mode=mode, results=prediction.results)
+
+
+@router.post(
+    "/v1/models/{name}/predict",
+    response_model=PredictResponse,
+    responses={**ERROR_RESPONSES, 404: {"description": "No model of that name (known listed)."}},
+    openapi_extra=PREDICT_BODY,
+    summary="Pose class of one or many images, with the model `name`",
+)
+async def predict_with(
+    request: Request,
+    predictor: NamedPredictorDep,
+    settings: SettingsDep,
+    limiter: LimiterDep,
+    metrics: MetricsDep,
+    mode: ModeQuery = "whole",
+) -> PredictResponse:
+    """As /v1/predict, answered by the served model `name` (see GET /v1/models)."""
     prediction = await run_prediction(request, predictor, mode, settings.max_images, limiter)
     metrics.observe(mode, len(prediction.results), prediction.inference_s)
     return PredictResponse(model=predictor.model.name, mode=mode, results=prediction.results)
