@@ -19,7 +19,7 @@ from pydantic import ValidationError
 from service.errors import install_error_handlers
 from service.limits import BodyLimitMiddleware
 from service.metrics import MetricsMiddleware
-from service.routes import health, model, predict, stream, web
+from service.routes import health, model, predict, stream, v2, web
 from service.settings import Settings
 from service.state import ServiceState
 
@@ -28,6 +28,8 @@ ROUTERS: list[APIRouter] = [
     predict.router,
     model.router,
     health.router,
+    v2.health,
+    v2.router,
     stream.router,
 ]
 

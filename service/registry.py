@@ -124,7 +124,7 @@ class ModelRegistry:
         removed = sorted(set(old) - set(new))
         if loaded or removed:
             log.info("models loaded: %s; removed: %s", loaded or "-", removed or "-")
-        return ReloadReport(list(new), loaded, removed, problems)
+        return ReloadReport(sorted(new), loaded, removed, problems)
 
     def _load(self, path: Path) -> Predictor:
         s = self.settings
