@@ -45,4 +45,3 @@ def client() -> Iterator[TestClient]:
     """The default app (shipped model, no API key), shared by the whole session."""
     with running_app() as c:
         yield c
-

@@ -46,10 +46,12 @@ def test_oversize_chunked_body_is_cut_off_while_streaming(server: str) -> None:
     assert after.status_code == 200
 
 
-def test_request_in_flight_at_sigterm_still_gets_its_answer(tmp_path: Path) -> None:
-    """SIGTERM while a request's body is still arriving: uvicorn drains it, then exits."""
+@pytest.mark.parametrize("workers", ["1", "2"])
+def test_request_in_flight_at_sigterm_still_gets_its_answer(tmp_path: Path, workers: str) -> None:
+    """SIGTERM while a request's body is still arriving: uvicorn drains it, then exits (with
+    worker processes: the supervisor passes SIGTERM on, each worker drains)."""
     log = tmp_path / "serve.log"
-    with live_server(SERVE, log) as (base, proc):
+    with live_server([*SERVE, "--workers", workers], log) as (base, proc):
         port = int(base.rsplit(":", 1)[1])
         head = (
             f"POST /v1/predict?mode=sliding HTTP/1.1\r\nHost: x\r\nContent-Type: image/jpeg\r\n"

@@ -1,0 +1,142 @@
+"""The model folder in-process: every `<name>.onnx` served, chosen per request, listed with
+its card; unknown names 404 with the known ones; reloads (behind the API key) pick up added,
+replaced, broken and removed files, a request holding the old session finishing on it."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import AppFactory
+from fastapi.testclient import TestClient
+from service_support import JPEG, PHOTO, check_answer
+
+from service.settings import DEFAULT_MODEL_DIR
+
+SMALL = DEFAULT_MODEL_DIR / "default.onnx"  # 80x60
+LARGE = DEFAULT_MODEL_DIR / "chessboard-noC-160x120.onnx"
+KEY = {"x-api-key": "reload-key"}
+
+
+def put(folder: Path, name: str, source: Path) -> None:
+    """Copy a model and its card into `folder` as `name`, atomically (rename over)."""
+    for suffix in (".json", ".onnx"):
+        tmp = folder / f".{name}{suffix}.tmp"
+        shutil.copyfile(source.with_suffix(suffix), tmp)
+        os.replace(tmp, folder / f"{name}{suffix}")
+
+
+@pytest.fixture()
+def folder(tmp_path: Path) -> Path:
+    put(tmp_path, "default", SMALL)
+    put(tmp_path, "board-large", LARGE)
+    return tmp_path
+
+
+@pytest.fixture()
+def served(app_factory: AppFactory, folder: Path) -> Iterator[TestClient]:
+    with app_factory(model_dir=folder, api_key="reload-key") as c:
+        yield c
+
+
+def predict(c: TestClient, path: str = "/v1/predict") -> dict:
+    r = c.post(path, content=PHOTO, headers={**JPEG, **KEY})
+    assert r.status_code == 200, r.text
+    return r.json()
+
+
+def test_two_models_chosen_per_request(served: TestClient) -> None:
+    small = predict(served, "/v1/models/default/predict")
+    large = predict(served, "/v1/models/board-large/predict")
+    check_answer(small, "whole", [(640, 480)], model="default")
+    check_answer(large, "whole", [(640, 480)], model="chessboard-noC-160x120")
+    default = predict(served)  # /v1/predict answers with the default model
+    assert default["model"] == "default"
+    assert default["results"][0]["probabilities"] == small["results"][0]["probabilities"]
+    p_small, p_large = (np.array(a["results"][0]["probabilities"]) for a in (small, large))
+    assert np.abs(p_small - p_large).max() > 1e-3  # really two networks
+    sliding = served.post(
+        "/v1/models/board-large/predict?mode=sliding", content=PHOTO, headers={**JPEG, **KEY}
+    )
+    check_answer(sliding.json(), "sliding", [(640, 480)], model="chessboard-noC-160x120")
+
+
+def test_the_list_of_models(served: TestClient) -> None:
+    body = served.get("/v1/models", headers=KEY).json()
+    assert body["default"] == "default" and body["problems"] == {}
+    by_name = {m["name"]: m for m in body["models"]}
+    assert set(by_name) == {"default", "board-large"}
+    assert by_name["board-large"]["input"] == [160, 120] and not by_name["board-large"]["default"]
+    assert by_name["default"]["default"] and by_name["default"]["profile"] == "chessboard"
+    assert by_name["default"]["accuracy"]["noC-s1-b0"]["split"] == "test"
+    assert served.get("/v1/models").status_code == 401
+
+
+def test_unknown_model_is_404_with_the_known_names(served: TestClient) -> None:
+    r = served.post("/v1/models/nope/predict", content=PHOTO, headers={**JPEG, **KEY})
+    assert r.status_code == 404 and r.json()["error"]["code"] == "model_not_found"
+    assert "'nope'" in r.json()["error"]["message"]
+    assert "served: board-large, default" in r.json()["error"]["message"]
+
+
+def test_reload_needs_the_key(served: TestClient) -> None:
+    r = served.post("/v1/models/reload")
+    assert r.status_code == 401 and r.json()["error"]["code"] == "unauthorized"
+
+
+def test_reload_adds_replaces_refuses_and_removes(served: TestClient, folder: Path) -> None:
+    first = predict(served)["results"][0]["probabilities"]
+    held = served.app.state.pose.predictor  # type: ignore[attr-defined]  # as a request holds it
+    put(folder, "extra", SMALL)
+    put(folder, "default", DEFAULT_MODEL_DIR / "chessboard-noC-80x60-real.onnx")
+    (folder / "broken.onnx").write_bytes(b"not onnx")
+    (folder / "board-large.onnx").unlink()
+    report = served.post("/v1/models/reload", headers=KEY).json()
+    assert report["models"] == ["default", "extra"]
+    assert sorted(report["loaded"]) == ["default", "extra"]
+    assert report["removed"] == ["board-large"]
+    assert "not a loadable ONNX model" in report["problems"]["broken"]
+    assert predict(served)["model"] == "chessboard-noC-80x60-real"
+    assert predict(served, "/v1/models/extra/predict")["results"][0]["probabilities"] == first
+    assert served.get("/v1/models", headers=KEY).json()["problems"] == report["problems"]
+    # the old session still answers (what a request in flight at the swap does)
+    old = held.predict([(None, PHOTO)], "whole").results[0].probabilities
+    assert old == first
+    # a broken replacement keeps the last good session of that name
+    (folder / "extra.onnx").write_bytes(b"garbage")
+    again = served.post("/v1/models/reload", headers=KEY).json()
+    assert "extra" in again["models"] and "extra" in again["problems"]
+    assert predict(served, "/v1/models/extra/predict")["results"][0]["probabilities"] == first
+    unchanged = served.post("/v1/models/reload", headers=KEY).json()
+    assert unchanged["loaded"] == [] and unchanged["removed"] == []
+
+
+def test_folder_without_a_default_is_not_ready(app_factory: AppFactory, tmp_path: Path) -> None:
+    put(tmp_path, "only-this", SMALL)
+    with app_factory(ready="/healthz", model_dir=tmp_path) as c:
+        for _ in range(500):
+            r = c.get("/readyz")
+            if "loading" not in r.text:
+                break
+            time.sleep(0.01)
+        assert r.status_code == 503
+        assert "no default.onnx in" in r.json()["error"]["message"]
+        assert "served: only-this" in r.json()["error"]["message"]
+        assert predict(c, "/v1/models/only-this/predict")["model"] == "default"  # its card name
+        assert c.post("/v1/predict", content=PHOTO, headers=JPEG).status_code == 503
+
+
+def test_the_folder_watcher_picks_up_a_new_file(app_factory: AppFactory, folder: Path) -> None:
+    with app_factory(model_dir=folder, model_watch_s=0.05) as c:
+        put(folder, "late", SMALL)
+        for _ in range(400):
+            if c.post("/v1/models/late/predict", content=PHOTO, headers=JPEG).status_code == 200:
+                break
+            time.sleep(0.02)
+        else:
+            pytest.fail("the watcher did not load late.onnx")

