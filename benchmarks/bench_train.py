@@ -20,7 +20,7 @@ import torch
 import torch.nn.functional as F
 
 from train.network.fit import Augmenter, FitConfig, Split, _optimiser, _train_epoch
-from train.network.model import PoseNet
+from train.network.model import PoseNet, build_network
 
 THESIS_MS = {(80, 60): 15.0, (160, 120): 71.0}
 BATCH = 64
@@ -43,7 +43,12 @@ def plain_loop_ms(size: tuple[int, int], n: int) -> float:
 
 
 def project_epoch_ms(
-    size: tuple[int, int], n: int, augment: bool, compiled: bool, batch_norm: bool = False
+    size: tuple[int, int],
+    n: int,
+    augment: bool,
+    compiled: bool,
+    batch_norm: bool = False,
+    arch: str = "spec",
 ) -> float:
     """`train.network.fit._train_epoch` on uint8 images in memory (conversion, augmentation).
 
@@ -54,16 +59,18 @@ def project_epoch_ms(
         rng.integers(0, 256, (n, size[1], size[0], 3), dtype=np.uint8),
         rng.integers(0, 9, n).astype(np.int64),
         np.zeros(n, dtype=np.int64),
+        [n],
     )
     config = FitConfig(datasets=[], out=Path("."), batch_size=BATCH, progress=False)
     torch.manual_seed(0)
-    net = PoseNet(size, batch_norm=batch_norm).to(memory_format=torch.channels_last)
+    net = build_network(arch, size, batch_norm).to(memory_format=torch.channels_last)
     opt = _optimiser(config, net)
     step = torch.compile(net) if compiled else net
     augmenter = Augmenter(size) if augment else None
+    pool = split.pool([])
     if compiled:
-        _train_epoch(step, opt, split, config, 1, augmenter)
-    return _train_epoch(step, opt, split, config, 2, augmenter)["ms_per_image"]
+        _train_epoch(step, opt, split, pool, config, 1, augmenter)
+    return _train_epoch(step, opt, split, pool, config, 2, augmenter)["ms_per_image"]
 
 
 def main() -> None:
@@ -76,7 +83,7 @@ def main() -> None:
     print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, batch {BATCH}")
     print(
         "size     | plain loop | fit eager | fit compiled | +batch norm | +augment "
-        "| compiled/plain | thesis | thesis/ours"
+        "| convnet +augment | compiled/plain | thesis | thesis/ours"
     )
     for size in THESIS_MS:
         plain_loop_ms(size, BATCH)  # warm-up
@@ -85,10 +92,11 @@ def main() -> None:
         ours = project_epoch_ms(size, args.images, augment=False, compiled=True)
         bn = project_epoch_ms(size, args.images, augment=False, compiled=True, batch_norm=True)
         aug = project_epoch_ms(size, args.images, augment=True, compiled=True, batch_norm=True)
+        conv = project_epoch_ms(size, args.images, augment=True, compiled=True, arch="convnet")
         thesis = THESIS_MS[size]
         print(
             f"{size[0]}x{size[1]:<4} | {plain:8.2f}ms | {eager:7.2f}ms | {ours:10.2f}ms | "
-            f"{bn:9.2f}ms | {aug:6.2f}ms | {ours / plain:14.2f} | {thesis:4.0f}ms "
+            f"{bn:9.2f}ms | {aug:6.2f}ms | {conv:14.2f}ms | {ours / plain:14.2f} | {thesis:4.0f}ms "
             f"| {thesis / aug:9.1f}x"
         )
 

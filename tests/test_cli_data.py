@@ -87,7 +87,7 @@ def test_roll(tmp_path):
     "args,code,message",
     [
         (["--count", "5"], 2, "count must be at least 9"),
-        (["--variant", "D"], 2, "variant must be C or noC"),
+        (["--variant", "D"], 2, "variant must be one of C, noC, free"),
         (["--size", "3"], 2, "size must be 1"),
         (["--blur", "7"], 2, "blur must be 0, 1, 2 or 3"),
         (["--profile", "unknown-object"], 1, "unknown profile"),

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +22,8 @@ from train.network.fit import (
     load_network,
     load_split,
 )
+from train.network.config import ConfigError, load_config
+from train.network.model import PoseNet
 from train.profile import load_profile
 from train.synth.generate import DatasetSpec, make_dataset
 
@@ -47,7 +50,7 @@ def _weights(path: Path) -> dict[str, torch.Tensor]:
 def test_training_reduces_the_loss(tiny_set, tmp_path):
     train, _ = load_split([tiny_set], "train")
     torch.manual_seed(0)
-    before, _ = evaluate_split(fit_module.PoseNet((80, 60)), train)
+    before, _ = evaluate_split(PoseNet((80, 60)), train)
     summary = fit(_config(tiny_set, tmp_path, epochs=3, augment=False, schedule="constant"))
     after, _ = evaluate_split(load_network(tmp_path / "last.pt")[0], train)
     assert after < 0.95 * before
@@ -73,10 +76,10 @@ def test_resume_after_an_interruption_ends_like_an_uninterrupted_run(
     fit(_config(tiny_set, tmp_path / "full", epochs=3))
     real_epoch = fit_module._train_epoch
 
-    def interrupted(net, opt, train, config, epoch, augmenter):
+    def interrupted(net, opt, train, pool, config, epoch, augmenter):
         if epoch == 3:
             raise KeyboardInterrupt
-        return real_epoch(net, opt, train, config, epoch, augmenter)
+        return real_epoch(net, opt, train, pool, config, epoch, augmenter)
 
     monkeypatch.setattr(fit_module, "_train_epoch", interrupted)
     with pytest.raises(KeyboardInterrupt):
@@ -120,7 +123,7 @@ def test_errors_are_clear(tiny_set, tmp_path):
     bad.write_bytes(b"not a checkpoint")
     with pytest.raises(TrainingError, match="not a readable PyTorch checkpoint"):
         load_network(bad)
-    big = fit_module.PoseNet((160, 120))
+    big = PoseNet((160, 120))
     torch.save(
         {"format": fit_module.CHECKPOINT_FORMAT, "size": [160, 120], "model": big.state_dict()},
         tmp_path / "big.pt",
@@ -143,4 +146,38 @@ def test_cli_errors_exit_nonzero_with_a_message(tiny_set, tmp_path):
     assert result.exit_code == 1 and "--init checkpoint not found" in result.output
     args = ["train", str(tiny_set), "--out", str(tmp_path / "r"), "--optimizer", "rmsprop"]
     result = runner.invoke(app, [*args, "--epochs", "1"])
-    assert result.exit_code == 1 and "unknown optimiser" in result.output
+    assert result.exit_code == 2 and "'rmsprop' is not one of" in result.output
+
+
+def test_recipe_file_then_command_line(tiny_set, tmp_path):
+    recipe = tmp_path / "r.toml"
+    recipe.write_text(
+        f'datasets = ["{tiny_set}"]\nout = "{tmp_path / "run"}"\nepochs = 5\n'
+        'arch = "convnet"\nbatch_size = 8\nlr = 0.01\n'
+    )
+    config = load_config(recipe, {"epochs": 1, "lr": None})
+    assert (config.epochs, config.lr, config.arch, config.batch_size) == (1, 0.01, "convnet", 8)
+    assert config.datasets == [tiny_set] and config.optimizer == "sgd"  # FitConfig's default
+    result = runner.invoke(app, ["train", "--config", str(recipe), "--epochs", "1"])
+    assert result.exit_code == 0, result.output
+    assert json.loads((tmp_path / "run" / "log.jsonl").read_text().splitlines()[-1])["epoch"] == 1
+
+
+@pytest.mark.parametrize(
+    "text,message",
+    [
+        ('epoch = 3\ndatasets = ["x"]\nout = "o"', "unknown option(s) epoch"),
+        ('datasets = ["x"]\nout = "o"\noptimizer = "rmsprop"', "option optimizer"),
+        ('datasets = ["x"]\nout = "o"\nepochs = 0', "option epochs must be in [1"),
+        ('datasets = ["x", "y"]\nout = "o"\nrepeat = [1]', "repeat has 1 value(s) for 2"),
+        ('out = "o"', "no data sets given"),
+        ("epochs = [", "not valid TOML"),
+    ],
+)
+def test_bad_recipes(tmp_path, text, message):
+    recipe = tmp_path / "bad.toml"
+    recipe.write_text(text)
+    with pytest.raises(ConfigError, match=re.escape(message)):
+        load_config(recipe, {})
+    result = runner.invoke(app, ["train", "--config", str(recipe)])
+    assert result.exit_code == 2 and message in result.output

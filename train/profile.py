@@ -18,6 +18,7 @@ length in cm, every angle in degrees; only `texture`, `width_cm` and `height_cm`
     [camera]
     roll_deg = [-5.0, 5.0]         # roll about the optical axis, uniform in this range
     focal_scale = [0.6, 1.1]       # fx, fy multiplied by a factor uniform in this range
+    distortion_k1 = [-0.3, 0.0]    # radial lens distortion k1 (OpenCV model), uniform
     lattice_radii_cm = [...]       # hemispheres of the camera lattice (SPEC section 4)
     lattice_heights_cm = [...]     # their centres (0, 0, h)
     lattice_points = 400           # Fibonacci points per hemisphere
@@ -79,6 +80,7 @@ class Profile:
     geometry: RegionGeometry
     roll_deg: tuple[float, float] = (0.0, 0.0)
     focal_scale: tuple[float, float] = (1.0, 1.0)
+    distortion_k1: tuple[float, float] = (0.0, 0.0)
     lattice_radii_cm: tuple[float, ...] = (20.0, 35.0, 50.0, 65.0, 80.0, 95.0)
     lattice_heights_cm: tuple[float, ...] = (0.0, 15.0, 30.0)
     lattice_points: int = 400
@@ -114,6 +116,7 @@ class Profile:
             "box_max_cm": list(self.geometry.box_max),
             "roll_deg": list(self.roll_deg),
             "focal_scale": list(self.focal_scale),
+            "distortion_k1": list(self.distortion_k1),
         }
 
 
@@ -206,6 +209,7 @@ def load_profile(name_or_path: str | Path) -> Profile:
         geometry=geometry,
         roll_deg=_range(camera, "roll_deg", (0.0, 0.0), where),
         focal_scale=_range(camera, "focal_scale", (1.0, 1.0), where),
+        distortion_k1=_range(camera, "distortion_k1", (0.0, 0.0), where),
         lattice_radii_cm=tuple(
             float(r) for r in camera.get("lattice_radii_cm", Profile.lattice_radii_cm)
         ),

@@ -74,7 +74,9 @@ def _make(jobs: list[tuple[Any, Path]], overwrite: bool, workers: int) -> list[d
 @app.command()
 def make(
     out_dir: Annotated[Path, typer.Argument(metavar="OUT", help="Output folder.")],
-    variant: Annotated[str, typer.Option(help="C (target = object centre) or noC.")] = "noC",
+    variant: Annotated[
+        str, typer.Option(help="C (target = object centre), noC (SPEC) or free (anywhere).")
+    ] = "noC",
     size: Annotated[int, typer.Option(help="1 = 80x60, 2 = 160x120.")] = 1,
     blur: Annotated[int, typer.Option(help="SPEC blur level 0..3.")] = 0,
     count: Annotated[int, typer.Option(help="Number of images (>= 9).")] = 5000,

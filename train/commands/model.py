@@ -5,9 +5,12 @@ torch is imported inside the commands only (the service install has no torch).
 
 from __future__ import annotations
 
+import dataclasses
+import inspect
 import json
+import typing
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -22,68 +25,72 @@ def _check_split(split: str) -> str:
     return split
 
 
-def train(
-    datasets: Annotated[list[Path], typer.Argument(help="Data set folder(s), same image size.")],
-    out_dir: Annotated[Path, typer.Option("--out", help="Run folder (checkpoints, log.jsonl).")],
-    epochs: Annotated[int, typer.Option(min=1)] = 30,
-    batch_size: Annotated[int, typer.Option(min=1)] = 32,
-    optimizer: Annotated[str, typer.Option(help="sgd (with momentum) or adam.")] = "sgd",
-    lr: Annotated[float, typer.Option(min=0.0)] = 0.001,
-    momentum: Annotated[float, typer.Option(min=0.0, max=1.0)] = 0.9,
-    weight_decay: Annotated[float, typer.Option(min=0.0)] = 1e-4,
-    schedule: Annotated[str, typer.Option(help="cosine, step or constant.")] = "cosine",
-    patience: Annotated[int, typer.Option(min=0, help="Early stop after N flat epochs.")] = 10,
-    seed: int = 0,
-    augment: Annotated[bool, typer.Option(help="On-the-fly blur + photometric jitter.")] = True,
-    init: Annotated[
-        Path | None, typer.Option(help="Checkpoint to start from (fine-tuning).")
-    ] = None,
-    resume: Annotated[bool, typer.Option(help="Continue OUT/last.pt.")] = False,
-    batch_norm: Annotated[
-        bool,
-        typer.Option(help="Train with batch norm, folded into the SPEC layers on export."),
-    ] = True,
-    threads: Annotated[int, typer.Option(min=0, help="Torch threads, 0 = default.")] = 0,
-    compile_step: Annotated[
-        bool, typer.Option("--compile/--no-compile", help="torch.compile the training step.")
-    ] = True,
-) -> None:
-    """Train (or with --init fine-tune) the pose network on the train split; keep the best val."""
-    from train.network.fit import FitConfig, fit
+def _default(f: dataclasses.Field) -> Any:
+    return f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
 
-    for path in datasets:
+
+def _train_signature() -> inspect.Signature:
+    """`train`'s parameters: data sets, --out, --config, --resume, then one option per
+    `FitConfig` field (`CLI_FIELDS`), with its help, bounds and type; default None = not given
+    (the recipe file or FitConfig's default applies)."""
+    from train.network.config import CLI_FIELDS, FitConfig
+
+    hints = typing.get_type_hints(FitConfig)
+    fields = {f.name: f for f in dataclasses.fields(FitConfig)}
+    kw = inspect.Parameter.KEYWORD_ONLY
+    params = [
+        inspect.Parameter("datasets", kw, default=None, annotation=Annotated[
+            list[Path] | None, typer.Argument(help="Data set folder(s), same image size.")]),
+        inspect.Parameter("out_dir", kw, default=None, annotation=Annotated[
+            Path | None, typer.Option("--out", help="Run folder (checkpoints, log.jsonl).")]),
+        inspect.Parameter("config", kw, default=None, annotation=Annotated[
+            Path | None, typer.Option(help="Recipe TOML file of FitConfig fields (recipes/).")]),
+        inspect.Parameter("resume", kw, default=False, annotation=Annotated[
+            bool, typer.Option(help="Continue OUT/last.pt.")]),
+    ]  # fmt: skip
+    for name in CLI_FIELDS:
+        meta = fields[name].metadata
+        option = typer.Option(
+            help=f"{meta['help']} (default: {_default(fields[name])})",
+            min=meta.get("min"),
+            max=meta.get("max"),
+            show_default=False,
+        )
+        kind = hints[name] if "None" in str(hints[name]) else hints[name] | None
+        params.append(inspect.Parameter(name, kw, default=None, annotation=Annotated[kind, option]))
+    return inspect.Signature(params)
+
+
+def train(**options: Any) -> None:
+    """Train (or with --init fine-tune) the pose network on the train split; keep the best val.
+
+    Options come from `--config recipes/NAME.toml` and the command line (which wins).
+    """
+    from train.network.config import load_config
+    from train.network.fit import fit
+
+    recipe, resume = options.pop("config"), options.pop("resume")
+    options["datasets"] = options.pop("datasets") or None
+    options["out"] = options.pop("out_dir")
+    config = guard(lambda: load_config(recipe, options), code=2)
+    for path in config.datasets + config.select:
         if not path.is_dir():
             raise fail(f"data set not found: {path}")
-    if init is not None and not init.is_file():
-        raise fail(f"--init checkpoint not found: {init}")
-    if resume and not (out_dir / "last.pt").is_file():
-        raise fail(f"--resume: no checkpoint {out_dir / 'last.pt'} to continue")
-    config = FitConfig(
-        datasets=datasets,
-        out=out_dir,
-        epochs=epochs,
-        batch_size=batch_size,
-        optimizer=optimizer,
-        lr=lr,
-        momentum=momentum,
-        weight_decay=weight_decay,
-        schedule=schedule,
-        patience=patience,
-        seed=seed,
-        augment=augment,
-        init=init,
-        batch_norm=batch_norm,
-        threads=threads,
-        compile=compile_step,
-    )
+    if config.init is not None and not config.init.is_file():
+        raise fail(f"--init checkpoint not found: {config.init}")
+    if resume and not (config.out / "last.pt").is_file():
+        raise fail(f"--resume: no checkpoint {config.out / 'last.pt'} to continue")
     summary = guard(lambda: fit(config, resume=resume))
     best = summary["best"]
     out.print(
         f"[green]done[/]: {summary['epochs_run']} epochs, best epoch {best['epoch']} "
         f"(val accuracy {100 * best['val_accuracy']:.2f} %), "
         f"{summary['ms_per_image']:.2f} ms / image (forward + backward + augmentation); "
-        f"best weights in {out_dir / 'best.pt'}"
+        f"best weights in {config.out / 'best.pt'}"
     )
+
+
+train.__signature__ = _train_signature()  # type: ignore[attr-defined]
 
 
 def evaluate(

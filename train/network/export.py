@@ -175,10 +175,10 @@ def export(
 
     from train.network.evaluate import network_batch
     from train.network.fit import load_network
-    from train.network.model import fold_batch_norm
+    from train.network.model import export_form
 
     trained, checkpoint = load_network(checkpoint_path)
-    net = fold_batch_norm(trained).eval()  # the plain SPEC network
+    net = export_form(trained)
     raw = onnx_bytes(net)
     session = ort.InferenceSession(raw, providers=["CPUExecutionProvider"])
 

@@ -1,8 +1,9 @@
 """Training and fine-tuning of the pose network (SPEC section 8), readable top to bottom.
 
-`fit(config)` trains `PoseNet` on the `train` split of one or more data sets (same image
-size), keeps the best epoch by accuracy on their `val` split, stops early when it stops
-improving and writes into `config.out`:
+`fit(config)` trains the network of `config.arch` (`train.network.model.build_network`) on
+the `train` split of one or more data sets (same image size; `config.repeat` weights them),
+keeps the best epoch by accuracy on the `val` split of `config.select` (default: the same data
+sets), stops early when it stops improving and writes into `config.out`:
 
 * `last.pt`   the state after the last finished epoch (what `resume` continues from);
 * `best.pt`   the weights of the best validation epoch (what `export` takes);
@@ -19,7 +20,7 @@ from __future__ import annotations
 import json
 import math
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -28,7 +29,13 @@ import torch
 import torch.nn.functional as F
 from tqdm import tqdm
 
-from train.network.model import PoseNet, channel_stats, check_size
+from train.network.config import FitConfig
+from train.network.model import (
+    NormalisedNet,
+    arch_of,
+    build_network,
+    channel_stats,
+)
 
 CHECKPOINT_FORMAT = "planar-pose-checkpoint/1"
 
@@ -38,44 +45,24 @@ class TrainingError(ValueError):
 
 
 @dataclass
-class FitConfig:
-    """Options of a training run. Paths are data set folders / checkpoint files."""
-
-    datasets: list[Path]
-    out: Path
-    epochs: int = 30
-    batch_size: int = 32
-    optimizer: str = "sgd"  # "sgd" (momentum) or "adam"
-    lr: float = 0.001
-    momentum: float = 0.9
-    weight_decay: float = 1e-4
-    schedule: str = "cosine"  # "cosine", "step" (x0.1 at 2/3 of the epochs) or "constant"
-    patience: int = 10  # epochs without validation improvement before stopping; 0 = never
-    seed: int = 0
-    augment: bool = True
-    init: Path | None = None
-    batch_norm: bool = True  # train the reparameterised net (folded away on export)
-    threads: int = 0  # torch intra-op threads; 0 = torch default
-    compile: bool = False  # torch.compile the training step (about 2.5x faster at 160x120)
-    progress: bool = True
-    extra: dict[str, Any] = field(default_factory=dict)
-
-    def to_json(self) -> dict[str, Any]:
-        """JSON-ready copy (paths as strings)."""
-        out = asdict(self)
-        out["datasets"] = [str(p) for p in self.datasets]
-        out["out"] = str(self.out)
-        out["init"] = None if self.init is None else str(self.init)
-        return out
-
-
-@dataclass
 class Split:
     """Images uint8 [N, H, W, 3] (RGB) and labels int64 [N] of one split, all data sets."""
 
     images: np.ndarray
     labels: np.ndarray
     blur: np.ndarray  # int [N], the data set's blur level of each image
+    counts: list[int]  # images per data set, in order
+
+    def pool(self, repeat: list[int]) -> np.ndarray:
+        """Indices of one epoch: data set k's images `repeat[k]` times (default once each)."""
+        starts = np.cumsum([0, *self.counts])
+        reps = repeat or [1] * len(self.counts)
+        return np.concatenate(
+            [
+                np.tile(np.arange(a, b), r)
+                for a, b, r in zip(starts[:-1], starts[1:], reps, strict=True)
+            ]
+        )
 
 
 def load_split(paths: list[Path], split: str) -> tuple[Split, list[dict[str, Any]]]:
@@ -100,7 +87,10 @@ def load_split(paths: list[Path], split: str) -> tuple[Split, list[dict[str, Any
     if len(sizes) > 1:
         raise TrainingError(f"data sets have different image sizes (H, W): {sorted(sizes)}")
     out = Split(
-        np.concatenate(images), np.concatenate(labels).astype(np.int64), np.concatenate(blurs)
+        np.concatenate(images),
+        np.concatenate(labels).astype(np.int64),
+        np.concatenate(blurs),
+        [len(lab) for lab in labels],
     )
     return out, infos
 
@@ -111,17 +101,32 @@ class Augmenter:
     * blur: an image of a blur-0 data set gets, with probability `p_blur`, a SPEC blur level
       drawn from 1..3 (the same kernels as the data sets, `train.synth.blur`), so that one network
       sees all levels;
+    * crop: with probability `p_crop`, a crop of U(0.85, 1) of the width and height at a
+      random place, resized back: the camera centre (so the class) is unchanged, the image
+      is what a camera with a longer focal length and a shifted principal point sees;
     * photometric: contrast x U(0.7, 1.3), brightness + U(-25, 25), per-channel gain
       U(0.9, 1.1), grey level with probability `p_grey` (real photos may be grey), Gaussian
       noise with sigma U(0, 6) grey levels.
 
-    No geometric change: a mirror or a large shift would change the pose class.
+    No mirror, rotation or large shift: those would change the pose class.
     """
 
-    def __init__(self, size: tuple[int, int], p_blur: float = 0.5, p_grey: float = 0.2) -> None:
+    def __init__(
+        self, size: tuple[int, int], p_blur: float = 0.5, p_grey: float = 0.2, p_crop: float = 0.5
+    ) -> None:
         self.size = size
         self.p_blur = p_blur
         self.p_grey = p_grey
+        self.p_crop = p_crop
+
+    def crop(self, image: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """A random crop of U(0.85, 1) of each side, resized back to the image size."""
+        import cv2
+
+        h, w = image.shape[:2]
+        cw, ch = int(round(w * rng.uniform(0.85, 1.0))), int(round(h * rng.uniform(0.85, 1.0)))
+        x0, y0 = int(rng.integers(w - cw + 1)), int(rng.integers(h - ch + 1))
+        return cv2.resize(image[y0 : y0 + ch, x0 : x0 + cw], (w, h), interpolation=cv2.INTER_AREA)
 
     def __call__(
         self, images: np.ndarray, blur: np.ndarray, rng: np.random.Generator
@@ -130,6 +135,8 @@ class Augmenter:
 
         n = len(images)
         out = images.copy()
+        for i in np.flatnonzero(rng.random(n) < self.p_crop):
+            out[i] = self.crop(out[i], rng)
         levels = np.where(
             (blur == 0) & (rng.random(n) < self.p_blur), rng.integers(1, 4, size=n), 0
         )
@@ -145,8 +152,8 @@ class Augmenter:
         return np.clip(x, 0, 255).astype(np.uint8)
 
 
-def load_network(path: Path) -> tuple[PoseNet, dict[str, Any]]:
-    """A checkpoint written by `fit` -> (PoseNet with its weights, the checkpoint dict)."""
+def load_network(path: Path) -> tuple[NormalisedNet, dict[str, Any]]:
+    """A checkpoint written by `fit` -> (network with its weights, the checkpoint dict)."""
     if not Path(path).is_file():
         raise TrainingError(f"checkpoint not found: {path}")
     try:
@@ -155,12 +162,13 @@ def load_network(path: Path) -> tuple[PoseNet, dict[str, Any]]:
         raise TrainingError(f"{path} is not a readable PyTorch checkpoint: {exc}") from exc
     if not isinstance(checkpoint, dict) or checkpoint.get("format") != CHECKPOINT_FORMAT:
         raise TrainingError(f"{path} is not a planar-pose training checkpoint")
-    net = PoseNet(tuple(checkpoint["size"]), batch_norm=bool(checkpoint.get("batch_norm")))
+    arch = str(checkpoint.get("arch", "spec"))
+    net = build_network(arch, tuple(checkpoint["size"]), bool(checkpoint.get("batch_norm")))
     net.load_state_dict(checkpoint["model"])
     return net, checkpoint
 
 
-def _optimiser(config: FitConfig, net: PoseNet) -> torch.optim.Optimizer:
+def _optimiser(config: FitConfig, net: NormalisedNet) -> torch.optim.Optimizer:
     if config.optimizer == "sgd":
         return torch.optim.SGD(
             net.parameters(),
@@ -193,7 +201,7 @@ def to_input(images: np.ndarray) -> torch.Tensor:
 
 
 @torch.no_grad()
-def evaluate_split(net: PoseNet, split: Split, batch: int = 256) -> tuple[float, float]:
+def evaluate_split(net: NormalisedNet, split: Split, batch: int = 256) -> tuple[float, float]:
     """(mean NLL loss, accuracy) of `net` on a split, no augmentation."""
     net.eval()
     loss, correct = 0.0, 0
@@ -219,12 +227,13 @@ def fit(config: FitConfig, resume: bool = False) -> dict[str, Any]:
     if config.threads:
         torch.set_num_threads(config.threads)
     train, train_info = load_split(config.datasets, "train")
-    val, _ = load_split(config.datasets, "val")
+    val, _ = load_split(config.select or config.datasets, "val")
+    pool = train.pool(config.repeat)
     if len(train.labels) == 0:
         raise TrainingError(f"no 'train' split images in {[str(p) for p in config.datasets]}")
     size = (train.images.shape[2], train.images.shape[1])
     try:
-        check_size(size)
+        build_network(config.arch, size, config.batch_norm)
     except ValueError as exc:
         raise TrainingError(f"training images: {exc}") from exc
 
@@ -238,7 +247,7 @@ def fit(config: FitConfig, resume: bool = False) -> dict[str, Any]:
                 f"images but the data sets are {size[0]}x{size[1]}"
             )
     else:
-        net = PoseNet(size, batch_norm=config.batch_norm)
+        net = build_network(config.arch, size, config.batch_norm)
         mean, std = channel_stats(torch.from_numpy(train.images))
         net.set_normalisation(mean, std)
     net = net.to(memory_format=torch.channels_last)
@@ -254,6 +263,7 @@ def fit(config: FitConfig, resume: bool = False) -> dict[str, Any]:
         "format": CHECKPOINT_FORMAT,
         "size": list(size),
         "batch_norm": net.batch_norm,
+        "arch": arch_of(net),
         "config": config.to_json(),
         "data": train_info,
         "profile": train_info[0].get("profile", {}),
@@ -281,7 +291,7 @@ def fit(config: FitConfig, resume: bool = False) -> dict[str, Any]:
     for epoch in range(state["epoch"] + 1, config.epochs + 1):
         if config.patience and state["bad_epochs"] >= config.patience:
             break
-        row = _train_epoch(step_net, opt, train, config, epoch, augmenter)
+        row = _train_epoch(step_net, opt, train, pool, config, epoch, augmenter)
         sched.step()
         row["val_loss"], row["val_accuracy"] = (
             evaluate_split(net, val)
@@ -332,11 +342,13 @@ def _train_epoch(
     net: torch.nn.Module,
     opt: torch.optim.Optimizer,
     train: Split,
+    pool: np.ndarray,
     config: FitConfig,
     epoch: int,
     augmenter: Augmenter | None,
 ) -> dict[str, Any]:
-    """One pass over the training split in a seeded order -> the epoch's log row.
+    """One pass over `pool` (indices into the training split) in a seeded order -> the
+    epoch's log row.
 
     Only full batches are used (the order changes every epoch), so a compiled step always
     sees one batch shape; a split smaller than a batch is one batch.
@@ -344,7 +356,7 @@ def _train_epoch(
     net.train()
     gen = torch.Generator().manual_seed(config.seed * 100_003 + epoch)
     rng = np.random.default_rng([config.seed, epoch])
-    order = torch.randperm(len(train.labels), generator=gen).numpy()
+    order = pool[torch.randperm(len(pool), generator=gen).numpy()]
     loss_sum, correct, seen = 0.0, 0, 0
     lr = opt.param_groups[0]["lr"]
     start = time.perf_counter()

@@ -15,11 +15,14 @@ the neighbouring convolution / linear layers, giving exactly the SPEC network ab
 
 from __future__ import annotations
 
+from typing import get_args
+
 import torch
 import torch.nn.functional as F
 from torch import nn
 
 from service.regions import NUM_CLASSES
+from train.network.config import Arch
 
 #: Supported input sizes (W, H) -> hidden width of the classifier (SPEC section 8 table).
 HIDDEN_UNITS: dict[tuple[int, int], int] = {(80, 60): 128, (160, 120): 1024}
@@ -62,12 +65,42 @@ def check_size(size: tuple[int, int]) -> tuple[int, int]:
     return size
 
 
-class PoseNet(nn.Module):
-    """SPEC network for an input `size` (W, H) of 80x60 or 160x120.
+class NormalisedNet(nn.Module):
+    """Base of the pose networks: input normalisation, then `features`, then `classifier`.
 
     `mean` and `std` (3 values, RGB, in [0, 1] units) are buffers: set them from the training
     set with `set_normalisation`, they travel with the state dict and the ONNX graph.
+    Subclasses set `size` (W, H), `batch_norm`, `features` and `classifier`.
     """
+
+    size: tuple[int, int]
+    batch_norm: bool
+    features: nn.Module
+    classifier: nn.Module
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.register_buffer("mean", torch.full((1, 3, 1, 1), 0.5))
+        self.register_buffer("std", torch.full((1, 3, 1, 1), 0.25))
+
+    def set_normalisation(self, mean: torch.Tensor, std: torch.Tensor) -> None:
+        """Store per-channel mean and std (3,) of the training images (RGB, [0, 1] units)."""
+        self.mean.copy_(torch.as_tensor(mean, dtype=torch.float32).reshape(1, 3, 1, 1))
+        self.std.copy_(
+            torch.as_tensor(std, dtype=torch.float32).clamp_min(1e-3).reshape(1, 3, 1, 1)
+        )
+
+    def logits(self, x: torch.Tensor) -> torch.Tensor:
+        """RGB [N, 3, H, W] in [0, 1] -> unnormalised scores [N, 9]."""
+        return self.classifier(self.features((x - self.mean) / self.std))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """RGB [N, 3, H, W] in [0, 1] -> log-probabilities [N, 9]."""
+        return F.log_softmax(self.logits(x), dim=1)
+
+
+class PoseNet(NormalisedNet):
+    """SPEC network for an input `size` (W, H) of 80x60 or 160x120."""
 
     def __init__(self, size: tuple[int, int] = (80, 60), batch_norm: bool = False) -> None:
         super().__init__()
@@ -75,8 +108,6 @@ class PoseNet(nn.Module):
         self.batch_norm = batch_norm
         fh, fw = feature_shape(self.size)
         hidden = HIDDEN_UNITS[self.size]
-        self.register_buffer("mean", torch.full((1, 3, 1, 1), 0.5))
-        self.register_buffer("std", torch.full((1, 3, 1, 1), 0.25))
 
         def norm(n: int, one_d: bool = False) -> nn.Module:
             if not batch_norm:
@@ -103,21 +134,6 @@ class PoseNet(nn.Module):
             nn.Tanh(),
             nn.Linear(hidden, NUM_CLASSES),
         )
-
-    def set_normalisation(self, mean: torch.Tensor, std: torch.Tensor) -> None:
-        """Store per-channel mean and std (3,) of the training images (RGB, [0, 1] units)."""
-        self.mean.copy_(torch.as_tensor(mean, dtype=torch.float32).reshape(1, 3, 1, 1))
-        self.std.copy_(
-            torch.as_tensor(std, dtype=torch.float32).clamp_min(1e-3).reshape(1, 3, 1, 1)
-        )
-
-    def logits(self, x: torch.Tensor) -> torch.Tensor:
-        """RGB [N, 3, H, W] in [0, 1] -> unnormalised scores [N, 9]."""
-        return self.classifier(self.features((x - self.mean) / self.std))
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """RGB [N, 3, H, W] in [0, 1] -> log-probabilities [N, 9]."""
-        return F.log_softmax(self.logits(x), dim=1)
 
 
 def _bn_affine(bn: nn.Module, n: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -166,10 +182,36 @@ def fold_batch_norm(net: PoseNet) -> PoseNet:
     return plain
 
 
-class Probabilities(nn.Module):
-    """Wrap a PoseNet so it outputs probabilities [N, 9] (softmax): the exported graph."""
+#: Architectures: "spec" (`PoseNet`, SPEC section 8) and "convnet" (`train.network.convnet`).
+ARCHS: tuple[str, ...] = get_args(Arch)
 
-    def __init__(self, net: PoseNet) -> None:
+
+def build_network(arch: str, size: tuple[int, int], batch_norm: bool = True) -> NormalisedNet:
+    """A fresh network of architecture `arch` for input `size` (W, H)."""
+    if arch == "spec":
+        return PoseNet(size, batch_norm=batch_norm)
+    if arch == "convnet":
+        from train.network.convnet import ConvNet
+
+        return ConvNet(size)
+    raise ValueError(f"unknown architecture {arch!r}; known: {', '.join(ARCHS)}")
+
+
+def arch_of(net: NormalisedNet) -> str:
+    """The architecture name of a network built by `build_network`."""
+    return "spec" if isinstance(net, PoseNet) else "convnet"
+
+
+def export_form(net: NormalisedNet) -> NormalisedNet:
+    """The network as exported, in eval mode: the SPEC network with its batch norm folded
+    away (`fold_batch_norm`); other architectures unchanged."""
+    return (fold_batch_norm(net) if isinstance(net, PoseNet) else net).eval()
+
+
+class Probabilities(nn.Module):
+    """Wrap a pose network so it outputs probabilities [N, 9] (softmax): the exported graph."""
+
+    def __init__(self, net: NormalisedNet) -> None:
         super().__init__()
         self.net = net
 

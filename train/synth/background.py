@@ -5,6 +5,8 @@ Sources, all RGB uint8:
 * `train/assets/backgrounds/photos/`: scikit-image sample photographs (CC0 / public domain);
 * `train/assets/backgrounds/real/`: crops of the real chessboard photos that do not contain the
   board (made by `real_photo_crops`, see train/assets/backgrounds/README.md);
+* the real corpus's *train* sources (`corpus_backgrounds`): its photos without the board and
+  the parts of its board photos outside the board; the val and test sources never;
 * procedural textures (value noise, gradients, stripes, blobs, clutter), drawn from a fixed
   seed so every data set sees the same pool.
 
@@ -25,6 +27,7 @@ from train import ASSETS_DIR
 from train.geometry import apply_homography, dlt_homography
 
 BACKGROUNDS_DIR = ASSETS_DIR / "backgrounds"
+CORPUS_DIR = ASSETS_DIR / "real" / "corpus"
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png")
 N_PROCEDURAL = 48
 
@@ -154,6 +157,26 @@ def real_photo_crops(
     return crops
 
 
+def corpus_backgrounds(corpus: Path = CORPUS_DIR) -> list[np.ndarray]:
+    """Backgrounds from the corpus's train sources (splits.toml): every class-0 photo, and
+    the strips of the board photos outside the board (their corners are the board's outer
+    corners, 25 x 17.5 cm for the default profile). Empty when there is no corpus."""
+    from train.real.realset import corpus_sources, read_splits
+
+    if not (corpus / "splits.toml").is_file():
+        return []
+    splits = read_splits(corpus / "splits.toml")
+    images: list[np.ndarray] = []
+    for src in corpus_sources(corpus):
+        if splits.get(src.name) != "train":
+            continue
+        if src.parent.name == "negatives":
+            images += shipped_backgrounds(src / "images")
+        else:
+            images += [crop for _, crop in real_photo_crops(src, (25.0, 17.5), 3.0, 100)]
+    return images
+
+
 class BackgroundPool:
     """Background sources pre-scaled for output images of `size` (W, H).
 
@@ -183,10 +206,11 @@ class BackgroundPool:
 
     @classmethod
     def default(cls, size: tuple[int, int]) -> BackgroundPool:
-        """The shipped photographs, the real-photo crops and the procedural textures."""
+        """The shipped photographs and real-photo crops, the corpus's train sources and the
+        procedural textures."""
         w, h = size
         procedural = procedural_backgrounds(N_PROCEDURAL, (2 * w, 2 * h))
-        return cls(size, shipped_backgrounds() + procedural)
+        return cls(size, shipped_backgrounds() + corpus_backgrounds() + procedural)
 
     def sample(self, rng: np.random.Generator) -> np.ndarray:
         """A random crop of the output size from a random scaled source, 50 % mirrored:

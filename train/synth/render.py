@@ -1,13 +1,15 @@
 """Synthetic views of a profile's object (SPEC section 5): camera drawing and rendering.
 
 * `draw_views`: camera centres from the profile's lattice for given classes, look-at targets
-  (variant "C": the object centre; "noC": uniform in a 6 x 6 cm square around it), rolls and
+  (variant "C": the object centre; "noC": uniform in a 6 x 6 cm square around it; "free":
+  anywhere in the central 45 % of the field of view), rolls and
   focal-length scales from the profile's ranges.
 * `Renderer`: warps the texture (with a drawn white margin and frame) onto a background with
   the homography H = A [r1 r2 t] composed with texture pixel -> object plane; bilinear
   `cv2.warpPerspective` of an RGBA mip-map level whose alpha edge is anti-aliased, blended onto
-  the background; then (jitter on) a hand-like occluder on the board's edge and photometric
-  jitter (gain, contrast, gamma, grey, noise, JPEG), and the data set's SPEC 6 blur.
+  the background; then (jitter on) a hand-like occluder on the board's edge, radial lens
+  distortion (the profile's k1 range), motion blur and photometric jitter (gain, contrast,
+  gamma, grey, noise, JPEG), and the data set's SPEC 6 blur.
 * `render_view`: one plain image in memory for a camera centre / target / roll.
 
 Frames: object frame of SPEC section 2 (cm); images RGB uint8 [H, W, 3], size = (W, H).
@@ -35,10 +37,16 @@ from train.real.corners import texture_to_object
 from train.synth.background import BackgroundPool
 from train.synth.blur import blur_image
 
-VARIANTS = ("C", "noC")
+#: Look-at targets: C (object centre), noC (SPEC: a 6 x 6 cm square around it), free (the
+#: object anywhere in the central part of the frame, as in hand-held calibration photos).
+VARIANTS = ("C", "noC", "free")
 NOC_HALF_CM = 3.0  # noC targets: uniform in [-3, 3] x [-3, 3] cm around the object centre
+FREE_FRAME = 0.45  # free targets: up to this fraction of the half field of view off-centre
 N_BORDER_VARIANTS = 12
 P_OCCLUDE = 0.25  # share of object images with a hand-like occluder (jitter on)
+P_DISTORT = 0.7  # share of images with radial lens distortion (when the profile has a range)
+P_MOTION = 0.15  # share of images with linear motion blur (jitter on)
+MOTION_PX_160 = (2.0, 7.0)  # motion blur length range in px at 160 px wide
 _RAMP = np.linspace(0.0, 1.0, 256, dtype=np.float32)[:, None]  # grey levels / 255
 PAD = 2  # transparent texels around each mip level: the anti-aliased alpha edge
 
@@ -61,6 +69,38 @@ def occlude_edge(image: np.ndarray, quad: np.ndarray, rng: np.random.Generator) 
     cv2.ellipse(image, centre, axes, float(rng.uniform(0, 180)), 0, 360, colour, -1, cv2.LINE_AA)
 
 
+def lens_distort(image: np.ndarray, k1: float, focal_px: float) -> np.ndarray:
+    """The pinhole image `image` (RGB uint8 [H, W, 3]) as a lens with radial distortion `k1`
+    (OpenCV model x_d = x_u (1 + k1 r_u^2), normalised by `focal_px`, centred) sees it.
+
+    Each output pixel samples the ideal image at x_u, solved from x_d by fixed-point
+    iteration; where that falls outside (barrel distortion, corners) the image is mirrored.
+    """
+    h, w = image.shape[:2]
+    u, v = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+    xd, yd = (u - (w - 1) / 2) / focal_px, (v - (h - 1) / 2) / focal_px
+    xu, yu = xd, yd
+    for _ in range(3):
+        factor = 1.0 + k1 * (xu * xu + yu * yu)
+        xu, yu = xd / factor, yd / factor
+    map_x = (xu * focal_px + (w - 1) / 2).astype(np.float32)
+    map_y = (yu * focal_px + (h - 1) / 2).astype(np.float32)
+    return cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT_101)
+
+
+def motion_blur(image: np.ndarray, length_px: float, angle_deg: float) -> np.ndarray:
+    """Linear motion blur of `length_px` pixels along `angle_deg` (normalised line kernel)."""
+    k = max(3, int(math.ceil(length_px)) | 1)
+    kernel = np.zeros((k, k), np.float32)
+    c = (k - 1) / 2
+    dx, dy = math.cos(math.radians(angle_deg)), math.sin(math.radians(angle_deg))
+    half = length_px / 2
+    p0 = (round((c - dx * half) * 16), round((c - dy * half) * 16))
+    p1 = (round((c + dx * half) * 16), round((c + dy * half) * 16))
+    cv2.line(kernel, p0, p1, 1.0, 1, cv2.LINE_AA, shift=4)
+    return cv2.filter2D(image, -1, kernel / max(float(kernel.sum()), 1e-6))
+
+
 @dataclass(frozen=True)
 class View:
     """A camera for one render: centre and look-at target (3,) cm, roll (deg), focal scale."""
@@ -77,7 +117,7 @@ def draw_views(
     """One view per entry of `classes` (N,) in 1..8: a lattice point of that class (uniform),
     its target per `variant`, roll and focal scale uniform in the profile's ranges."""
     if variant not in VARIANTS:
-        raise ValueError(f"variant must be C or noC, got {variant!r}")
+        raise ValueError(f"variant must be one of {', '.join(VARIANTS)}, got {variant!r}")
     lattice = profile.lattice()
     lattice_classes = pose_class(lattice, profile.geometry.z_split_cm)
     by_class = {k: lattice[lattice_classes == k] for k in range(1, 9)}
@@ -88,14 +128,20 @@ def draw_views(
             raise ValueError(f"profile {profile.name!r} has no lattice point in class {k}")
         centre = points[rng.integers(len(points))]
         target = np.zeros(3)
+        focal_scale = float(rng.uniform(*profile.focal_scale))
         if variant == "noC":
             target[:2] = rng.uniform(-NOC_HALF_CM, NOC_HALF_CM, 2)
+        elif variant == "free":
+            # Half the field of view at the object's distance (SPEC camera: tan = 0.388 / scale
+            # horizontally, 3/4 of it vertically), an approximation for oblique views.
+            half = float(np.linalg.norm(centre)) * 0.388 / focal_scale * FREE_FRAME
+            target[:2] = rng.uniform(-1, 1, 2) * half * np.array([1.0, 0.75])
         views.append(
             View(
                 centre=centre.copy(),
                 target=target,
                 roll_deg=float(rng.uniform(*profile.roll_deg)),
-                focal_scale=float(rng.uniform(*profile.focal_scale)),
+                focal_scale=focal_scale,
             )
         )
     return views
@@ -266,6 +312,18 @@ class Renderer:
             image, quad = self._composite(image, view, board)
             if self.jitter and rng.random() < P_OCCLUDE:
                 occlude_edge(image, quad, rng)
+        k1_range = self.profile.distortion_k1
+        if k1_range != (0.0, 0.0) and rng.random() < P_DISTORT:
+            scale = (
+                view.focal_scale
+                if view is not None
+                else float(rng.uniform(*self.profile.focal_scale))
+            )
+            focal = float(intrinsics(self.size, scale)[0, 0])
+            image = lens_distort(image, float(rng.uniform(*k1_range)), focal)
+        if self.jitter and rng.random() < P_MOTION:
+            length = rng.uniform(*MOTION_PX_160) * self.size[0] / 160
+            image = motion_blur(image, length, float(rng.uniform(0, 180)))
         if self.jitter:
             image = self.photometric(image, rng)
         return blur_image(image, blur, self.size)

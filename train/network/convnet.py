@@ -1,0 +1,76 @@
+"""A stronger small pose CNN than the SPEC network, for the same input and output.
+
+Input: float32 [N, 3, H, W], RGB in [0, 1], H x W = 60 x 80 or 120 x 160; normalisation
+inside the module (`train.network.model.NormalisedNet`). Output of `forward`:
+log-probabilities [N, 9].
+
+    stem   conv 5x5, 3 -> 24, stride 1 (80x60) or 2 (160x120): a 80x60 x 24 map either way
+    block  conv 3x3 24 -> 32                          80x60
+    pool   max 2x2                                    40x30
+    block  conv 3x3 32 -> 48, conv 3x3 48 -> 48       40x30
+    pool   max 2x2                                    20x15
+    block  conv 3x3 48 -> 96, conv 3x3 96 -> 96       20x15
+    pool   max 2x2                                    10x7
+    block  conv 3x3 96 -> 128                         10x7
+    head   adaptive average pool 3x4 -> 1536 -> dropout -> linear 128 -> ReLU -> linear 9
+
+Every conv is followed by batch norm and ReLU. Max pooling keeps the sign of the features
+(the square-colour parity that tells a half turn apart is a sign cue, which the SPEC network's
+L2 pooling discards); the 3x4 pooled head keeps where in the image a feature is, which the
+x/y side needs, at a fixed size for both inputs. Batch norm stays in the exported graph
+(onnxruntime folds it into the convolutions when it loads the model).
+"""
+
+from __future__ import annotations
+
+from torch import nn
+
+from service.regions import NUM_CLASSES
+from train.network.model import NormalisedNet
+
+SIZES = ((80, 60), (160, 120))
+HEAD_GRID = (3, 4)  # (H, W) of the pooled map the classifier reads
+
+
+def _conv(cin: int, cout: int, k: int = 3, stride: int = 1) -> nn.Sequential:
+    return nn.Sequential(
+        nn.Conv2d(cin, cout, k, stride, k // 2, bias=False),
+        nn.BatchNorm2d(cout),
+        nn.ReLU(inplace=True),
+    )
+
+
+class ConvNet(NormalisedNet):
+    """The network above for an input `size` (W, H) of 80x60 or 160x120."""
+
+    def __init__(self, size: tuple[int, int] = (160, 120), dropout: float = 0.2) -> None:
+        super().__init__()
+        size = (int(size[0]), int(size[1]))
+        if size not in SIZES:
+            known = ", ".join(f"{w}x{h}" for w, h in SIZES)
+            raise ValueError(
+                f"unsupported input size {size[0]}x{size[1]}; the network takes {known}"
+            )
+        self.size = size
+        self.batch_norm = True
+        stride = 1 if size == (80, 60) else 2
+        self.features = nn.Sequential(
+            _conv(3, 24, 5, stride),
+            _conv(24, 32),
+            nn.MaxPool2d(2),
+            _conv(32, 48),
+            _conv(48, 48),
+            nn.MaxPool2d(2),
+            _conv(48, 96),
+            _conv(96, 96),
+            nn.MaxPool2d(2),
+            _conv(96, 128),
+            nn.AdaptiveAvgPool2d(HEAD_GRID),
+        )
+        self.classifier = nn.Sequential(
+            nn.Flatten(),
+            nn.Dropout(dropout),
+            nn.Linear(128 * HEAD_GRID[0] * HEAD_GRID[1], 128),
+            nn.ReLU(inplace=True),
+            nn.Linear(128, NUM_CLASSES),
+        )
