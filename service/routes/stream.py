@@ -10,6 +10,7 @@ from starlette.websockets import WebSocketDisconnect
 
 from service.metrics import Metrics
 from service.predictor import Predictor
+from service.registry import UnknownModel
 from service.state import ServiceState
 from service.stream import (
     CloseCode,
@@ -35,16 +36,19 @@ def stream_metrics(metrics: Metrics) -> StreamMetrics:
 
 def find_predictor(state: ServiceState, name: str | None) -> Predictor:
     """The predictor of model `name` (None: the default one), or StreamRefused 1013/4404."""
-    predictor = state.predictor
-    if predictor is None:
-        raise StreamRefused(CloseCode.TRY_AGAIN_LATER, "not_ready", state.problem)
-    if name is not None and name not in (predictor.model.name, "default"):
+    if name is None:
+        if state.predictor is None:
+            raise StreamRefused(CloseCode.TRY_AGAIN_LATER, "not_ready", state.problem)
+        return state.predictor
+    try:
+        return state.models.get(name)
+    except UnknownModel as exc:
+        if not state.loaded:
+            raise StreamRefused(CloseCode.TRY_AGAIN_LATER, "not_ready", state.problem) from None
+        known = ", ".join(exc.known) or "none"
         raise StreamRefused(
-            CloseCode.NOT_FOUND,
-            "model_not_found",
-            f"no model named {name!r}; this service serves {predictor.model.name!r}",
-        )
-    return predictor
+            CloseCode.NOT_FOUND, "model_not_found", f"no model named {name!r}; served: {known}"
+        ) from None
 
 
 @router.websocket("/v1/stream")

@@ -24,6 +24,18 @@ from fastapi.staticfiles import StaticFiles
 STATIC = Path(__file__).resolve().parents[1] / "static"
 DOCS_ASSETS = Path(fastapi_offline.__file__).resolve().parent / "static"
 PAGE_URL, DOCS_ASSETS_URL = "/static", "/docs-assets"
+#: The browser itself refuses anything from another host (ReDoc's bundle, for one, would
+#: fetch its footer logo from a CDN); inline scripts/styles are the docs pages' own.
+CSP = {
+    "Content-Security-Policy": "default-src 'self'; img-src 'self' data: blob:; "
+    "style-src 'self' 'unsafe-inline'; script-src 'self' 'unsafe-inline'; "
+    "worker-src 'self' blob:; connect-src 'self'; font-src 'self' data:"
+}
+
+
+def _local_only(page: HTMLResponse) -> HTMLResponse:
+    page.headers.update(CSP)
+    return page
 
 
 def install(app: FastAPI) -> None:
@@ -37,19 +49,21 @@ def install(app: FastAPI) -> None:
     @app.get("/", include_in_schema=False)
     async def page() -> FileResponse:
         """The web page: photos or the webcam in, the model's answer drawn."""
-        return FileResponse(STATIC / "index.html", media_type="text/html")
+        return FileResponse(STATIC / "index.html", media_type="text/html", headers=CSP)
 
     @app.get("/docs", include_in_schema=False)
     async def swagger_ui() -> HTMLResponse:
-        return get_swagger_ui_html(
-            openapi_url=openapi_url,
-            title=f"{app.title} - Swagger UI",
-            oauth2_redirect_url=redirect_url,
-            swagger_js_url=f"{DOCS_ASSETS_URL}/swagger-ui-bundle.js",
-            swagger_css_url=f"{DOCS_ASSETS_URL}/swagger-ui.css",
-            swagger_favicon_url=favicon,
-            # no "valid" badge fetched from validator.swagger.io
-            swagger_ui_parameters={**(app.swagger_ui_parameters or {}), "validatorUrl": None},
+        return _local_only(
+            get_swagger_ui_html(
+                openapi_url=openapi_url,
+                title=f"{app.title} - Swagger UI",
+                oauth2_redirect_url=redirect_url,
+                swagger_js_url=f"{DOCS_ASSETS_URL}/swagger-ui-bundle.js",
+                swagger_css_url=f"{DOCS_ASSETS_URL}/swagger-ui.css",
+                swagger_favicon_url=favicon,
+                # no "valid" badge fetched from validator.swagger.io
+                swagger_ui_parameters={**(app.swagger_ui_parameters or {}), "validatorUrl": None},
+            )
         )
 
     @app.get(redirect_url, include_in_schema=False)
@@ -58,10 +72,12 @@ def install(app: FastAPI) -> None:
 
     @app.get("/redoc", include_in_schema=False)
     async def redoc() -> HTMLResponse:
-        return get_redoc_html(
-            openapi_url=openapi_url,
-            title=f"{app.title} - ReDoc",
-            redoc_js_url=f"{DOCS_ASSETS_URL}/redoc.standalone.js",
-            redoc_favicon_url=favicon,
-            with_google_fonts=False,
+        return _local_only(
+            get_redoc_html(
+                openapi_url=openapi_url,
+                title=f"{app.title} - ReDoc",
+                redoc_js_url=f"{DOCS_ASSETS_URL}/redoc.standalone.js",
+                redoc_favicon_url=favicon,
+                with_google_fonts=False,
+            )
         )

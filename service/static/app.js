@@ -82,12 +82,25 @@ async function loadCard() {
   renderCard(state.card);
 }
 
-function accuracyText(accuracy) {
-  return Object.entries(accuracy || {}).map(([name, a]) => {
+// The card's measured accuracies as a table: data set, kind, images, accuracy.
+function accuracyTable(accuracy) {
+  const table = document.createElement("table");
+  table.className = "accuracy";
+  const rows = [["data set", "kind", "images", "right"]];
+  for (const [name, a] of Object.entries(accuracy || {})) {
     const kind = name.startsWith("real") ? "real photos" : "synthetic";
-    const count = a.count ? `, ${a.count} images` : "";
-    return `${name} (${kind}, ${a.split || "test"}${count}): ${(100 * a.accuracy).toFixed(1)} %`;
+    rows.push([name, `${kind}, ${a.split || "test"}`, String(a.count ?? "—"),
+      typeof a.accuracy === "number" ? `${(100 * a.accuracy).toFixed(1)} %` : "—"]);
+  }
+  rows.forEach((cells, i) => {
+    const tr = table.insertRow();
+    for (const text of cells) {
+      const cell = document.createElement(i === 0 ? "th" : "td");
+      cell.textContent = text;
+      tr.append(cell);
+    }
   });
+  return table;
 }
 
 function renderCard(card) {
@@ -102,7 +115,7 @@ function renderCard(card) {
   ];
   list.replaceChildren();
   for (const [term, value] of rows) addTerm(list, term, [value]);
-  addTerm(list, "measured accuracy", accuracyText(card.accuracy));
+  addTerm(list, "measured accuracy", [Object.keys(card.accuracy || {}).length ? accuracyTable(card.accuracy) : "—"]);
   list.hidden = false;
 }
 
@@ -112,7 +125,8 @@ function addTerm(list, term, values) {
   list.append(dt);
   for (const value of values.length ? values : ["—"]) {
     const dd = document.createElement("dd");
-    dd.textContent = value;
+    if (typeof value === "string") dd.textContent = value;
+    else dd.append(value);
     dd.dataset.term = term;
     list.append(dd);
   }
@@ -181,32 +195,32 @@ function svg(name, attrs, text) {
 // Two panels (near, far), each the object seen face on with its 4 quadrants around it:
 // x to the right, y up, as in the object frame of docs/SPEC.md.
 function octantPicture(classId) {
-  const root = svg("svg", { viewBox: "0 0 330 170", class: "octant-picture", role: "img",
+  const root = svg("svg", { viewBox: "0 0 360 172", class: "octant-picture", role: "img",
     "data-lit": String(classId), "aria-label": `region: ${regionOf(classId).label}` });
-  ["near", "far"].forEach((depth, i) => root.append(octantPanel(depth, i * 170, classId)));
+  ["near", "far"].forEach((depth, i) => root.append(octantPanel(depth, i * 180, classId)));
   if (classId === 0) {
-    root.append(svg("text", { x: 165, y: 92, class: "none-label" }, "object not in view"));
+    root.append(svg("text", { x: 180, y: 92, class: "none-label" }, "object not in view"));
   }
   return root;
 }
 
 function octantPanel(depth, left, classId) {
   const g = svg("g", { transform: `translate(${left}, 0)` });
-  g.append(svg("text", { x: 80, y: 14, class: "panel-title" }, depth));
+  g.append(svg("text", { x: 90, y: 13, class: "panel-title" }, `${depth} (${depth === "near" ? "z < split" : "z ≥ split"})`));
   for (let q = 1; q <= 4; q++) {
     const id = depth === "near" ? q : q + 4;
     const [x, y] = QUADRANTS[q];
-    const cell = svg("rect", { x: x === "+" ? 80 : 10, y: y === "+" ? 22 : 92, width: 70, height: 70,
+    const cell = svg("rect", { x: x === "+" ? 90 : 20, y: y === "+" ? 20 : 90, width: 70, height: 70,
       class: id === classId ? "octant lit" : "octant", "data-class": String(id) });
     cell.append(svg("title", {}, regionOf(id).label));
     g.append(cell);
-    g.append(svg("text", { x: x === "+" ? 135 : 25, y: y === "+" ? 38 : 156, class: "octant-id" }, String(id)));
+    g.append(svg("text", { x: x === "+" ? 148 : 32, y: y === "+" ? 36 : 154, class: "octant-id" }, String(id)));
   }
-  g.append(board(60, 72, 40, 28));
-  g.append(svg("text", { x: 156, y: 96, class: "axis" }, "x+"));
-  g.append(svg("text", { x: 4, y: 96, class: "axis" }, "x−"));
-  g.append(svg("text", { x: 80, y: 32, class: "axis" }, "y+"));
-  g.append(svg("text", { x: 80, y: 168, class: "axis" }, "y−"));
+  g.append(board(70, 76, 40, 28));
+  g.append(svg("text", { x: 170, y: 94, class: "axis" }, "x+"));
+  g.append(svg("text", { x: 10, y: 94, class: "axis" }, "x−"));
+  g.append(svg("text", { x: 90, y: 31, class: "axis" }, "y+"));
+  g.append(svg("text", { x: 90, y: 170, class: "axis" }, "y−"));
   return g;
 }
 

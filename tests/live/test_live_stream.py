@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 import cv2
+import httpx
 import numpy as np
 import psutil
 import pytest
@@ -162,8 +163,10 @@ def test_a_flood_is_dropped_oldest_first_and_memory_stays_flat(server: Server) -
             seconds = time.perf_counter() - start
     growth_mb = (rss.peak - baseline) / 2**20
     dropped = sum(a["dropped"] for a in answers)
-    print(f"flood: {sent_mb:.0f} MB in {seconds:.1f} s, {len(answers)} answered, {dropped} dropped, "
-          f"server RSS +{growth_mb:.1f} MB at peak")
+    print(
+        f"flood: {sent_mb:.0f} MB in {seconds:.1f} s, {len(answers)} answered, {dropped} dropped, "
+        f"server RSS +{growth_mb:.1f} MB at peak"
+    )
     assert all("error" not in a for a in answers)
     seqs = [a["seq"] for a in answers]
     assert seqs == sorted(seqs) and seqs[-1] == len(frames) + 7  # the newest frame is answered
@@ -262,7 +265,7 @@ def test_a_missing_or_wrong_key_closes_with_4401(secured: Server, how: str) -> N
         ("mode=bogus", 4422, "mode: must be one of whole, sliding, proposals"),
         ("smooth=1.5", 4422, "smooth: must be in [0, 1)"),
         ("smooth=abc", 4422, "smooth: must be a number"),
-        ("model=nope", 4404, "no model named 'nope'"),
+        ("model=nope", 4404, "no model named 'nope'; served: "),
     ],
 )
 def test_bad_parameters_are_refused_with_a_reason(
@@ -271,3 +274,21 @@ def test_bad_parameters_are_refused_with_a_reason(
     body, close, reason = refusal(f"{server.ws}?{query}")
     assert words in body["error"]["message"]
     assert close == code and words in reason
+
+
+def test_model_parameter_picks_a_served_model(server: Server) -> None:
+    served = httpx.get(server.url + "/v1/models", timeout=30).json()
+    others = [m["name"] for m in served["models"] if not m["default"]]
+    name = others[0] if others else served["default"]
+    photo = PHOTO.read_bytes()
+    want = httpx.post(
+        f"{server.url}/v1/models/{name}/predict",
+        content=photo,
+        headers={"content-type": "image/jpeg"},
+        timeout=30,
+    ).json()
+    with connect(f"{server.ws}?model={name}") as ws:
+        hello = json.loads(ws.recv(timeout=30))
+        (got,) = stream_lockstep(ws, [photo])
+    assert hello["model"] == want["model"]
+    assert got["probabilities"] == pytest.approx(want["results"][0]["probabilities"], abs=1e-6)

@@ -1,0 +1,236 @@
+"""The web page and the docs pages in a real browser: Debian's chromium, headless, driven by
+selenium through Debian's chromedriver, against a live server, with every other host cut off
+(host resolver and a dead proxy; the requests the pages made are checked afterwards).
+
+Screenshots of each page go to the test's tmp folder; with PLANAR_POSE_SCREENSHOTS=DIR they
+are copied to DIR too (`PLANAR_POSE_SCREENSHOTS=docs/images pytest tests/live/test_live_browser.py`
+makes docs/images/web-page.png). Skipped, with the reason, without chromium/chromedriver.
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import os
+import shutil
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+from live_support import PHOTO, Server
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+CHROMEDRIVER = shutil.which("chromedriver") or (
+    "/usr/bin/chromedriver" if Path("/usr/bin/chromedriver").exists() else None
+)
+WAIT_S = 60
+
+pytestmark = pytest.mark.skipif(
+    CHROMIUM is None or CHROMEDRIVER is None,
+    reason="needs Debian's chromium and chromium-driver (apt-get install chromium "
+    "chromium-driver; .ci/run installs them as root)",
+)
+
+webdriver = pytest.importorskip("selenium.webdriver", reason="needs selenium (the dev extra)")
+from selenium.webdriver.chrome.options import Options  # noqa: E402
+from selenium.webdriver.chrome.service import Service  # noqa: E402
+from selenium.webdriver.common.by import By  # noqa: E402
+from selenium.webdriver.remote.webdriver import WebDriver  # noqa: E402
+from selenium.webdriver.support.ui import Select, WebDriverWait  # noqa: E402
+
+FLAGS = [
+    "--headless=new",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--disable-default-apps",
+    "--disable-extensions",
+    "--no-first-run",
+    "--no-default-browser-check",
+    "--window-size=1280,1400",
+    # the network: names resolve to nothing but 127.0.0.1, anything else goes to a dead proxy
+    "--host-resolver-rules=MAP * ~NOTFOUND, EXCLUDE 127.0.0.1",
+    "--proxy-server=http://127.0.0.1:9",
+    # the webcam: Chromium's built-in fake camera, allowed without a prompt
+    "--use-fake-device-for-media-stream",
+    "--use-fake-ui-for-media-stream",
+]
+
+
+@pytest.fixture
+def browser(tmp_path: Path) -> Iterator[WebDriver]:
+    options = Options()
+    options.binary_location = str(CHROMIUM)
+    for flag in [*FLAGS, f"--user-data-dir={tmp_path / 'profile'}"]:
+        options.add_argument(flag)
+    options.set_capability("goog:loggingPrefs", {"performance": "ALL"})
+    driver = webdriver.Chrome(service=Service(executable_path=str(CHROMEDRIVER)), options=options)
+    driver.set_page_load_timeout(WAIT_S)
+    try:
+        yield driver
+    finally:
+        driver.quit()
+
+
+def requested_urls(driver: WebDriver) -> list[str]:
+    """Every URL the browser sent a request to so far, WebSockets included (DevTools events);
+    not those its Content-Security-Policy refused before sending (ReDoc's footer logo)."""
+    urls: dict[str, str] = {}
+    refused = set()
+    for entry in driver.get_log("performance"):
+        message = json.loads(entry["message"])["message"]
+        params = message["params"]
+        if message["method"] == "Network.requestWillBeSent":
+            urls[params["requestId"]] = params["request"]["url"]
+        elif message["method"] == "Network.webSocketCreated":
+            urls[params["requestId"]] = params["url"]
+        elif message["method"] == "Network.loadingFailed" and params.get("blockedReason") == "csp":
+            refused.add(params["requestId"])
+    return [url for rid, url in urls.items() if rid not in refused]
+
+
+def assert_only_local(driver: WebDriver, server: Server) -> list[str]:
+    """The network requests (http, ws) all went to the server; browser-internal ones
+    (chrome://, data:, blob:) are no network."""
+    urls = [u for u in requested_urls(driver) if u.startswith(("http", "ws"))]
+    assert urls, "no request seen"
+    local = (server.url + "/", server.ws.removesuffix("/v1/stream") + "/")
+    outside = [u for u in urls if not u.startswith(local)]
+    assert outside == [], f"the page asked for other hosts: {outside}"
+    return urls
+
+
+def screenshot(driver: WebDriver, tmp_path: Path, name: str) -> Path:
+    path = tmp_path / name
+    height = driver.execute_script("return Math.ceil(document.body.getBoundingClientRect().bottom)")
+    metrics = {"width": 1280, "height": max(800, min(int(height), 2400))}
+    driver.execute_cdp_cmd(  # the viewport as tall as the page: the whole page in one picture
+        "Emulation.setDeviceMetricsOverride", {**metrics, "deviceScaleFactor": 1, "mobile": False}
+    )
+    driver.execute_script("window.scrollTo(0, 0)")
+    assert driver.save_screenshot(str(path)), f"no screenshot {path}"
+    driver.execute_cdp_cmd("Emulation.clearDeviceMetricsOverride", {})
+    target = os.environ.get("PLANAR_POSE_SCREENSHOTS")
+    if target:
+        Path(target).mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(path, Path(target) / name)
+    return path
+
+
+DROP_JS = """
+const [b64, name, type] = arguments;
+const bytes = Uint8Array.from(atob(b64), (c) => c.charCodeAt(0));
+const data = new DataTransfer();
+data.items.add(new File([bytes], name, { type }));
+const zone = document.querySelector("#drop");
+for (const kind of ["dragenter", "dragover", "drop"]) {
+  zone.dispatchEvent(new DragEvent(kind, { dataTransfer: data, bubbles: true, cancelable: true }));
+}
+"""
+
+
+def drop_file(driver: WebDriver, data: bytes, name: str, media_type: str) -> None:
+    driver.execute_script(DROP_JS, base64.b64encode(data).decode(), name, media_type)
+
+
+def wait_for(driver: WebDriver, css: str) -> Any:
+    return WebDriverWait(driver, WAIT_S).until(
+        lambda d: (
+            d.find_element(By.CSS_SELECTOR, css) if d.find_elements(By.CSS_SELECTOR, css) else False
+        )
+    )
+
+
+def test_the_page_answers_a_dropped_photo_like_the_api(
+    browser: WebDriver, server: Server, tmp_path: Path
+) -> None:
+    photo = PHOTO.read_bytes()
+    api = httpx.post(
+        server.url + "/v1/predict?mode=proposals",
+        content=photo,
+        headers={"content-type": "image/jpeg"},
+        timeout=30,
+    ).json()["results"][0]
+    browser.get(server.url + "/")
+    wait_for(browser, "#model-card:not([hidden])")
+    card = {
+        e.get_attribute("data-term"): e.text for e in browser.find_elements(By.CSS_SELECTOR, "dd")
+    }
+    assert card["input size"] == "80 × 60 px"
+    assert card["object"].startswith("chessboard")
+    first = next(iter(httpx.get(server.url + "/v1/model", timeout=30).json()["accuracy"].values()))
+    assert f"{100 * first['accuracy']:.1f} %" in card["measured accuracy"]
+    Select(browser.find_element(By.ID, "mode")).select_by_value("proposals")
+    drop_file(browser, photo, PHOTO.name, "image/jpeg")
+    result = wait_for(browser, ".result[data-state='done']")
+    class_id = int(result.get_attribute("data-class-id"))
+    assert class_id == api["class_id"]
+    region = result.find_element(By.CSS_SELECTOR, ".region")
+    assert region.get_attribute("data-label") == api["region"]["label"]
+    assert result.find_element(By.CSS_SELECTOR, ".name").text == PHOTO.name
+    bars = result.find_elements(By.CSS_SELECTOR, ".bar-row")
+    assert [b.get_attribute("data-class") for b in bars] == [str(k) for k in range(9)]
+    assert result.find_element(By.CSS_SELECTOR, ".bar-row.chosen").get_attribute(
+        "data-class"
+    ) == str(class_id)
+    picture = result.find_element(By.CSS_SELECTOR, "svg.octant-picture")
+    assert picture.get_attribute("data-lit") == str(class_id)
+    lit = result.find_elements(By.CSS_SELECTOR, "rect.octant.lit")
+    assert [r.get_attribute("data-class") for r in lit] == ([str(class_id)] if class_id else [])
+    if api["box"] is not None:
+        assert "box" in result.find_element(By.CSS_SELECTOR, ".meta").text
+    screenshot(browser, tmp_path, "web-page.png")
+    assert_only_local(browser, server)
+
+
+def test_the_page_says_in_plain_words_what_went_wrong(browser: WebDriver, server: Server) -> None:
+    browser.get(server.url + "/")
+    wait_for(browser, "#model-card:not([hidden])")
+    drop_file(browser, b"just some notes", "notes.txt", "text/plain")
+    failed = wait_for(browser, ".result[data-state='error']")
+    text = failed.find_element(By.CSS_SELECTOR, ".result-error").text
+    assert text.startswith("This kind of file is not accepted")
+    drop_file(browser, b"\xff\xd8\xff\xe0 broken jpeg", "broken.jpg", "image/jpeg")
+    WebDriverWait(browser, WAIT_S).until(
+        lambda d: len(d.find_elements(By.CSS_SELECTOR, ".result[data-state='error']")) == 2
+    )
+    newest = browser.find_element(By.CSS_SELECTOR, ".result .result-error")
+    assert newest.text.startswith("The service could not read this file as an image")
+
+
+def test_the_webcam_goes_through_the_stream(
+    browser: WebDriver, server: Server, tmp_path: Path
+) -> None:
+    browser.get(server.url + "/")
+    wait_for(browser, "#model-card:not([hidden])")
+    browser.find_element(By.ID, "camera").click()  # Chromium's fake camera
+    live = wait_for(browser, "#live .result[data-class-id]")
+    WebDriverWait(browser, WAIT_S).until(lambda d: "frames/s" in d.find_element(By.ID, "fps").text)
+    assert int(live.get_attribute("data-class-id")) in range(9)
+    assert "Streaming to default" in browser.find_element(By.ID, "camera-status").text
+    screenshot(browser, tmp_path, "webcam.png")
+    browser.find_element(By.ID, "camera").click()
+    urls = assert_only_local(browser, server)
+    assert any(u.startswith(server.ws + "?mode=whole") for u in urls)
+
+
+def test_docs_and_redoc_render_without_any_other_host(
+    browser: WebDriver, server: Server, tmp_path: Path
+) -> None:
+    browser.get(server.url + "/docs")
+    wait_for(browser, ".opblock-summary-path")
+    paths = {e.text for e in browser.find_elements(By.CSS_SELECTOR, ".opblock-summary-path")}
+    assert {"/v1/predict", "/v1/model", "/healthz", "/readyz"} <= paths
+    screenshot(browser, tmp_path, "docs.png")
+    browser.get(server.url + "/redoc")
+    operation = wait_for(browser, "[data-section-id^='operation/']")
+    assert operation.is_displayed()
+    assert "/v1/predict" in browser.find_element(By.TAG_NAME, "body").text
+    screenshot(browser, tmp_path, "redoc.png")
+    urls = assert_only_local(browser, server)
+    assert any(u.endswith("/docs-assets/swagger-ui-bundle.js") for u in urls)
+    assert any(u.endswith("/docs-assets/redoc.standalone.js") for u in urls)
