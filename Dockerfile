@@ -1,7 +1,8 @@
 # planar-pose inference service (reference: docs/service.md).
 # Stage "build": a venv with the base install (`pip install .` of service/ only: no torch, no
 # training code; setuptools' package search finds no `train` in this context).
-# Stage "runtime": slim Python, that venv, the model folder, a non-root user.
+# Stage "runtime": slim Python, that venv, the model folder (every models/<name>.onnx with its
+# card; default.onnx answers /v1/predict), a non-root user, one worker process per CPU.
 #   docker build -t planar-pose .  &&  docker run -p 8000:8000 planar-pose
 # BASE_IMAGE lets a locally made stand-in of python:3.11-slim be used (docs/service.md).
 ARG BASE_IMAGE=python:3.11-slim
@@ -11,17 +12,17 @@ WORKDIR /src
 COPY pyproject.toml README.md ./
 COPY service ./service
 RUN python -m venv /opt/venv && /opt/venv/bin/pip install --no-cache-dir . \
-    && /opt/venv/bin/pip uninstall --yes --quiet pip
+    && /opt/venv/bin/pip uninstall --yes --quiet setuptools pip
 
 FROM ${BASE_IMAGE} AS runtime
 RUN groupadd --system --gid 10001 pose \
     && useradd --system --uid 10001 --gid pose --no-create-home --shell /usr/sbin/nologin pose
 COPY --from=build /opt/venv /opt/venv
-COPY models/default.onnx models/default.json /app/models/
+COPY models/*.onnx models/*.json /app/models/
 ENV PATH=/opt/venv/bin:$PATH \
     PYTHONDONTWRITEBYTECODE=1 \
     PYTHONUNBUFFERED=1 \
-    POSE_MODEL_PATH=/app/models/default.onnx
+    POSE_MODEL_DIR=/app/models
 WORKDIR /app
 USER 10001:10001
 EXPOSE 8000

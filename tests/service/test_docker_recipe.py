@@ -101,13 +101,14 @@ def copy_into(
             continue  # the build stage's venv is already at its mapped path
         *sources, dest = shlex.split(args)
         target = Path(to_tmp(dest if dest.startswith("/") else f"{workdir}/{dest}"))
-        for source in sources:
-            src = ROOT / source
+        expanded = [p for source in sources for p in sorted(ROOT.glob(source))]
+        assert expanded, f"COPY {args}: nothing matches in the build context"
+        for src in expanded:
             if src.is_dir():  # .dockerignore drops caches and the real photos
                 ignore = shutil.ignore_patterns("__pycache__", "*.pyc", "real")
                 shutil.copytree(src, target, ignore=ignore, dirs_exist_ok=True)
             else:
-                out = target / src.name if dest.endswith("/") or len(sources) > 1 else target
+                out = target / src.name if dest.endswith("/") or len(expanded) > 1 else target
                 out.parent.mkdir(parents=True, exist_ok=True)
                 shutil.copy2(src, out)
 

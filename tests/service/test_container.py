@@ -1,0 +1,99 @@
+"""The real container: the Dockerfile built by podman (deploy/build_image.py), run, healthy,
+answering a photo, as the non-root user, without torch or training code, stopped by SIGTERM.
+
+Needs root with podman, runc and mmdebstrap (`.ci/run` installs them on Debian); skipped with
+the reason otherwise. The build's `pip install` and the base image come from the package
+registries (PyPI, Debian), as in `.ci/run`.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import sys
+import time
+from collections.abc import Iterator
+from types import ModuleType
+
+import httpx
+import pytest
+from service_support import JPEG, PHOTO, ROOT, check_answer, free_port
+
+pytestmark = pytest.mark.slow
+TAG = "localhost/planar-pose:test"
+
+
+def _builder() -> ModuleType:
+    spec = importlib.util.spec_from_file_location("build_image", ROOT / "deploy/build_image.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["build_image"] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+build_image = _builder()
+
+
+@pytest.fixture(scope="module")
+def image() -> str:
+    if missing := build_image.missing_tools():
+        pytest.skip(f"not installed: {', '.join(missing)} (apt-get install podman runc mmdebstrap)")
+    if os.geteuid() != 0:
+        pytest.skip("the podman recipe needs root")
+    try:
+        measured = build_image.build(TAG)
+    except build_image.BuildError as exc:
+        pytest.fail(str(exc))
+    assert measured.image_mb > 0
+    return TAG
+
+
+@pytest.fixture(scope="module")
+def container(image: str) -> Iterator[tuple[str, str]]:
+    port = free_port()
+    cid = build_image.podman("run", "-d", "-p", f"127.0.0.1:{port}:8000", image).stdout.strip()
+    base = f"http://127.0.0.1:{port}"
+    try:
+        deadline = time.monotonic() + 120
+        while True:
+            try:
+                if httpx.get(base + "/readyz", timeout=2).status_code == 200:
+                    break
+            except httpx.TransportError:
+                pass
+            if time.monotonic() > deadline:
+                logs = build_image.podman("logs", cid, check=False)
+                pytest.fail(f"container not ready after 120 s:\n{logs.stdout}{logs.stderr}")
+            time.sleep(0.25)
+        yield cid, base
+    finally:
+        build_image.podman("rm", "--force", cid, check=False)
+
+
+def test_the_container_answers_a_photo(container: tuple[str, str]) -> None:
+    _, base = container
+    r = httpx.post(base + "/v1/predict?mode=sliding", content=PHOTO, headers=JPEG, timeout=60)
+    assert r.status_code == 200, r.text
+    check_answer(r.json(), "sliding", [(640, 480)])
+    names = {m["name"] for m in httpx.get(base + "/v1/models").json()["models"]}
+    assert "default" in names and len(names) > 1  # the model folder
+    assert httpx.get(base + "/v2/health/ready").json() == {"ready": True}
+
+
+def test_healthcheck_user_and_no_training_code(container: tuple[str, str]) -> None:
+    cid, _ = container
+    assert build_image.podman("healthcheck", "run", cid, check=False).returncode == 0
+    assert build_image.podman("exec", cid, "id", "-u").stdout.strip() == "10001"
+    for module in ("torch", "train"):
+        done = build_image.podman("exec", cid, "python", "-c", f"import {module}", check=False)
+        assert done.returncode != 0 and f"No module named '{module}'" in done.stderr
+
+
+def test_sigterm_stops_the_container_cleanly(container: tuple[str, str]) -> None:
+    cid, _ = container
+    build_image.podman("stop", "-t", "15", cid)
+    state = build_image.podman("inspect", "--format", "{{.State.ExitCode}}", cid).stdout.strip()
+    logs = build_image.podman("logs", cid).stderr + build_image.podman("logs", cid).stdout
+    assert "Finished server process" in logs, logs[-2000:]
+    assert state in ("0", "143"), state  # exited on SIGTERM, not killed (137)
