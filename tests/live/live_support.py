@@ -61,8 +61,8 @@ def _free_port() -> int:
 
 
 @contextmanager
-def run_server(log: Path, **env: str) -> Iterator[Server]:
-    """`uvicorn service.app:app` with POSE_* settings `env`, once /readyz answers 200."""
+def run_server(log: Path, ready: str = "/readyz", **env: str) -> Iterator[Server]:
+    """`uvicorn service.app:app` with POSE_* settings `env`, once `ready` answers 200."""
     port = _free_port()
     clean = {k: v for k, v in os.environ.items() if not k.startswith("POSE_")}
     command = [sys.executable, "-m", "uvicorn", "service.app:app", "--host", "127.0.0.1"]
@@ -76,7 +76,7 @@ def run_server(log: Path, **env: str) -> Iterator[Server]:
         )
     server = Server(f"http://127.0.0.1:{port}", proc.pid)
     try:
-        _wait_ready(server.url + "/readyz", proc, log)
+        _wait_ready(server.url + ready, proc, log)
         yield server
     finally:
         proc.terminate()

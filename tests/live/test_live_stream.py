@@ -28,7 +28,9 @@ from live_support import (
     metric,
     predict_each,
     read_video,
+    run_server,
 )
+from planar_pose_client import PoseClient, ServiceUnavailable
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import ClientConnection, connect
 
@@ -292,3 +294,16 @@ def test_model_parameter_picks_a_served_model(server: Server) -> None:
         (got,) = stream_lockstep(ws, [photo])
     assert hello["model"] == want["model"]
     assert got["probabilities"] == pytest.approx(want["results"][0]["probabilities"], abs=1e-6)
+
+
+def test_a_service_without_its_model_refuses_with_1013(tmp_path: Path) -> None:
+    broken = tmp_path / "broken.onnx"
+    broken.write_bytes(b"not an onnx model")
+    log = tmp_path / "server.log"
+    with run_server(log, "/healthz", POSE_MODEL_PATH=str(broken)) as unready:
+        body, close, _ = refusal(unready.ws)
+        with PoseClient(unready.url) as client, pytest.raises(ServiceUnavailable) as err:
+            list(client.stream([PHOTO]))
+    assert body["error"]["code"] == "not_ready" and close == 1013
+    assert "not loaded" in body["error"]["message"]
+    assert err.value.status == 503 and err.value.code == "not_ready"
