@@ -15,6 +15,7 @@ from .errors import (
     AuthError,
     BadImageError,
     InvalidRequestError,
+    ModelNotFoundError,
     PoseConnectionError,
     PoseError,
     ServiceUnavailable,
@@ -22,7 +23,18 @@ from .errors import (
     UnsupportedMediaError,
 )
 from .images import ImageInput, encode_png
-from .models import Box, ClassInfo, Detection, Mode, ModelCard, Prediction, PredictResponse, Region
+from .models import (
+    Box,
+    ClassInfo,
+    Detection,
+    Mode,
+    ModelCard,
+    ModelInfo,
+    ModelList,
+    Prediction,
+    PredictResponse,
+    Region,
+)
 
 __all__ = [
     "AsyncPoseClient",
@@ -34,6 +46,9 @@ __all__ = [
     "ImageInput",
     "InvalidRequestError",
     "ModelCard",
+    "ModelNotFoundError",
+    "ModelInfo",
+    "ModelList",
     "Mode",
     "PoseClient",
     "PoseConnectionError",

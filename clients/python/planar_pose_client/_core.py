@@ -5,6 +5,7 @@ response parsing. Only the act of sending (and sleeping between attempts) differ
 from __future__ import annotations
 
 import random
+import re
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
@@ -14,9 +15,11 @@ from pydantic import BaseModel, ValidationError
 
 from .errors import PoseConnectionError, PoseError, error_from_response
 from .images import ImageInput, is_single_image, to_upload
-from .models import Mode, ModelCard, Prediction, PredictResponse
+from .models import Mode, ModelCard, ModelList, Prediction, PredictResponse
 
 DEFAULT_TIMEOUT_S = 30.0
+#: What the service accepts as a model name in a URL.
+MODEL_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
 
 M = TypeVar("M", bound=BaseModel)
 
@@ -73,9 +76,14 @@ class ClientCore:
         return {"base_url": self.base_url, "timeout": self.timeout, "headers": self.headers}
 
     @staticmethod
-    def predict_request(images: Iterable[ImageInput], mode: Mode) -> dict[str, Any]:
-        """Keyword arguments of `request()` for POST /v1/predict: every image as one multipart
-        field `image`, in order. Reads and encodes all images first, so a bad one fails here."""
+    def predict_request(
+        images: Iterable[ImageInput], mode: Mode, model: str | None = None
+    ) -> dict[str, Any]:
+        """Keyword arguments of `request()` for POST /v1/predict (or, with `model`,
+        /v1/models/{model}/predict): every image as one multipart field `image`, in order.
+        Reads and encodes all images first, so a bad one fails here."""
+        if model is not None and not MODEL_NAME.fullmatch(model):
+            raise ValueError(f"not a model name: {model!r} (letters, digits, '.', '_', '-')")
         if is_single_image(images):
             raise TypeError("predict_many takes a list of images; use predict for one image")
         uploads = [to_upload(image, i) for i, image in enumerate(images)]
@@ -83,7 +91,7 @@ class ClientCore:
             raise ValueError("predict_many needs at least one image")
         return {
             "method": "POST",
-            "url": "/v1/predict",
+            "url": "/v1/predict" if model is None else f"/v1/models/{model}/predict",
             "params": {"mode": mode},
             "files": [("image", tuple(upload)) for upload in uploads],
         }
@@ -129,6 +137,10 @@ class ClientCore:
     @staticmethod
     def parse_model_card(response: httpx.Response) -> ModelCard:
         return _parse(ModelCard, response)
+
+    @staticmethod
+    def parse_model_list(response: httpx.Response) -> ModelList:
+        return _parse(ModelList, response)
 
 
 def _parse(model: type[M], response: httpx.Response) -> M:

@@ -1,7 +1,8 @@
 """The `planar-pose-client` command: call a running planar-pose service from the shell.
 
-    planar-pose-client predict photo1.jpg photo2.png [--mode sliding] [--json]
+    planar-pose-client predict photo1.jpg photo2.png [--mode sliding] [--model NAME] [--json]
     planar-pose-client info [--json]
+    planar-pose-client models [--json]
     planar-pose-client status
     planar-pose-client watch video.mp4|0 [--mode sliding] [--out drawn.mp4]
 
@@ -33,6 +34,7 @@ from .client import PoseClient
 from .errors import (
     AuthError,
     BadImageError,
+    ModelNotFoundError,
     PoseConnectionError,
     PoseError,
     ServiceUnavailable,
@@ -40,7 +42,7 @@ from .errors import (
     UnsupportedMediaError,
 )
 from .images import check_path
-from .models import ModelCard, Prediction
+from .models import ModelCard, ModelList, Prediction
 from .stream import DEFAULT_WINDOW, FrameError, StreamItem, StreamMode, StreamPrediction
 
 
@@ -55,11 +57,13 @@ class ExitCode(IntEnum):
     BAD_INPUT = (
         5  # missing/unreadable file, bad URL, or the service refused the image (400, 413, 415)
     )
+    UNKNOWN_MODEL = 6  # 404: no served model of that name (`models` lists them)
 
 
 class ModeChoice(StrEnum):
     whole = "whole"
     sliding = "sliding"
+    proposals = "proposals"
 
 
 app = typer.Typer(
@@ -95,8 +99,15 @@ DEFAULT_URL = "http://127.0.0.1:8000"
 def predict(
     images: Annotated[list[Path], typer.Argument(help="Image files (JPEG, PNG, WebP, BMP).")],
     mode: Annotated[
-        ModeChoice, typer.Option("--mode", help="whole: one look; sliding: search windows.")
+        ModeChoice,
+        typer.Option(
+            "--mode", help="whole: one look; sliding: search windows; proposals: object boxes."
+        ),
     ] = ModeChoice.whole,
+    model: Annotated[
+        str | None,
+        typer.Option("--model", help="Served model name (see `models`; default: the default)."),
+    ] = None,
     as_json: JsonOption = False,
     url: UrlOption = DEFAULT_URL,
     api_key: KeyOption = None,
@@ -112,7 +123,7 @@ def predict(
         for path in images:  # all files exist before the first request
             check_path(path)
         for start in range(0, len(images), batch):
-            predictions += c.predict_many(images[start : start + batch], mode=mode.value)
+            predictions += c.predict_many(images[start : start + batch], mode.value, model)
     if as_json:
         typer.echo(json.dumps([p.model_dump(mode="json") for p in predictions], indent=2))
     else:
@@ -134,6 +145,23 @@ def info(
         typer.echo(card.model_dump_json(indent=2))
     else:
         Console().print(_card_table(card))
+
+
+@app.command()
+def models(
+    as_json: JsonOption = False,
+    url: UrlOption = DEFAULT_URL,
+    api_key: KeyOption = None,
+    timeout: TimeoutOption = 30.0,
+    retries: RetriesOption = 2,
+) -> None:
+    """List the served models (name for `--model`, input size, object, default)."""
+    with _errors_as_exit_codes(), PoseClient(url, api_key, timeout=timeout, retries=retries) as c:
+        listing = c.models()
+    if as_json:
+        typer.echo(listing.model_dump_json(indent=2))
+    else:
+        Console().print(_models_table(listing))
 
 
 @app.command()
@@ -167,6 +195,8 @@ def _exit_code(exc: Exception) -> ExitCode:
         return ExitCode.UNREACHABLE
     if isinstance(exc, AuthError):
         return ExitCode.AUTH
+    if isinstance(exc, ModelNotFoundError):
+        return ExitCode.UNKNOWN_MODEL
     if isinstance(exc, BadImageError | TooLargeError | UnsupportedMediaError):
         return ExitCode.BAD_INPUT
     if isinstance(exc, PoseError):
@@ -195,6 +225,20 @@ def _prediction_table(predictions: list[Prediction], mode: str) -> Table:
             box,
             f"{p.elapsed_ms:.1f}",
         )
+    return table
+
+
+def _models_table(listing: ModelList) -> Table:
+    table = Table(title=f"{len(listing.models)} model(s), default {listing.default}")
+    for name in ("name", "input", "profile", "version", "default"):
+        table.add_column(name)
+    for m in listing.models:
+        table.add_row(
+            m.name, f"{m.input[0]}x{m.input[1]}", m.profile or "-", m.version or "-",
+            "yes" if m.default else "",
+        )  # fmt: skip
+    for name, problem in listing.problems.items():
+        table.add_row(name, "-", "-", "-", f"not loaded: {_short(problem)}")
     return table
 
 

@@ -19,7 +19,7 @@ import httpx
 from ._core import DEFAULT_TIMEOUT_S, ClientCore, RetryPolicy
 from .errors import PoseError
 from .images import ImageInput
-from .models import Mode, ModelCard, Prediction
+from .models import Mode, ModelCard, ModelList, Prediction
 from .stream import DEFAULT_WINDOW, StreamItem, StreamMode, astream_frames, stream_frames
 
 H = TypeVar("H", httpx.Client, httpx.AsyncClient)
@@ -74,18 +74,27 @@ class PoseClient(_ClientBase[httpx.Client, httpx.BaseTransport]):
     def _connect(self, options: dict[str, Any]) -> httpx.Client:
         return httpx.Client(**options)
 
-    def predict(self, image: ImageInput, mode: Mode = "whole") -> Prediction:
-        """Pose region of one image (path, bytes, binary file object or numpy array)."""
-        return self.predict_many([image], mode)[0]
+    def predict(
+        self, image: ImageInput, mode: Mode = "whole", model: str | None = None
+    ) -> Prediction:
+        """Pose region of one image (path, bytes, binary file object or numpy array), by the
+        default model or the served model `model` (see `models()`)."""
+        return self.predict_many([image], mode, model)[0]
 
-    def predict_many(self, images: Iterable[ImageInput], mode: Mode = "whole") -> list[Prediction]:
+    def predict_many(
+        self, images: Iterable[ImageInput], mode: Mode = "whole", model: str | None = None
+    ) -> list[Prediction]:
         """Pose regions of several images in one request; results in the order given."""
-        request = self._core.predict_request(images, mode)
+        request = self._core.predict_request(images, mode, model)
         return self._core.parse_predictions(self._send(**request), len(request["files"]))
 
     def model_info(self) -> ModelCard:
-        """The served model's card (GET /v1/model)."""
+        """The default model's card (GET /v1/model)."""
         return self._core.parse_model_card(self._send("GET", "/v1/model"))
+
+    def models(self) -> ModelList:
+        """Every served model (GET /v1/models)."""
+        return self._core.parse_model_list(self._send("GET", "/v1/models"))
 
     def stream(
         self,
@@ -146,20 +155,27 @@ class AsyncPoseClient(_ClientBase[httpx.AsyncClient, httpx.AsyncBaseTransport]):
     def _connect(self, options: dict[str, Any]) -> httpx.AsyncClient:
         return httpx.AsyncClient(**options)
 
-    async def predict(self, image: ImageInput, mode: Mode = "whole") -> Prediction:
-        """Pose region of one image (path, bytes, binary file object or numpy array)."""
-        return (await self.predict_many([image], mode))[0]
+    async def predict(
+        self, image: ImageInput, mode: Mode = "whole", model: str | None = None
+    ) -> Prediction:
+        """Pose region of one image (path, bytes, binary file object or numpy array), by the
+        default model or the served model `model` (see `models()`)."""
+        return (await self.predict_many([image], mode, model))[0]
 
     async def predict_many(
-        self, images: Iterable[ImageInput], mode: Mode = "whole"
+        self, images: Iterable[ImageInput], mode: Mode = "whole", model: str | None = None
     ) -> list[Prediction]:
         """Pose regions of several images in one request; results in the order given."""
-        request = self._core.predict_request(images, mode)
+        request = self._core.predict_request(images, mode, model)
         return self._core.parse_predictions(await self._send(**request), len(request["files"]))
 
     async def model_info(self) -> ModelCard:
-        """The served model's card (GET /v1/model)."""
+        """The default model's card (GET /v1/model)."""
         return self._core.parse_model_card(await self._send("GET", "/v1/model"))
+
+    async def models(self) -> ModelList:
+        """Every served model (GET /v1/models)."""
+        return self._core.parse_model_list(await self._send("GET", "/v1/models"))
 
     def stream(
         self,

@@ -3,6 +3,7 @@
     PoseError                     any failure reported by the service or the transport
     ├── BadImageError             400  the service could not decode an image (or it was empty)
     ├── AuthError                 401  API key missing or wrong
+    ├── ModelNotFoundError        404  no served model of that name (the message lists them)
     ├── TooLargeError             413  too many bytes, too many pixels or too many images
     ├── UnsupportedMediaError     415  content type the service does not accept
     ├── InvalidRequestError       422  bad parameters (e.g. an unknown mode)
@@ -45,6 +46,10 @@ class AuthError(PoseError):
     """401: the service requires an API key and the one sent is missing or wrong."""
 
 
+class ModelNotFoundError(PoseError):
+    """404: the service serves no model of that name; the message lists the served ones."""
+
+
 class TooLargeError(PoseError):
     """413: the request or an image is too large (bytes, pixels) or holds too many images."""
 
@@ -73,6 +78,7 @@ class PoseConnectionError(PoseError):
 _BY_STATUS: dict[int, type[PoseError]] = {
     400: BadImageError,
     401: AuthError,
+    404: ModelNotFoundError,
     413: TooLargeError,
     415: UnsupportedMediaError,
     422: InvalidRequestError,

@@ -11,7 +11,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-Mode = Literal["whole", "sliding"]
+Mode = Literal["whole", "sliding", "proposals"]
 
 
 class _Answer(BaseModel):
@@ -104,3 +104,25 @@ class ModelCard(BaseModel):
     training: dict[str, Any] = Field(default_factory=dict, description="data, seed, epochs")
     accuracy: dict[str, Any] = Field(default_factory=dict, description="measured, per data set")
     notes: str = ""
+
+
+class ModelInfo(_Answer):
+    """One served model (GET /v1/models)."""
+
+    model_config = ConfigDict(frozen=True, extra="ignore", protected_namespaces=())
+
+    name: str = Field(description="the name to pass as `model=`")
+    default: bool = Field(description="True for the model that answers without `model=`")
+    card_name: str
+    version: str | None = None
+    profile: str | None = Field(None, description="the object the model knows")
+    input: tuple[int, int] = Field(description="network input size (W, H) in pixels")
+    accuracy: dict[str, Any] = Field(default_factory=dict, description="measured, per data set")
+
+
+class ModelList(_Answer):
+    """GET /v1/models: every served model, the default's name, files that did not load."""
+
+    default: str
+    models: list[ModelInfo]
+    problems: dict[str, str] = Field(default_factory=dict)

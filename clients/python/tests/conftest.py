@@ -6,7 +6,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from live_service import API_KEY, REAL, run_service
+from live_service import API_KEY, MODEL, REAL, run_service
 
 
 @pytest.fixture(scope="session")
@@ -36,3 +36,10 @@ def unready_url(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
 def photos() -> list[Path]:
     """Three real photographs (640x480 grey JPEGs of a chessboard)."""
     return [REAL / name for name in ("left01.jpg", "right05.jpg", "left12.jpg")]
+
+
+@pytest.fixture(scope="session")
+def folder_url() -> Iterator[str]:
+    """The service serving the shipped model folder (several models)."""
+    with run_service(POSE_MODEL_DIR=str(MODEL.parent)) as url:
+        yield url

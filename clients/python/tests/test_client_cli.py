@@ -150,3 +150,19 @@ def test_installed_script_exits_cleanly(photos, tmp_path):
     )
     assert done.returncode == ExitCode.BAD_INPUT
     assert done.stderr.strip() == f"error: no such image file: {tmp_path / 'missing.png'}"
+
+
+def test_models_command_and_the_model_option(folder_url, photos):
+    listing = invoke("models", "--url", folder_url)
+    assert listing.exit_code == 0, listing.output
+    assert "default" in listing.stdout and "chessboard-noC-160x120" in listing.stdout
+    as_json = json.loads(invoke("models", "--json", "--url", folder_url).stdout)
+    assert as_json["default"] == "default"
+    large = "chessboard-noC-160x120"
+    result = invoke("predict", str(photos[0]), "--model", large, "--json", "--url", folder_url)
+    assert result.exit_code == 0, result.output
+    with PoseClient(folder_url) as client:
+        expected = client.predict(photos[0], model=large)
+    assert json.loads(result.stdout)[0]["probabilities"] == expected.probabilities
+    unknown = invoke("predict", str(photos[0]), "--model", "nope", "--url", folder_url)
+    assert_one_line_error(unknown, ExitCode.UNKNOWN_MODEL, "HTTP 404 model_not_found")

@@ -19,6 +19,7 @@ from planar_pose_client import (
     BadImageError,
     InvalidRequestError,
     ModelCard,
+    ModelNotFoundError,
     PoseClient,
     Prediction,
     ServiceUnavailable,
@@ -199,3 +200,31 @@ def test_a_service_that_is_not_ready(unready_url, photos):
 
     with pytest.raises(ServiceUnavailable):
         asyncio.run(run())
+
+
+def test_models_and_choosing_one_per_request(folder_url, photos):
+    with PoseClient(folder_url, retries=0) as client:
+        listing = client.models()
+        names = {m.name for m in listing.models}
+        assert listing.default == "default" and {"default", "chessboard-noC-160x120"} <= names
+        large = next(m for m in listing.models if m.name == "chessboard-noC-160x120")
+        assert large.input == (160, 120) and large.profile == "chessboard" and not large.default
+        default = client.predict(photos[0])
+        other = client.predict(photos[0], model="chessboard-noC-160x120")
+        check_prediction(other, photos[0].name)
+        assert other.probabilities != default.probabilities
+        many = client.predict_many(photos, mode="sliding", model="chessboard-noC-160x120")
+        assert [p.filename for p in many] == [p.name for p in photos]
+        with pytest.raises(ModelNotFoundError) as unknown:
+            client.predict(photos[0], model="nope")
+        assert unknown.value.status == 404 and "chessboard-noC-160x120" in unknown.value.message
+        with pytest.raises(ValueError, match="not a model name"):
+            client.predict(photos[0], model="../v1/model")
+
+    async def run():
+        async with AsyncPoseClient(folder_url) as client:
+            return await client.models(), await client.predict(photos[0], model="default")
+
+    listing_async, again = asyncio.run(run())
+    assert listing_async == listing
+    np.testing.assert_allclose(again.probabilities, default.probabilities, atol=1e-6)
