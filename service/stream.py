@@ -250,7 +250,10 @@ class StreamMetrics:
     def __init__(self, metrics: Metrics) -> None:
         self.metrics = metrics
         self.sessions = Gauge(
-            "pose_stream_sessions", "Open /v1/stream sockets.", registry=metrics.registry
+            "pose_stream_sessions",
+            "Open /v1/stream sockets.",
+            registry=metrics.registry,
+            multiprocess_mode="livesum",  # under --workers N: the sum over live workers
         )
         self.frames = Counter(
             "pose_stream_frames",
@@ -361,8 +364,7 @@ class StreamSession:
             text = str(exc).removeprefix("image 1: ")
             return _error_json(code, f"frame {frame.seq}: {text}", **where)
         self.metrics.frames.labels(mode, "answered").inc()
-        self.metrics.metrics.images.labels(mode).inc()
-        self.metrics.metrics.inference.labels(mode).observe(prediction.inference_s)
+        self.metrics.metrics.observe(mode, 1, prediction.inference_s)
         result = self.smoother.apply(prediction.results[0])
         return json.dumps({**where, **result.model_dump(mode="json")})
 
