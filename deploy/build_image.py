@@ -104,14 +104,15 @@ def ensure_base(base: str = BASE) -> bool:
     return True
 
 
-def build(tag: str = TAG, base: str = BASE) -> Measured:
-    """Build the Dockerfile at the repo root as `tag` on `base`; measure it."""
+def build(tag: str = TAG, base: str = BASE, no_cache: bool = False) -> Measured:
+    """Build the Dockerfile at the repo root as `tag` on `base` (every layer anew with
+    `no_cache`); measure it."""
     base_built = ensure_base(base)
     mounts = ["-v", f"{CA_BUNDLE}:{CA_BUNDLE}:ro"] if CA_BUNDLE.is_file() else []
     t0 = time.perf_counter()
     podman(
         "build", "--pull=never", "--format", "docker", "--build-arg", f"BASE_IMAGE={base}",
-        *mounts, "-t", tag, str(ROOT),
+        *mounts, *(["--no-cache"] if no_cache else []), "-t", tag, str(ROOT),
     )  # fmt: skip
     build_s = time.perf_counter() - t0
     size = int(podman("image", "inspect", "--format", "{{.Size}}", tag).stdout.strip())
@@ -152,11 +153,8 @@ def main() -> None:
         raise SystemExit(
             f"error: not installed: {', '.join(missing)} (apt-get install podman runc mmdebstrap)"
         )
-    if args.no_cache:
-        podman("rmi", "--force", args.tag, check=False)
-        podman("builder", "prune", "--all", "--force", check=False)
     try:
-        measured = build(args.tag, args.base)
+        measured = build(args.tag, args.base, args.no_cache)
     except BuildError as exc:
         raise SystemExit(f"error: {exc}") from None
     print(json.dumps(asdict(measured)))
