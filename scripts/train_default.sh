@@ -1,102 +1,82 @@
 #!/usr/bin/env bash
-# Reproduce the shipped models from scratch for the `chessboard` profile (about 75 min on an
-# otherwise idle 2-core machine):
-#   1. synthetic data: training sets (noC, blur 0; blur 1-3 are mixed in on the fly by `train`),
-#      the evaluation grid {noC, C} x size {1, 2} x blur {0..3}, small rehearsal sets;
-#   2. the real photos as data sets (both sizes, blur 0..3, split by stereo moment);
-#   3. A (noC, 80x60) and C (noC, 160x120) trained in parallel, one core each (Adam, batch
-#      norm folded away on export), then A 12 more epochs from its last state;
-#   4. Ar, Cr: A and C fine-tuned on the real train split (all blur levels) plus a synthetic
-#      rehearsal set so that class 0 and the far classes, absent from the photos, are kept;
-#   5. export of the four to models/ (ONNX + card, accuracy measured on the exported graph);
-#   6. the full evaluation grid written to docs/results.md (+ docs/results/);
-#   7. models/default.onnx + default.json = $DEFAULT.
-# Every step is seeded; existing data sets and finished runs in $WORK are reused.
+# Reproduce the shipped models of the `chessboard` profile from the recipe files in recipes/
+# (recipes/README.md says what each model is). Every step is seeded; data sets and finished
+# runs under runs/default are reused, so an interrupted run continues where it stopped
+# (`planar-pose train --resume` continues a run from its last epoch).
+#
+#   1. data: free-target renders (training), the SPEC evaluation grid, the level-camera
+#      renders of the SPEC-network models, and the real corpus as data sets (split by source);
+#   2. the default model: the convnet, stage 1 on renders, stage 2 on renders + real train
+#      sources, best epoch on the real val sources;
+#   3. with SPEC=1 also the SPEC-network models A (80x60) and C (160x120), for comparison;
+#   4. export to models/ (ONNX + card with accuracies measured on the exported graph), the
+#      evaluation grid (docs/results.md) and models/default.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PP=${PP:-.venv/bin/planar-pose}
-WORK=${WORK:-runs/default}
-PROFILE=${PROFILE:-chessboard}
-N_EVAL=${N_EVAL:-2500}     # images per evaluation set; its 20 % test split is evaluated
-DEFAULT=${DEFAULT:-$PROFILE-noC-80x60}  # best synthetic + real test of the four (docs/results.md)
-VERSION=${VERSION:-1.0.0}
-D=$WORK/data
-R=$WORK/runs
+D=runs/default/data   # the recipes name their data and run folders under runs/default
+R=runs/default/runs
+N_EVAL=${N_EVAL:-2500}  # images per synthetic evaluation set; its 20 % test split is evaluated
+VERSION=${VERSION:-2.0.0}
 mkdir -p "$D" "$R"
-STATUS="Below the project's bar of 97 % on synthetic noC: the network learns class 0, near/far and \
-the board's orientation (x/y side up to a half turn) but only partly the square-colour parity that \
-tells opposite quadrants apart; see docs/results.md. Trained for a level camera (roll within 5 \
-degrees): photos taken at a large roll get a wrong quadrant. The real test split is 6 photos."
 
-make_set() {  # OUT VARIANT SIZE BLUR COUNT SEED
+make_set() {  # OUT VARIANT SIZE BLUR COUNT SEED [PROFILE]
     [ -f "$1/manifest.json" ] || $PP data make "$1" --variant "$2" --size "$3" --blur "$4" \
-        --count "$5" --seed "$6" --profile "$PROFILE"
+        --count "$5" --seed "$6" --profile "${7:-chessboard}"
+}
+train_recipe() {  # NAME: recipes/NAME.toml, resumed if its run folder has a last.pt
+    local out=$R/$1
+    [ -f "$out/done" ] && return
+    if [ -f "$out/last.pt" ]; then
+        $PP train --config "recipes/$1.toml" --resume
+    else
+        $PP train --config "recipes/$1.toml"
+    fi
+    touch "$out/done"
+}
+export_model() {  # RUN NAME SIZE NOTES
+    $PP export "$R/$1/best.pt" --name "$2" --out-dir models --version "$VERSION" \
+        --eval "$D/free-s$3-b0" --eval "$D/free-s$3-b3" --eval "$D/noC-s$3-b0" \
+        --eval "$D/real-s$3-b0" --eval "$D/real-s$3-b3" --notes "$4"
 }
 
-# 1-2. Data.
-make_set "$D/train-noC-s1" noC 1 0 40000 101
-make_set "$D/train-noC-s2" noC 2 0 12000 102
+# 1. Data.
+make_set "$D/train-free-s2" free 2 0 40000 401
 for size in 1 2; do
-    make_set "$D/rehearse-noC-s$size" noC "$size" 0 600 $((300 + size))
     for blur in 0 1 2 3; do
-        [ -f "$D/real-s$size-b$blur/manifest.json" ] || $PP realset \
-            train/assets/real/chessboard-stereo "$D/real-s$size-b$blur" --size "$size" --blur "$blur" \
-            --profile "$PROFILE" --seed 0
+        make_set "$D/free-s$size-b$blur" free "$size" "$blur" "$N_EVAL" $((2000 + 10 * size + blur))
+        make_set "$D/noC-s$size-b$blur" noC "$size" "$blur" "$N_EVAL" $((1000 + 10 * size + blur))
     done
 done
-for size in 1 2; do
-    for variant in noC C; do
-        for blur in 0 1 2 3; do
-            make_set "$D/$variant-s$size-b$blur" "$variant" "$size" "$blur" "$N_EVAL" \
-                $((1000 + 10 * size + blur))
-        done
+[ -f "$D/real-s2-b3/manifest.json" ] || $PP corpus sets "$D"
+
+# 2. The default model.
+train_recipe chessboard-convnet-160x120-pretrain
+train_recipe chessboard-convnet-160x120
+NOTES="Made by scripts/train_default.sh from recipes/chessboard-convnet-160x120.toml."
+export_model chessboard-convnet-160x120 chessboard-convnet-160x120 2 "$NOTES"
+export_model chessboard-convnet-160x120 default 2 "The default model. $NOTES"
+
+# 3. The SPEC-network models (level camera, as the thesis), for comparison.
+if [ "${SPEC:-0}" = 1 ]; then
+    make_set "$D/level-noC-s1" noC 1 0 40000 101 chessboard-level
+    make_set "$D/level-noC-s2" noC 2 0 12000 102 chessboard-level
+    train_recipe chessboard-noC-80x60 &
+    train_recipe chessboard-noC-160x120 &
+    wait
+    train_recipe chessboard-noC-80x60-stage2
+    for wh in 80x60 160x120; do
+        size=$([ "$wh" = 80x60 ] && echo 1 || echo 2)
+        export_model "chessboard-noC-$wh" "chessboard-noC-$wh" "$size" \
+            "SPEC network, level camera. Made by scripts/train_default.sh (recipes/)."
     done
-done
+fi
 
-# 3. A and C in parallel (Adam, cosine schedule, batch norm, best epoch on val).
-train_run() {  # NAME DATA EPOCHS LR SEED
-    [ -f "$R/$1/best.pt" ] || $PP train "$2" --out "$R/$1" --epochs "$3" --batch-size 32 \
-        --optimizer adam --lr "$4" --weight-decay 0 --patience 0 --seed "$5" --threads 1 \
-        > "$R/$1.log" 2>&1
-}
-train_run "$PROFILE-noC-80x60-stage1" "$D/train-noC-s1" 12 0.003 1 &
-train_run "$PROFILE-noC-160x120" "$D/train-noC-s2" 12 0.002 2 &
-wait
-# A was still improving after its 12 epochs: 12 more from its last state (warm restart).
-[ -f "$R/$PROFILE-noC-80x60/best.pt" ] || $PP train "$D/train-noC-s1" \
-    --init "$R/$PROFILE-noC-80x60-stage1/last.pt" --out "$R/$PROFILE-noC-80x60" --epochs 12 \
-    --batch-size 32 --optimizer adam --lr 0.001 --weight-decay 0 --patience 0 --seed 3 \
-    --threads 2 > "$R/$PROFILE-noC-80x60.log" 2>&1
-
-# 4. Fine-tuning on the real train split (+ rehearsal), 15 epochs as in the thesis.
-for size in 1 2; do
-    wh=$([ "$size" = 1 ] && echo 80x60 || echo 160x120)
-    run=$PROFILE-noC-$wh
-    [ -f "$R/$run-real/best.pt" ] || $PP train "$D"/real-s$size-b{0,1,2,3} \
-        "$D/rehearse-noC-s$size" --init "$R/$run/best.pt" --out "$R/$run-real" \
-        --epochs 15 --batch-size 16 --lr 0.001 --patience 0 --seed "$size" --threads 1
-
-    # 5. Export (accuracy on the test splits goes in the card).
-    for name in "$run" "$run-real"; do
-        $PP export "$R/$name/best.pt" --name "$name" --out-dir models --version "$VERSION" \
-            --eval "$D/noC-s$size-b0" --eval "$D/noC-s$size-b3" --eval "$D/C-s$size-b0" \
-            --eval "$D/real-s$size-b0" --eval "$D/real-s$size-b3" \
-            --notes "Made by scripts/train_default.sh. $STATUS"
-    done
-done
-
-# 6. The grid: each model on the sets of its own size (test splits).
-$PP evaluate models/$PROFILE-noC-{80x60,80x60-real,160x120,160x120-real}.onnx \
-    "$D"/noC-s{1,2}-b{0,1,2,3} "$D"/C-s{1,2}-b{0,1,2,3} "$D"/real-s{1,2}-b{0,1,2,3} \
+# 4. The evaluation grid: each shipped model on the sets of its own size (test splits).
+$PP evaluate models/chessboard-convnet-160x120.onnx models/chessboard-noC-{80x60,160x120}.onnx \
+    "$D"/real-s{1,2}-b{0,1,2,3} "$D"/free-s{1,2}-b{0,1,2,3} "$D"/noC-s{1,2}-b{0,1,2,3} \
     --same-size --split test --out docs/results --markdown docs/results.md \
-    --title "Results of the shipped $PROFILE models" \
+    --title "Results of the shipped chessboard models" \
     --note "Written by \`planar-pose evaluate\` at the end of \`scripts/train_default.sh\`." \
-    --note "Synthetic sets: $N_EVAL renders each, the 20 % test split evaluated. Real sets: the 26 chessboard-stereo photos; their test split is 6 photos (3 stereo moments), all near, no class 0: one photo is 16.7 points."
-
-# 7. The default model.
-size=$([ "${DEFAULT#*160x120}" != "$DEFAULT" ] && echo 2 || echo 1)
-$PP export "$R/$DEFAULT/best.pt" --name default --out-dir models --version "$VERSION" \
-    --eval "$D/noC-s$size-b0" --eval "$D/noC-s$size-b3" --eval "$D/C-s$size-b0" \
-    --eval "$D/real-s$size-b0" --eval "$D/real-s$size-b3" \
-    --notes "The default model is $DEFAULT (models/$DEFAULT.onnx). Made by scripts/train_default.sh. $STATUS"
-echo "done: models/default.onnx = $DEFAULT; results in docs/results.md"
+    --note "Real sets: the corpus's test sources (train/assets/real/corpus/README.md), never used for training or model selection. Synthetic sets: $N_EVAL renders each, the 20 % test split."
+echo "done: models/default.onnx; results in docs/results.md"

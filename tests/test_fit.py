@@ -110,10 +110,14 @@ def test_fine_tuning_starts_from_the_checkpoint(tiny_set, tmp_path):
 def test_augmenter_keeps_shape_and_is_seeded():
     images = np.random.default_rng(0).integers(0, 256, (8, 60, 80, 3), dtype=np.uint8)
     aug = Augmenter((80, 60), p_blur=1.0, p_grey=0.5)
-    a = aug(images, np.zeros(8, int), np.random.default_rng(1))
-    b = aug(images, np.zeros(8, int), np.random.default_rng(1))
+    corners = np.tile(np.array([10, 10, 70, 10, 70, 50, 10, 50], np.float32), (8, 1))
+    a, ca = aug(images, np.zeros(8, int), np.random.default_rng(1), corners)
+    b, cb = aug(images, np.zeros(8, int), np.random.default_rng(1), corners)
     assert a.shape == images.shape and a.dtype == np.uint8
-    assert np.array_equal(a, b) and not np.array_equal(a, images)
+    assert np.array_equal(a, b) and not np.array_equal(a, images) and np.array_equal(ca, cb)
+    moved = np.any(ca != corners, axis=1)  # the cropped (zoomed-in) images
+    width, height = ca[:, 2] - ca[:, 0], ca[:, 5] - ca[:, 3]
+    assert moved.any() and np.all(width[moved] > 60) and np.all(height[moved] > 40)
 
 
 def test_errors_are_clear(tiny_set, tmp_path):

@@ -5,7 +5,8 @@ On disk a data set is a folder a person can open:
 * `images/...`: the images (any size; resized on load);
 * `labels.csv`: one row per image, at least `file` (relative to the folder), `class` (0..8)
   and `split` (train / val / test); `LABEL_COLUMNS` for synthetic sets (camera centre and
-  look-at target in cm, object frame; SPEC blur level; roll in degrees; focal-length scale);
+  look-at target in cm, object frame; SPEC blur level; roll in degrees; focal-length scale;
+  lens distortion k1; the object's four corners in pixels, `CORNER_COLUMNS`);
 * `manifest.json`: generator and version, profile, size [W, H], counts.
 
 `train.synth.generate` writes synthetic sets, `train.real.realset` real ones.
@@ -31,6 +32,8 @@ NUM_CLASSES = 9
 #: Bumped when the decoded cache format changes.
 CACHE_VERSION = "1.0"
 CACHE_DIR = ".cache"
+#: Image pixels of the object corners (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y) at the set's size.
+CORNER_COLUMNS = [f"corner_{a}{i}" for i in range(4) for a in "xy"]
 LABEL_COLUMNS = [
     "file",
     "class",
@@ -44,6 +47,8 @@ LABEL_COLUMNS = [
     "split",
     "roll_deg",
     "focal_scale",
+    "k1",
+    *CORNER_COLUMNS,
 ]
 
 

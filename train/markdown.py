@@ -2,13 +2,23 @@
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 
-def pct(value: float | None, digits: int = 1) -> str:
-    """A fraction in [0, 1] as a percentage ("75.8 %"); "n/a" for None."""
-    return "n/a" if value is None else f"{100 * value:.{digits}f} %"
+def pct(value: float | None, digits: int = 1, *, unit: bool = True, missing: str = "n/a") -> str:
+    """A fraction in [0, 1] as a percentage ("75.8 %"; "75.8" with unit=False, for table
+    columns whose header says %); `missing` for None."""
+    if value is None:
+        return missing
+    return f"{100 * value:.{digits}f}" + (" %" if unit else "")
+
+
+def pct_cell(value: float | None) -> str:
+    """A percentage for a table column whose header says % ("75.8"); "-" for None."""
+    return pct(value, unit=False, missing="-")
 
 
 def table(header: Sequence[Any], rows: Sequence[Sequence[Any]]) -> list[str]:
@@ -18,3 +28,8 @@ def table(header: Sequence[Any], rows: Sequence[Sequence[Any]]) -> list[str]:
         return "| " + " | ".join(str(c).replace("|", "\\|") for c in cells) + " |"
 
     return [line(header), "|" + "---|" * len(header), *(line(r) for r in rows)]
+
+
+def link(path: Path, base: Path) -> str:
+    """`path` relative to the folder `base` of the Markdown file that links it (POSIX)."""
+    return Path(os.path.relpath(path, base)).as_posix()

@@ -93,7 +93,7 @@ def baseline(
 ) -> None:
     """Feature baseline (SIFT/ORB, RANSAC, IPPE PnP) on data set(s): metrics.json + report."""
     from train.compare.baseline import FEATURE_CHOICES, BaselineConfig
-    from train.compare.run import run_baseline_on
+    from train.compare.peers import run_baseline_on
     from train.network.report import write_report
 
     if features not in FEATURE_CHOICES:
@@ -149,7 +149,17 @@ def compare(
     markdown: Annotated[Path, typer.Option("--out", help="Markdown report.")] = Path(
         "docs/comparison.md"
     ),
-    features: Annotated[str, typer.Option(help="Baseline features: sift, orb or both.")] = "sift",
+    features: Annotated[
+        str | None, typer.Option(help="Default feature peer: sift, orb or both (default sift).")
+    ] = None,
+    peer: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--peer",
+            help="Classical method to compare with: sift, orb, both or chessboard (repeat for "
+            "more; default: chessboard, used on chessboard profiles only, plus sift).",
+        ),
+    ] = None,
     split: Annotated[str, typer.Option(help="Split measured.")] = "test",
     photos: Annotated[
         Path | None,
@@ -164,12 +174,18 @@ def compare(
     limit: Annotated[int, typer.Option(min=0, help="At most N images per split (0 = all).")] = 0,
     tune: Annotated[bool, typer.Option(help="Tune the baseline on each val split.")] = True,
 ) -> None:
-    """CNN (onnxruntime) vs feature baseline, per data set, in one run: Markdown + plots."""
+    """CNN (onnxruntime) vs the classical peers, per data set, in one run: Markdown + plots."""
     from train.compare.baseline import FEATURE_CHOICES
+    from train.compare.peers import PEER_CHOICES
     from train.compare.run import CompareConfig, run_comparison
 
-    if features not in FEATURE_CHOICES:
+    if features is not None and features not in FEATURE_CHOICES:
         raise fail(f"--features must be one of {', '.join(FEATURE_CHOICES)}", code=2)
+    if features is not None and peer:
+        raise fail("give either --peer or --features (the default peers' features)", code=2)
+    for kind in peer or []:
+        if kind not in PEER_CHOICES:
+            raise fail(f"--peer must be one of {', '.join(PEER_CHOICES)}, got {kind!r}", code=2)
     if split not in ("train", "val", "test", "all"):
         raise fail(f"--split must be train, val, test or all, got {split!r}", code=2)
     for path in models:
@@ -184,12 +200,13 @@ def compare(
         models=models,
         datasets=datasets,
         markdown=markdown,
-        features=features,
+        features=features or "sift",
         split=split,
         photos=photos,
         detection_datasets=detection_dataset or [],
         limit=limit,
         tune=tune,
+        peers=list(peer or []),
     )
     summary = guard(lambda: run_comparison(config))
     table = Table(title="accuracy %  (ms / image)")

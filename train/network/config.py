@@ -51,6 +51,9 @@ class FitConfig:
     batch_norm: bool = _opt(True, "spec: train with batch norm, folded away on export.")
     threads: int = _opt(0, "Torch intra-op threads; 0 = torch default.", min=0)
     compile: bool = _opt(False, "torch.compile the training step.")
+    corner_weight: float = _opt(
+        0.5, "convnet: weight of the auxiliary loss on the object's four image corners.", min=0.0
+    )
     repeat: list[int] = _opt(
         [], "Times each data set's train split appears per epoch (one per data set; default 1)."
     )

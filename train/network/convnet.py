@@ -13,6 +13,7 @@ log-probabilities [N, 9].
     pool   max 2x2                                    10x7
     block  conv 3x3 96 -> 128                         10x7
     head   adaptive average pool 3x4 -> 1536 -> dropout -> linear 128 -> ReLU -> linear 9
+           (and, in training, linear 128 -> 8: the object's four corners in the image)
 
 Every conv is followed by batch norm and ReLU. Max pooling keeps the sign of the features
 (the square-colour parity that tells a half turn apart is a sign cue, which the SPEC network's
@@ -23,6 +24,8 @@ x/y side needs, at a fixed size for both inputs. Batch norm stays in the exporte
 
 from __future__ import annotations
 
+import torch
+import torch.nn.functional as F
 from torch import nn
 
 from service.regions import NUM_CLASSES
@@ -67,10 +70,24 @@ class ConvNet(NormalisedNet):
             _conv(96, 128),
             nn.AdaptiveAvgPool2d(HEAD_GRID),
         )
-        self.classifier = nn.Sequential(
+        self.hidden = nn.Sequential(
             nn.Flatten(),
             nn.Dropout(dropout),
             nn.Linear(128 * HEAD_GRID[0] * HEAD_GRID[1], 128),
             nn.ReLU(inplace=True),
-            nn.Linear(128, NUM_CLASSES),
         )
+        self.classifier = nn.Linear(128, NUM_CLASSES)
+        self.corners = nn.Linear(128, 8)
+
+    def logits(self, x: torch.Tensor) -> torch.Tensor:
+        """RGB [N, 3, H, W] in [0, 1] -> unnormalised scores [N, 9]."""
+        return self.classifier(self.hidden(self.features((x - self.mean) / self.std)))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
+        """RGB [N, 3, H, W] in [0, 1] -> log-probabilities [N, 9]; in training mode also the
+        predicted object corners [N, 8] ((u, v) x 4, image coordinates scaled to [-1, 1]), an
+        auxiliary target (as the training-mode auxiliary outputs of torchvision's Inception)."""
+        if not self.training:
+            return super().forward(x)
+        h = self.hidden(self.features((x - self.mean) / self.std))
+        return F.log_softmax(self.classifier(h), dim=1), self.corners(h)

@@ -29,6 +29,7 @@ import torch
 import torch.nn.functional as F
 from tqdm import tqdm
 
+from train.dataset import CORNER_COLUMNS
 from train.network.config import FitConfig
 from train.network.model import (
     NormalisedNet,
@@ -52,6 +53,7 @@ class Split:
     labels: np.ndarray
     blur: np.ndarray  # int [N], the data set's blur level of each image
     counts: list[int]  # images per data set, in order
+    corners: np.ndarray  # float32 [N, 8]: the object corners in pixels (nan where unknown)
 
     def pool(self, repeat: list[int]) -> np.ndarray:
         """Indices of one epoch: data set k's images `repeat[k]` times (default once each)."""
@@ -72,7 +74,7 @@ def load_split(paths: list[Path], split: str) -> tuple[Split, list[dict[str, Any
     """
     from train.dataset import load_dataset
 
-    images, labels, blurs, infos = [], [], [], []
+    images, labels, blurs, corners, infos = [], [], [], [], []
     for path in paths:
         if not (path / "labels.csv").is_file():
             raise TrainingError(f"not a data set (no labels.csv): {path}")
@@ -80,6 +82,7 @@ def load_split(paths: list[Path], split: str) -> tuple[Split, list[dict[str, Any
         images.append(data.images)
         labels.append(data.labels)
         blurs.append(np.full(len(data.labels), int(data.manifest.get("blur", 0))))
+        corners.append(_corners(data.rows))
         infos.append(
             {"path": str(path), "split": split, "count": len(data.labels), **data.manifest}
         )
@@ -91,8 +94,18 @@ def load_split(paths: list[Path], split: str) -> tuple[Split, list[dict[str, Any
         np.concatenate(labels).astype(np.int64),
         np.concatenate(blurs),
         [len(lab) for lab in labels],
+        np.concatenate(corners),
     )
     return out, infos
+
+
+def _corners(rows: list[dict[str, str]]) -> np.ndarray:
+    """Object corners float32 [N, 8] px from labels.csv rows; nan where a row has none."""
+    out = np.full((len(rows), len(CORNER_COLUMNS)), np.nan, np.float32)
+    for i, row in enumerate(rows):
+        if row.get(CORNER_COLUMNS[0]):
+            out[i] = [float(row[c]) for c in CORNER_COLUMNS]
+    return out
 
 
 class Augmenter:
@@ -119,24 +132,35 @@ class Augmenter:
         self.p_grey = p_grey
         self.p_crop = p_crop
 
-    def crop(self, image: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        """A random crop of U(0.85, 1) of each side, resized back to the image size."""
+    def crop(
+        self, image: np.ndarray, corners: np.ndarray, rng: np.random.Generator
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """A random crop of U(0.85, 1) of each side, resized back to the image size, and the
+        corners (8,) px moved with it."""
         import cv2
 
         h, w = image.shape[:2]
         cw, ch = int(round(w * rng.uniform(0.85, 1.0))), int(round(h * rng.uniform(0.85, 1.0)))
         x0, y0 = int(rng.integers(w - cw + 1)), int(rng.integers(h - ch + 1))
-        return cv2.resize(image[y0 : y0 + ch, x0 : x0 + cw], (w, h), interpolation=cv2.INTER_AREA)
+        out = cv2.resize(image[y0 : y0 + ch, x0 : x0 + cw], (w, h), interpolation=cv2.INTER_AREA)
+        scale = np.tile([w / cw, h / ch], 4)
+        return out, (corners + 0.5 - np.tile([x0, y0], 4)) * scale - 0.5
 
     def __call__(
-        self, images: np.ndarray, blur: np.ndarray, rng: np.random.Generator
-    ) -> np.ndarray:
+        self,
+        images: np.ndarray,
+        blur: np.ndarray,
+        rng: np.random.Generator,
+        corners: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Augmented images [B, H, W, 3] and their corners [B, 8] px (nan if not given)."""
         from train.synth.blur import blur_image
 
         n = len(images)
         out = images.copy()
+        corners = np.full((n, 8), np.nan, np.float32) if corners is None else corners.copy()
         for i in np.flatnonzero(rng.random(n) < self.p_crop):
-            out[i] = self.crop(out[i], rng)
+            out[i], corners[i] = self.crop(out[i], corners[i], rng)
         levels = np.where(
             (blur == 0) & (rng.random(n) < self.p_blur), rng.integers(1, 4, size=n), 0
         )
@@ -149,7 +173,7 @@ class Augmenter:
         mean = x.mean(axis=(1, 2, 3), keepdims=True)
         x = (x - mean) * gain + mean + rng.uniform(-25, 25, (n, 1, 1, 1))
         x += rng.standard_normal(x.shape, dtype=np.float32) * rng.uniform(0, 6, (n, 1, 1, 1))
-        return np.clip(x, 0, 255).astype(np.uint8)
+        return np.clip(x, 0, 255).astype(np.uint8), corners
 
 
 def load_network(path: Path) -> tuple[NormalisedNet, dict[str, Any]]:
@@ -369,13 +393,19 @@ def _train_epoch(
     )
     for i in bar:
         idx = np.sort(order[i : i + config.batch_size])
-        images = train.images[idx]
+        images, corners = train.images[idx], train.corners[idx]
         if augmenter is not None:
-            images = augmenter(images, train.blur[idx], rng)
+            images, corners = augmenter(images, train.blur[idx], rng, corners)
         x = to_input(images)
         y = torch.from_numpy(train.labels[idx])
         out = net(x)
-        loss = F.nll_loss(out, y)
+        if isinstance(out, tuple):  # (log-probabilities, corners) of a net with a corner head
+            out, predicted = out
+            loss = F.nll_loss(out, y) + config.corner_weight * _corner_loss(
+                predicted, corners, x.shape[3], x.shape[2]
+            )
+        else:
+            loss = F.nll_loss(out, y)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
@@ -392,6 +422,17 @@ def _train_epoch(
         "seconds": elapsed,
         "ms_per_image": 1000.0 * elapsed / seen,
     }
+
+
+def _corner_loss(predicted: torch.Tensor, corners: np.ndarray, w: int, h: int) -> torch.Tensor:
+    """Smooth L1 between predicted corners [B, 8] (image coordinates scaled to [-1, 1]) and
+    the known ones (px, nan where unknown: class 0, photos without corners)."""
+    known = torch.from_numpy(np.isfinite(corners).all(axis=1))
+    if not bool(known.any()):
+        return predicted.sum() * 0.0
+    scale = np.tile([2.0 / w, 2.0 / h], 4).astype(np.float32)
+    target = torch.from_numpy(np.nan_to_num(corners) * scale - 1.0)
+    return F.smooth_l1_loss(predicted[known], target[known], beta=0.1)
 
 
 def _provenance(parent: dict[str, Any], path: Path | None) -> dict[str, Any]:

@@ -8,7 +8,6 @@ table has models as rows and data sets as columns.
 from __future__ import annotations
 
 import json
-import os
 import re
 from datetime import UTC, datetime
 from pathlib import Path
@@ -16,16 +15,13 @@ from pathlib import Path
 import numpy as np
 
 from service.regions import NUM_CLASSES, region_of_class
+from train.markdown import link, pct_cell, table
 
 CLASS_LABELS = [region_of_class(k)["label"] for k in range(NUM_CLASSES)]
 
 
 def _slug(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("_") or "x"
-
-
-def _pct(value: float | None) -> str:
-    return "-" if value is None else f"{100 * value:.1f}"
 
 
 def plot_cell(metrics: dict, title: str, path: Path) -> None:
@@ -60,7 +56,7 @@ def plot_cell(metrics: dict, title: str, path: Path) -> None:
     ax2.set_ylabel("%")
     ax2.legend(fontsize=7, loc="lower right")
     ax2.set_title("per class", fontsize=9)
-    fig.suptitle(f"{title}: accuracy {_pct(metrics['accuracy'])} %", fontsize=10)
+    fig.suptitle(f"{title}: accuracy {pct_cell(metrics['accuracy'])} %", fontsize=10)
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
@@ -103,14 +99,14 @@ def grid_table(results: dict[str, dict[str, dict]], key: str = "accuracy") -> li
     def cell(metrics: dict) -> str:
         if key == "ms_per_image":
             return f"{metrics[key]:.2f}"
-        return _pct(metrics[key] if key in metrics else metrics.get("regions", {}).get(key))
+        return pct_cell(metrics[key] if key in metrics else metrics.get("regions", {}).get(key))
 
     datasets = list(dict.fromkeys(d for m in results for d in results[m]))
-    lines = ["| model | " + " | ".join(datasets) + " |", "|---" * (len(datasets) + 1) + "|"]
-    for model, row in results.items():
-        cells = ["" if d not in row else cell(row[d]) for d in datasets]
-        lines.append(f"| {model} | " + " | ".join(cells) + " |")
-    return lines
+    body = [
+        [model, *("" if d not in row else cell(row[d]) for d in datasets)]
+        for model, row in results.items()
+    ]
+    return table(["model", *datasets], body)
 
 
 def _regions_line(metrics: dict) -> list[str]:
@@ -119,9 +115,9 @@ def _regions_line(metrics: dict) -> list[str]:
     if regions.get("detected") is None:
         return []
     return [
-        f"Images showing the object: detected {_pct(regions['detected'])} %, x/y side right "
-        f"{_pct(regions['side'])} %, near/far right {_pct(regions['distance'])} %, opposite "
-        f"side (a half turn) {_pct(regions['opposite_side'])} %.",
+        f"Images showing the object: detected {pct_cell(regions['detected'])} %, x/y side "
+        f"right {pct_cell(regions['side'])} %, near/far right {pct_cell(regions['distance'])} "
+        f"%, opposite side (a half turn) {pct_cell(regions['opposite_side'])} %.",
         "",
     ]
 
@@ -131,21 +127,19 @@ def cell_section(model: str, dataset: str, metrics: dict, image: str) -> list[st
     lines = [
         f"### {model} on {dataset}",
         "",
-        f"{metrics['count']} images, accuracy {_pct(metrics['accuracy'])} %, class 0 accuracy "
-        f"{_pct(metrics['per_class_accuracy'][0])} %, {metrics['ms_per_image']:.2f} ms / image.",
+        f"{metrics['count']} images, accuracy {pct_cell(metrics['accuracy'])} %, class 0 "
+        f"accuracy {pct_cell(metrics['per_class_accuracy'][0])} %, "
+        f"{metrics['ms_per_image']:.2f} ms / image.",
         "",
         *_regions_line(metrics),
-        "| class | region | accuracy % | precision % | recall % | F1 % |",
-        "|---|---|---|---|---|---|",
     ]
-    for k in range(NUM_CLASSES):
-        lines.append(
-            f"| {k} | {CLASS_LABELS[k]} | {_pct(metrics['per_class_accuracy'][k])} | "
-            f"{_pct(metrics['precision'][k])} | {_pct(metrics['recall'][k])} | "
-            f"{_pct(metrics['f1'][k])} |"
-        )
-    lines += ["", f"![{model} on {dataset}]({image})", ""]
-    return lines
+    keys = ("per_class_accuracy", "precision", "recall", "f1")
+    body = [
+        [k, CLASS_LABELS[k], *(pct_cell(metrics[key][k]) for key in keys)]
+        for k in range(NUM_CLASSES)
+    ]
+    header = ["class", "region", "accuracy %", "precision %", "recall %", "F1 %"]
+    return lines + table(header, body) + ["", f"![{model} on {dataset}]({image})", ""]
 
 
 def write_report(
@@ -175,9 +169,6 @@ def write_report(
     }
     (out_dir / "metrics.json").write_text(json.dumps(document, indent=1) + "\n")
 
-    def link(path: Path) -> str:
-        return Path(os.path.relpath(path, markdown.parent)).as_posix()
-
     lines = [f"# {title}", ""]
     for note in notes or []:
         lines += [note, ""]
@@ -186,7 +177,7 @@ def write_report(
     if n_cells > 1:
         grid_png = plots / "grid.png"
         plot_grid(results, grid_png)
-        lines += [f"![accuracy grid]({link(grid_png)})", ""]
+        lines += [f"![accuracy grid]({link(grid_png, markdown.parent)})", ""]
     lines += [
         "## Right x/y side (%), distance ignored, on the images that show the object",
         "",
@@ -199,7 +190,7 @@ def write_report(
         for dataset, metrics in row.items():
             png = plots / f"{_slug(model)}__{_slug(dataset)}.png"
             plot_cell(metrics, f"{model} on {dataset}", png)
-            lines += cell_section(model, dataset, metrics, link(png))
+            lines += cell_section(model, dataset, metrics, link(png, markdown.parent))
     lines += ["## Time per image (ms, preprocessing + inference, batch 64)", ""]
     lines += grid_table(results, "ms_per_image")
     markdown.write_text("\n".join(lines) + "\n")

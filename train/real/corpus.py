@@ -10,8 +10,8 @@ commit, folder, licence, camera, square size if documented).
 1. the chessboard's inner corners are found at full resolution (`corners.find_grid`);
 2. the camera is calibrated from the source's own views (`cv2.calibrateCamera` over all views
    of one image size, k1 k2 p1 p2 with k3 fixed) when there are at least `MIN_CALIBRATION_VIEWS`;
-   otherwise only the focal length is fitted to the homographies (principal point at the
-   centre, square pixels, no distortion);
+   otherwise only the focal length (and radial k1 from `MIN_K1_VIEWS` views) is fitted to the
+   views (principal point at the centre, square pixels);
 3. per photo: undistortion, DLT pose, camera centre, class by the profile's regions and the
    colour-parity orientation (`corners.orient_grid`). A board of another square size is
    labelled as if its squares had the profile's size: the label follows the apparent size,
@@ -58,10 +58,14 @@ from train.real.label import (
 STORE_MAX_SIDE = 640
 JPEG_QUALITY = 90
 MIN_CALIBRATION_VIEWS = 8
+#: Fewer views: the focal length, and with at least this many views also k1, are fitted.
+MIN_K1_VIEWS = 3
 #: Below this parity confidence the half turn of the board is a guess: the photo is dropped.
 MIN_PARITY = 0.35
 #: Largest per-photo reprojection RMS kept, as a fraction of the photo's longer side.
 MAX_RMS_FRACTION = 0.004
+#: Longer side (px) at which photos without the object are searched for a board.
+NEGATIVE_CHECK_SIDE = 800
 CORPUS_COLUMNS = LABEL_COLUMNS + EXTRA_COLUMNS + ["parity_confidence", "original"]
 SOURCE_KEYS = ("repo", "commit", "folder", "licence")
 
@@ -126,8 +130,8 @@ def calibrate(views: list[View], pattern: ChessboardPattern) -> tuple[Camera, fl
     """Intrinsics of the camera that took `views` (all of one size): (camera, RMS px, method).
 
     With `MIN_CALIBRATION_VIEWS` or more views: full calibration (fx, fy, principal point,
-    k1 k2 p1 p2). Fewer: one focal length fitted to the homographies with the principal point
-    at the image centre, no distortion.
+    k1 k2 p1 p2). Fewer: one focal length (and k1 from `MIN_K1_VIEWS` views) with the
+    principal point at the image centre.
     """
     size = views[0].size
     grid = np.column_stack([pattern.grid_xy(), np.zeros(len(pattern.grid_xy()))])
@@ -140,9 +144,13 @@ def calibrate(views: list[View], pattern: ChessboardPattern) -> tuple[Camera, fl
         flags = (
             cv2.CALIB_USE_INTRINSIC_GUESS | cv2.CALIB_FIX_PRINCIPAL_POINT
             | cv2.CALIB_FIX_ASPECT_RATIO | cv2.CALIB_ZERO_TANGENT_DIST
-            | cv2.CALIB_FIX_K1 | cv2.CALIB_FIX_K2 | cv2.CALIB_FIX_K3
+            | cv2.CALIB_FIX_K2 | cv2.CALIB_FIX_K3
         )  # fmt: skip
         method = f"focal length from {len(views)} homographies, principal point at the centre"
+        if len(views) < MIN_K1_VIEWS:
+            flags |= cv2.CALIB_FIX_K1
+        else:
+            method += ", k1"
     rms, K, dist, _, _ = cv2.calibrateCamera(obj, img, size, K0.copy(), None, flags=flags)
     return Camera(K, np.asarray(dist, np.float64).ravel()[:5], size), float(rms), method
 
@@ -286,7 +294,10 @@ def import_negatives(
         if rgb is None:
             failed.append(f"{path.name}: unreadable image")
             continue
-        if pattern is not None and find_grid(to_grey(rgb), pattern) is not None:
+        if (
+            pattern is not None
+            and find_grid(to_grey(rgb), pattern, NEGATIVE_CHECK_SIDE) is not None
+        ):
             failed.append(f"{path.name}: a chessboard is found in it")
             continue
         name = f"images/{path.stem}.jpg"

@@ -27,7 +27,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from train.dataset import LABEL_COLUMNS
+from train.dataset import CORNER_COLUMNS, LABEL_COLUMNS
 from train.geometry import (
     SPEC_FOCAL_160,
     camera_centre,
@@ -41,12 +41,11 @@ from train.real.corners import ChessboardPattern, Correspondences, TextureMatche
 from train.real.realset import moment_of, optical_axis_target, split_moments
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".webp", ".tif", ".tiff")
-CORNER_COLUMNS = [f"corner_{a}{i}" for i in range(4) for a in "xy"]
+#: Columns of a real labels.csv besides the data set ones (LABEL_COLUMNS, with the corners).
 EXTRA_COLUMNS = (
-    ["width", "height", "fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3"]
+    ["width", "height", "fx", "fy", "cx", "cy", "k2", "p1", "p2", "k3"]
     + [f"rvec{i}" for i in range(3)]
     + [f"tvec{i}" for i in range(3)]
-    + CORNER_COLUMNS
     + ["method", "points", "reproj_rms_px"]
 )
 #: Chessboard of the shipped "chessboard" profile: 9 x 6 inner corners, 10 x 7 squares.

@@ -24,7 +24,7 @@ import numpy as np
 
 from service.preprocess import resize_rgb
 from train import repo_relative
-from train.dataset import LABEL_COLUMNS
+from train.dataset import CORNER_COLUMNS, LABEL_COLUMNS
 from train.geometry import pose_class
 from train.synth.blur import SIZES
 
@@ -152,7 +152,7 @@ def build_real_dataset(
 
 #: Columns of a corpus data set: the data set ones, the source and the camera at the set's size.
 CORPUS_SET_COLUMNS = [
-    *LABEL_COLUMNS, "source", "original", "fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3",
+    *LABEL_COLUMNS, "source", "original", "fx", "fy", "cx", "cy", "k2", "p1", "p2", "k3",
 ]  # fmt: skip
 
 
@@ -180,16 +180,25 @@ def corpus_sources(corpus: Path) -> list[Path]:
     return found
 
 
-def _scaled_camera(row: dict[str, str], wh: tuple[int, int]) -> dict[str, str]:
-    """fx, fy, cx, cy of a stored photo rescaled to the set's size wh (W, H) (pixel centres
-    kept; the distortion coefficients, in normalised coordinates, stay the same)."""
+def _rescaled(row: dict[str, str], wh: tuple[int, int]) -> dict[str, str]:
+    """Camera (fx, fy, cx, cy) and object corners of a stored photo, rescaled to the set's
+    size wh (W, H), pixel centres kept; distortion coefficients (normalised coordinates) and
+    the rest unchanged."""
     if not row.get("fx"):
         return {}
-    sx, sy = wh[0] / float(row["width"]), wh[1] / float(row["height"])
-    cam = {"fx": float(row["fx"]) * sx, "fy": float(row["fy"]) * sy}
-    cam |= {"cx": (float(row["cx"]) + 0.5) * sx - 0.5, "cy": (float(row["cy"]) + 0.5) * sy - 0.5}
+    s = np.array([wh[0] / float(row["width"]), wh[1] / float(row["height"])])
+    cam = {"fx": float(row["fx"]) * s[0], "fy": float(row["fy"]) * s[1]}
+    cam |= {
+        "cx": (float(row["cx"]) + 0.5) * s[0] - 0.5,
+        "cy": (float(row["cy"]) + 0.5) * s[1] - 0.5,
+    }
     out = {k: f"{v:.4f}" for k, v in cam.items()}
-    return out | {k: row.get(k, "") for k in ("k1", "k2", "p1", "p2", "k3")}
+    if row.get("corner_x0"):
+        uv = np.array([float(row[c]) for c in CORNER_COLUMNS]).reshape(4, 2)
+        out |= dict(
+            zip(CORNER_COLUMNS, (f"{v:.3f}" for v in ((uv + 0.5) * s - 0.5).ravel()), strict=True)
+        )
+    return out
 
 
 def build_corpus_dataset(
@@ -227,7 +236,7 @@ def build_corpus_dataset(
                 cam = np.array([float(row[f"cam_{a}"]) for a in "xyz"])
                 label["class"] = int(pose_class(cam, z_split))
             label |= {"file": name, "blur": blur, "split": splits[src.name], "source": src.name}
-            label |= {"original": row.get("original", "")} | _scaled_camera(row, wh)
+            label |= {"original": row.get("original", "")} | _rescaled(row, wh)
             labels.append(label)
     with (out / "labels.csv").open("w", newline="") as fh:
         writer = csv.DictWriter(fh, fieldnames=CORPUS_SET_COLUMNS, lineterminator="\n")

@@ -31,7 +31,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from train.dataset import LABEL_COLUMNS, NUM_CLASSES, SPLITS, DatasetError
+from train.dataset import CORNER_COLUMNS, LABEL_COLUMNS, NUM_CLASSES, SPLITS, DatasetError
 from train.profile import Profile
 from train.synth.background import BackgroundPool
 from train.synth.blur import BLUR_LEVELS, SIZES
@@ -126,7 +126,10 @@ class Plan:
                 row |= {
                     "roll_deg": f"{view.roll_deg:.3f}",
                     "focal_scale": f"{view.focal_scale:.4f}",
+                    "k1": f"{view.k1:.4f}",
                 }
+                corners = view.object_corners(self.spec.profile, self.spec.wh).ravel()
+                row |= {c: f"{v:.3f}" for c, v in zip(CORNER_COLUMNS, corners, strict=True)}
             rows.append(row)
         return rows
 

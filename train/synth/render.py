@@ -69,22 +69,31 @@ def occlude_edge(image: np.ndarray, quad: np.ndarray, rng: np.random.Generator) 
     cv2.ellipse(image, centre, axes, float(rng.uniform(0, 180)), 0, 360, colour, -1, cv2.LINE_AA)
 
 
-def lens_distort(image: np.ndarray, k1: float, focal_px: float) -> np.ndarray:
-    """The pinhole image `image` (RGB uint8 [H, W, 3]) as a lens with radial distortion `k1`
-    (OpenCV model x_d = x_u (1 + k1 r_u^2), normalised by `focal_px`, centred) sees it.
+def distort_points(uv: np.ndarray, k1: float, A: np.ndarray) -> np.ndarray:
+    """Ideal pixels (N, 2) -> pixels seen through radial distortion `k1` (OpenCV model
+    x_d = x_u (1 + k1 r_u^2) in coordinates normalised by intrinsics A (3, 3))."""
+    x = (np.asarray(uv, dtype=float) - A[:2, 2]) / np.diag(A)[:2]
+    x = x * (1.0 + k1 * np.sum(x * x, axis=1, keepdims=True))
+    return x * np.diag(A)[:2] + A[:2, 2]
+
+
+def lens_distort(image: np.ndarray, k1: float, A: np.ndarray) -> np.ndarray:
+    """The pinhole image `image` (RGB uint8 [H, W, 3], intrinsics A (3, 3)) as a lens with
+    radial distortion `k1` sees it (the model of `distort_points`).
 
     Each output pixel samples the ideal image at x_u, solved from x_d by fixed-point
     iteration; where that falls outside (barrel distortion, corners) the image is mirrored.
     """
     h, w = image.shape[:2]
+    (fx, fy), (cx, cy) = np.diag(A)[:2], A[:2, 2]
     u, v = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
-    xd, yd = (u - (w - 1) / 2) / focal_px, (v - (h - 1) / 2) / focal_px
+    xd, yd = (u - cx) / fx, (v - cy) / fy
     xu, yu = xd, yd
     for _ in range(3):
         factor = 1.0 + k1 * (xu * xu + yu * yu)
         xu, yu = xd / factor, yd / factor
-    map_x = (xu * focal_px + (w - 1) / 2).astype(np.float32)
-    map_y = (yu * focal_px + (h - 1) / 2).astype(np.float32)
+    map_x = (xu * fx + cx).astype(np.float32)
+    map_y = (yu * fy + cy).astype(np.float32)
     return cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT_101)
 
 
@@ -103,19 +112,32 @@ def motion_blur(image: np.ndarray, length_px: float, angle_deg: float) -> np.nda
 
 @dataclass(frozen=True)
 class View:
-    """A camera for one render: centre and look-at target (3,) cm, roll (deg), focal scale."""
+    """A camera for one render: centre and look-at target (3,) cm, roll (deg), focal scale
+    and radial lens distortion k1 (0: pinhole)."""
 
     centre: np.ndarray
     target: np.ndarray
     roll_deg: float = 0.0
     focal_scale: float = 1.0
+    k1: float = 0.0
+
+    def object_corners(self, profile: Profile, size: tuple[int, int]) -> np.ndarray:
+        """Pixels (4, 2) of the object corners (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y) in an
+        image of `size` (W, H), lens distortion included."""
+        A = intrinsics(size, self.focal_scale)
+        R = look_at(self.centre, self.target, np.radians(self.roll_deg))
+        w, h = profile.width_cm / 2, profile.height_cm / 2
+        corners = np.array([[-w, -h, 0], [w, -h, 0], [w, h, 0], [-w, h, 0]])
+        uv = project_points(A, R, translation(R, self.centre), corners)
+        return distort_points(uv, self.k1, A) if self.k1 else uv
 
 
 def draw_views(
     profile: Profile, classes: np.ndarray, variant: str, rng: np.random.Generator
 ) -> list[View]:
     """One view per entry of `classes` (N,) in 1..8: a lattice point of that class (uniform),
-    its target per `variant`, roll and focal scale uniform in the profile's ranges."""
+    its target per `variant`, roll, focal scale and (with probability P_DISTORT) lens
+    distortion k1 uniform in the profile's ranges."""
     if variant not in VARIANTS:
         raise ValueError(f"variant must be one of {', '.join(VARIANTS)}, got {variant!r}")
     lattice = profile.lattice()
@@ -136,14 +158,11 @@ def draw_views(
             # horizontally, 3/4 of it vertically), an approximation for oblique views.
             half = float(np.linalg.norm(centre)) * 0.388 / focal_scale * FREE_FRAME
             target[:2] = rng.uniform(-1, 1, 2) * half * np.array([1.0, 0.75])
-        views.append(
-            View(
-                centre=centre.copy(),
-                target=target,
-                roll_deg=float(rng.uniform(*profile.roll_deg)),
-                focal_scale=focal_scale,
-            )
-        )
+        roll = float(rng.uniform(*profile.roll_deg))
+        k1 = 0.0
+        if profile.distortion_k1 != (0.0, 0.0) and rng.random() < P_DISTORT:
+            k1 = float(rng.uniform(*profile.distortion_k1))
+        views.append(View(centre.copy(), target, roll, focal_scale, k1))
     return views
 
 
@@ -312,15 +331,8 @@ class Renderer:
             image, quad = self._composite(image, view, board)
             if self.jitter and rng.random() < P_OCCLUDE:
                 occlude_edge(image, quad, rng)
-        k1_range = self.profile.distortion_k1
-        if k1_range != (0.0, 0.0) and rng.random() < P_DISTORT:
-            scale = (
-                view.focal_scale
-                if view is not None
-                else float(rng.uniform(*self.profile.focal_scale))
-            )
-            focal = float(intrinsics(self.size, scale)[0, 0])
-            image = lens_distort(image, float(rng.uniform(*k1_range)), focal)
+        if view is not None and view.k1:
+            image = lens_distort(image, view.k1, intrinsics(self.size, view.focal_scale))
         if self.jitter and rng.random() < P_MOTION:
             length = rng.uniform(*MOTION_PX_160) * self.size[0] / 160
             image = motion_blur(image, length, float(rng.uniform(0, 180)))
