@@ -96,3 +96,26 @@ def test_planar_pose_serve_still_works_from_the_training_cli(tmp_path: Path) -> 
 
     result = runner.invoke(train_app, ["serve", "--model", str(tmp_path / "none.onnx")])
     assert result.exit_code == 2 and "model file not found" in result.output
+
+
+def test_serve_missing_model_folder_and_bad_workers_exit_2(tmp_path: Path) -> None:
+    result = runner.invoke(app, ["--model-dir", str(tmp_path / "none")])
+    assert result.exit_code == 2 and "model folder not found" in result.output
+    assert runner.invoke(app, ["--workers", "-1"]).exit_code == 2
+
+
+def test_worker_settings_and_model_files(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    from service.registry import ModelRegistry
+
+    monkeypatch.setenv("POSE_WORKERS", "3")
+    monkeypatch.setenv("POSE_MODEL_DIR", str(tmp_path))
+    settings = Settings()
+    assert settings.process_count == 3 and settings.resolved_model_dir == tmp_path
+    assert settings.resolved_model_path == tmp_path / "default.onnx"
+    (tmp_path / "a.onnx").write_bytes(b"")
+    (tmp_path / "b.json").write_text("{}")
+    assert ModelRegistry(settings).files() == {"a": tmp_path / "a.onnx"}
+    only = Settings(model_path=tmp_path / "x.onnx", model_dir=None)
+    assert ModelRegistry(only).files() == {"default": tmp_path / "x.onnx"}
+    both = Settings(model_path=tmp_path / "x.onnx")  # POSE_MODEL_DIR still set
+    assert ModelRegistry(both).files() == {"a": tmp_path / "a.onnx", "default": tmp_path / "x.onnx"}
