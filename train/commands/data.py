@@ -136,7 +136,7 @@ def sheet(
 @app.command()
 def roll(
     labels_csv: Annotated[
-        Path, typer.Argument(help="Real labels.csv with OpenCV rvec0..2 columns.")
+        list[Path], typer.Argument(help="Real labels.csv file(s) with OpenCV rvec0..2 columns.")
     ],
 ) -> None:
     """Measure the camera roll (SPEC 5) of real photographs, to set a profile's roll_deg."""
@@ -144,9 +144,10 @@ def roll(
 
     from train.profile import measure_rolls
 
-    if not labels_csv.is_file():
-        raise fail(f"file not found: {labels_csv}", code=2)
-    rolls = guard(lambda: measure_rolls(labels_csv))
+    for path in labels_csv:
+        if not path.is_file():
+            raise fail(f"file not found: {path}", code=2)
+    rolls = np.concatenate([guard(lambda p=p: measure_rolls(p)) for p in labels_csv])
     q = np.percentile(rolls, [0, 5, 50, 95, 100])
     out.print(
         f"{len(rolls)} photos: roll min {q[0]:.1f}, 5 % {q[1]:.1f}, median {q[2]:.1f}, "

@@ -73,6 +73,8 @@ def train(**options: Any) -> None:
     options["datasets"] = options.pop("datasets") or None
     options["out"] = options.pop("out_dir")
     config = guard(lambda: load_config(recipe, options), code=2)
+    if recipe is not None:
+        config.extra["recipe"] = str(recipe)
     for path in config.datasets + config.select:
         if not path.is_dir():
             raise fail(f"data set not found: {path}")

@@ -20,6 +20,11 @@ from service.regions import NUM_CLASSES, class_descriptions, region_of_class
 from train import REPO_ROOT
 
 OPSET = 17
+#: What the card says of each architecture (train.network.model.build_network).
+ARCHITECTURES = {
+    "spec": "spec: the SPEC section 8 network (tanh, L2 pooling), batch norm folded away",
+    "convnet": "convnet: train/network/convnet.py (ReLU, batch norm, max pooling, 3x4 head)",
+}
 INPUT_NAME = "image"
 OUTPUT_NAME = "probabilities"
 
@@ -97,8 +102,19 @@ def build_card(
         "best_epoch": checkpoint.get("best", {}),  # the epoch whose weights these are
         "config": {
             k: checkpoint["config"].get(k)
-            for k in ("epochs", "batch_size", "optimizer", "lr", "schedule", "augment")
+            for k in (
+                "epochs",
+                "batch_size",
+                "optimizer",
+                "lr",
+                "schedule",
+                "augment",
+                "repeat",
+                "select",
+                "corner_weight",
+            )  # fmt: skip
         },
+        "recipe": checkpoint["config"].get("extra", {}).get("recipe"),
     }
     parent = checkpoint.get("parent")
     if parent:
@@ -112,6 +128,7 @@ def build_card(
         "name": name,
         "version": version,
         "date": datetime.now(UTC).isoformat(timespec="seconds"),
+        "architecture": ARCHITECTURES[checkpoint.get("arch", "spec")],
         "input": list(checkpoint["size"]),
         "input_format": "image: float32 [N, 3, H, W], RGB, values in [0, 1] (resize with area)",
         "output": "probabilities: float32 [N, 9] (softmax), index = class id",
@@ -141,20 +158,30 @@ def with_card(model_bytes: bytes, card: dict[str, Any]) -> bytes:
 def accuracy_on(predict: Any, datasets: list[Path], split: str) -> dict[str, dict[str, Any]]:
     """{data set folder name: {accuracy, class0_accuracy, count, split}} of a predictor."""
     from train.dataset import load_dataset
-    from train.network.evaluate import evaluate_predictor
+    from train.network.evaluate import compute_metrics, predict_all
 
     out: dict[str, dict[str, Any]] = {}
     for path in datasets:
         data = load_dataset(path, split=None if split == "all" else split)
         if len(data.labels) == 0:
             raise ValueError(f"{path} has no images in split {split!r}")
-        m = evaluate_predictor(predict, data.images, data.labels)
+        probs, ms = predict_all(predict, data.images)
+        predicted = probs.argmax(axis=1)
+        m = compute_metrics(data.labels, predicted, ms)
         out[path.name] = {
             "split": split,
             "count": m["count"],
             "accuracy": round(m["accuracy"], 4),
             "class0_accuracy": m["per_class_accuracy"][0],
         }
+        sources = data.column("source") if data.rows and "source" in data.rows[0] else []
+        if sources:  # a real corpus set: accuracy per source (camera) too
+            hit = predicted == data.labels
+            out[path.name]["by_source"] = {
+                s: {"count": int(sum(x == s for x in sources)),
+                    "accuracy": round(float(np.mean(hit[[x == s for x in sources]])), 4)}
+                for s in sorted(set(sources))
+            }  # fmt: skip
     return out
 
 
