@@ -151,3 +151,102 @@ def test_cli_writes_the_evaluate_layout(tmp_path):
     cell = doc["results"]["baseline-sift"]["real-s1-b0"]
     assert cell["count"] == 6 and len(cell["confusion"]) == 9 and cell["ms_per_image"] > 0
     assert (tmp_path / "o" / "report.md").is_file()
+
+
+# The chessboard peer: OpenCV's detector + IPPE PnP + the region rule.
+
+
+def _stereo_rows(n: int) -> list[dict[str, str]]:
+    with (REAL / "labels.csv").open(newline="") as fh:
+        return list(csv.DictReader(fh))[:n]
+
+
+def _peer(enlarge: float = 4):
+    from train.compare.chessboard_peer import ChessboardPeer
+    from train.profile import load_profile
+    from train.real.label import chessboard_pattern
+
+    profile = load_profile("chessboard")
+    return ChessboardPeer(chessboard_pattern(profile), profile.geometry.z_split_cm, enlarge)
+
+
+def test_enlarged_camera_keeps_pixel_centres():
+    from train.compare.chessboard_peer import enlarge_camera
+
+    cam = Camera(intrinsics((80, 60)), np.array([0.1, 0, 0, 0, 0]))
+    big = enlarge_camera(cam, 4, (80, 60))
+    expected = Camera(cam.K, cam.dist, (80, 60)).scaled((320, 240))
+    assert np.allclose(big.K, expected.K) and big.size == (320, 240)
+    assert np.array_equal(big.dist, cam.dist)
+
+
+def test_chessboard_peer_on_sharp_full_size_photos():
+    from train.real.calibration import Calibration
+    from train.real.realset import read_rgb
+
+    peer, calibration = _peer(enlarge=1), Calibration.load(REAL / "calibration.json")
+    for row in _stereo_rows(4):
+        rgb = read_rgb(REAL / row["file"])
+        pred = peer.predict(rgb, calibration.for_image(row["file"], (rgb.shape[1], rgb.shape[0])))
+        truth = np.array([float(row[k]) for k in ("cam_x", "cam_y", "cam_z")])
+        assert pred.label == int(pose_class(truth, 60.0)), row["file"]
+        assert np.linalg.norm(pred.centre - truth) < 0.05 * np.linalg.norm(truth)
+
+
+def test_chessboard_peer_at_the_network_size(tmp_path):
+    from train.compare.peers import run_chessboard_on
+    from train.compare.sets import load_part, stored_photos
+    from train.real.realset import build_real_dataset
+
+    ds = tmp_path / "real-s2-b0"
+    build_real_dataset(REAL, ds, size=2, blur=0, profile="chessboard", seed=0)
+    data = load_part(ds, "test")
+    metrics, info = run_chessboard_on(data)
+    assert metrics["count"] == 6 and metrics["accuracy"] >= 5 / 6 and metrics["ms_per_image"] > 0
+    assert info["tuning"] is None
+    photos = stored_photos(data)
+    assert photos is not None and [p.parent for p in photos.paths] == [REAL] * 6
+    assert photos.cameras[0].size == (640, 480) and np.any(photos.cameras[0].dist)
+
+
+def test_chessboard_peer_answers_zero_without_a_board():
+    from train.compare.chessboard_peer import NOT_FOUND
+    from train.profile import load_profile
+    from train.synth.generate import DatasetSpec, render_in_memory
+    from train.synth.render import render_view
+
+    profile = load_profile("chessboard")
+    images, labels = render_in_memory(DatasetSpec("noC", 2, 0, 9, 3, profile))
+    camera = Camera(intrinsics((160, 120)), np.zeros(5))
+    peer = _peer()
+    for image in images[labels == 0]:
+        pred = peer.predict(image, camera)
+        assert pred.label == 0 and pred.centre is None and pred.reason == NOT_FOUND
+    for centre in ((10.0, 8.0, 45.0), (20.0, -10.0, 75.0)):  # a board, enlarged 4x: found
+        pred = peer.predict(render_view(profile, (160, 120), np.array(centre)), camera)
+        assert pred.label == int(pose_class(np.array(centre), 60.0))
+        assert np.linalg.norm(pred.centre - centre) < 1.0
+
+
+def test_stored_photos_of_a_corpus_set(tmp_path):
+    from train.compare.sets import stored_photos
+    from train.dataset import load_dataset
+
+    corpus = tmp_path / "corpus"
+    src = corpus / "boards" / "cam1"
+    cam = {"width": 64, "height": 48, "fx": 50, "fy": 51, "cx": 31.5, "cy": 23.5}
+    cam |= {"k1": 0.1, "k2": 0, "p1": 0, "p2": 0, "k3": 0}
+    _write_set(src, [{"file": "images/p1.jpg", "class": 1, **cam}], {})
+    (src / "images").mkdir()
+    cv2.imwrite(str(src / "images" / "p1.jpg"), np.full((48, 64, 3), 128, np.uint8))
+    ds = tmp_path / "set"
+    row = {"file": "images/cam1__p1.png", "class": 1, "split": "test", "source": "cam1"}
+    _write_set(ds, [row | {"original": "p1.JPG"}], {"real": True, "source": str(corpus),
+                                                    "size": [32, 24]})  # fmt: skip
+    (ds / "images").mkdir()
+    cv2.imwrite(str(ds / "images" / "cam1__p1.png"), np.zeros((24, 32, 3), np.uint8))
+    photos = stored_photos(load_dataset(ds))
+    assert photos is not None and photos.paths == [src / "images" / "p1.jpg"]
+    assert photos.cameras[0].K[0, 0] == 50 and photos.cameras[0].dist[0] == 0.1
+    (src / "images" / "p1.jpg").unlink()  # the corpus is not on this machine: no reference
+    assert stored_photos(load_dataset(ds)) is None

@@ -10,7 +10,9 @@ import pytest
 from typer.testing import CliRunner
 
 from train.cli import app
-from train.compare.run import detection_variants, encode_png, load_split
+from train.compare.detection import detection_variants
+from train.compare.sets import encode_png
+from train.dataset import load_dataset
 from train.network.evaluate import evaluate_predictor, onnx_predictor
 from train.real.realset import build_real_dataset
 
@@ -47,9 +49,11 @@ def report(real_sets, tmp_path_factory) -> Path:
 def test_report_tables_hold_the_measured_numbers(report, real_sets):
     text = report.read_text()
     metrics = json.loads((report.with_suffix("") / "metrics.json").read_text())["results"]
-    assert set(metrics) == {"default", "baseline-sift"}
+    assert set(metrics) == {
+        "default", "baseline-sift", "opencv-chessboard", "opencv-chessboard@stored"
+    }  # fmt: skip
     for ds in real_sets:
-        for name in metrics:
+        for name in ("default", "baseline-sift", "opencv-chessboard"):
             cell = metrics[name][f"chessboard/{ds.name}"]
             assert {"accuracy", "per_class_accuracy", "confusion", "ms_per_image"} <= set(cell)
             assert f"{100 * cell['accuracy']:.1f}" in text
@@ -59,6 +63,28 @@ def test_report_tables_hold_the_measured_numbers(report, real_sets):
     assert f"| {w}x{h} | 0 | 6 |" in text and f"| {w}x{h} | 3 | 6 |" in text
     for png in ("accuracy_vs_blur.png", "time_per_image.png"):
         assert (report.with_suffix("") / "plots" / png).is_file()
+
+
+def test_report_has_the_chessboard_peer_rows(report, real_sets):
+    """The chessboard detector per size and blur level, its time ratio, the stored photos for
+    reference and a sentence saying where each method is ahead."""
+    text = report.read_text()
+    metrics = json.loads((report.with_suffix("") / "metrics.json").read_text())["results"]
+    peer = metrics["opencv-chessboard"]
+    w, h = json.loads((real_sets[0] / "manifest.json").read_text())["size"]
+    section = text.split("## The network vs the chessboard detector")[1].split("\n## ")[0]
+    assert f"### real, {w}x{h}" in section
+    for ds, blur in zip(real_sets, (0, 3), strict=True):
+        cell = peer[f"chessboard/{ds.name}"]
+        assert cell["count"] == 6 and cell["ms_per_image"] > 0
+        assert f"| {blur} | 6 | " in section
+        assert f"{100 * cell['accuracy']:.1f} | " in section
+    assert peer[f"chessboard/{real_sets[0].name}"]["accuracy"] >= 5 / 6  # sharp: found
+    (stored,) = metrics["opencv-chessboard@stored"].values()
+    assert stored["count"] == 6 and stored["accuracy"] == 1.0  # the photos as stored
+    assert "stored photos, no blur (chessboard-stereo photos" in section
+    assert f"At {w}x{h} (real images): the network (`default`) is ahead at" in section
+    assert "detector / CNN time" in section and "The detector took" in section
 
 
 def test_detection_variants_are_reported(report):
@@ -74,7 +100,7 @@ def test_detection_variants_are_reported(report):
 
 def test_whole_mode_matches_the_evaluator(real_sets):
     """The service's whole mode on PNG bytes answers like `evaluate` on the same images."""
-    data = load_split(real_sets[0], "all")
+    data = load_dataset(real_sets[0])
     predict, _, _ = onnx_predictor(MODEL)
     direct = evaluate_predictor(predict, data.images, data.labels)
     via_service = detection_variants(MODEL, encode_png(data.images), data.labels)["all"]["whole"]
@@ -91,3 +117,8 @@ def test_cli_errors(real_sets, tmp_path):
     assert result.exit_code == 1 and "no labels.csv" in result.output
     args = ["compare", "--models", str(MODEL), *ds, *out, "--features", "surf"]
     assert runner.invoke(app, args).exit_code == 2
+    result = runner.invoke(app, ["compare", "--models", str(MODEL), *ds, *out, "--peer", "hog"])
+    assert result.exit_code == 2 and "--peer must be one of" in result.output
+    args = ["compare", "--models", str(MODEL), *ds, *out, "--peer", "orb", "--features", "orb"]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 2 and "either --peer or --features" in result.output
