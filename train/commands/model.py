@@ -214,9 +214,23 @@ def realset(
     out.print(f"[green]wrote[/] {out_dir}: {json.dumps(manifest['counts'])}")
 
 
+def catalog(
+    models_dir: Annotated[Path, typer.Argument(help="Folder of models and cards.")] = Path(
+        "models"
+    ),
+) -> None:
+    """Write MODELS_DIR/README.md from the model cards: each model, its recipe, accuracy."""
+    from train.network.catalog import write_catalog
+
+    if not models_dir.is_dir():
+        raise fail(f"models folder not found: {models_dir}", code=2)
+    out.print(f"[green]wrote[/] {guard(lambda: write_catalog(models_dir))}")
+
+
 #: The model commands; `train.cli` merges them into the `planar-pose` app.
 app = typer.Typer()
 app.command()(train)
 app.command()(evaluate)
 app.command()(export)
 app.command()(realset)
+app.command()(catalog)

@@ -1,0 +1,80 @@
+"""models/README.md: what each shipped model is, its recipe and its measured accuracy.
+
+Written from the model cards (`<name>.json` beside each `<name>.onnx`, made by
+`planar-pose export`), so the page always says what the files say.
+"""
+
+from __future__ import annotations
+
+import json
+import platform
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from train.markdown import pct, table
+
+INTRO = """# Shipped models
+
+Every `<name>.onnx` here has its model card beside it (`<name>.json`, also inside the ONNX
+metadata as `model_card`): object profile, input size, classes, training data and recipe, and
+the accuracies measured on the exported graph. `default.onnx` is what the service answers
+with unless asked for another model. Input: `image` float32 [N, 3, H, W], RGB in [0, 1];
+output: `probabilities` float32 [N, 9].
+
+Accuracy columns are test splits: real = the corpus's test sources (cameras never used for
+training or model selection), free / noC = renders (see docs/data.md), blur level 0 and 3.
+
+This page is written by `planar-pose catalog`; do not edit it by hand.
+"""
+
+
+def _cell(card: dict[str, Any], key: str) -> str:
+    entry = card.get("accuracy", {}).get(key)
+    return pct(entry["accuracy"]) if entry else ""
+
+
+def _row(card: dict[str, Any]) -> list[Any]:
+    w, h = card["input"]
+    s = 1 if (w, h) == (80, 60) else 2
+    recipe = card.get("training", {}).get("recipe") or ""
+    return [
+        f"`{card['name']}`",
+        card.get("architecture", "spec").split(":")[0],
+        f"{w}x{h}",
+        card.get("profile", {}).get("name", ""),
+        f"[{Path(recipe).name}](../{recipe})" if recipe else "",
+        *(_cell(card, f"{d}-s{s}-b{b}") for d in ("real", "free", "noC") for b in (0, 3)),
+    ]
+
+
+def write_catalog(models_dir: Path) -> Path:
+    """Write models_dir/README.md from the cards there; return its path."""
+    cards = []
+    for path in sorted(models_dir.glob("*.json")):
+        card = json.loads(path.read_text())
+        if isinstance(card, dict) and "input" in card:
+            cards.append(card)
+    if not cards:
+        raise ValueError(f"no model card (*.json) in {models_dir}")
+    header = ["model", "network", "input", "profile", "recipe", "real b0", "real b3",
+              "free b0", "free b3", "noC b0", "noC b3"]  # fmt: skip
+    lines = [INTRO, *table(header, [_row(c) for c in cards]), ""]
+    for card in cards:
+        lines += [f"## `{card['name']}`", "", card.get("notes", ""), ""]
+        by_source = {
+            k: v["by_source"] for k, v in card.get("accuracy", {}).items() if "by_source" in v
+        }
+        for key, sources in by_source.items():
+            rows = [[f"`{s}`", v["count"], pct(v["accuracy"])] for s, v in sources.items()]
+            lines += [
+                f"Real test sources, `{key}`:",
+                "",
+                *table(["source", "photos", "accuracy"], rows),
+                "",
+            ]
+    stamp = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
+    lines.append(f"Written {stamp} on {platform.node()} by `planar-pose catalog`.")
+    out = models_dir / "README.md"
+    out.write_text("\n".join(lines) + "\n")
+    return out
