@@ -61,11 +61,13 @@ FLAGS = [
 ]
 
 
-@pytest.fixture
-def browser(tmp_path: Path) -> Iterator[WebDriver]:
+@pytest.fixture(scope="module")
+def chromium(tmp_path_factory: pytest.TempPathFactory) -> Iterator[WebDriver]:
+    """One headless chromium (fresh profile) for the module: starting it takes seconds."""
     options = Options()
     options.binary_location = str(CHROMIUM)
-    for flag in [*FLAGS, f"--user-data-dir={tmp_path / 'profile'}"]:
+    profile = tmp_path_factory.mktemp("chromium-profile")
+    for flag in [*FLAGS, f"--user-data-dir={profile}"]:
         options.add_argument(flag)
     options.set_capability("goog:loggingPrefs", {"performance": "ALL"})
     driver = webdriver.Chrome(service=Service(executable_path=str(CHROMEDRIVER)), options=options)
@@ -74,6 +76,14 @@ def browser(tmp_path: Path) -> Iterator[WebDriver]:
         yield driver
     finally:
         driver.quit()
+
+
+@pytest.fixture
+def browser(chromium: WebDriver) -> WebDriver:
+    """The browser on a blank page, its DevTools log emptied: what a test sees is its own."""
+    chromium.get("about:blank")
+    chromium.get_log("performance")
+    return chromium
 
 
 def requested_urls(driver: WebDriver) -> list[str]:
