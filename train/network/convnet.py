@@ -33,6 +33,31 @@ from train.network.model import NormalisedNet
 
 SIZES = ((80, 60), (160, 120))
 HEAD_GRID = (3, 4)  # (H, W) of the pooled map the classifier reads
+FEATURE_HW = (7, 10)  # (H, W) of the last convolution's map, for both input sizes
+
+
+def _pool_matrix(n_in: int, n_out: int) -> torch.Tensor:
+    """[n_out, n_in] averaging weights of adaptive average pooling along one axis (PyTorch's
+    windows: start floor(i * n_in / n_out), end ceil((i + 1) * n_in / n_out))."""
+    m = torch.zeros(n_out, n_in)
+    for i in range(n_out):
+        a, b = (i * n_in) // n_out, -(-((i + 1) * n_in) // n_out)
+        m[i, a:b] = 1.0 / (b - a)
+    return m
+
+
+class GridPool(nn.Module):
+    """Adaptive average pooling of a fixed [N, C, H, W] map to [N, C, h, w], as two matrix
+    products, so that it exports to ONNX whatever the sizes (ONNX has no adaptive pooling
+    when h, w do not divide H, W). Same values as `nn.AdaptiveAvgPool2d((h, w))`."""
+
+    def __init__(self, in_hw: tuple[int, int], out_hw: tuple[int, int]) -> None:
+        super().__init__()
+        self.register_buffer("rows", _pool_matrix(in_hw[0], out_hw[0]), persistent=False)
+        self.register_buffer("cols", _pool_matrix(in_hw[1], out_hw[1]), persistent=False)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return torch.matmul(torch.matmul(self.rows, x), self.cols.t())
 
 
 def _conv(cin: int, cout: int, k: int = 3, stride: int = 1) -> nn.Sequential:
@@ -68,7 +93,7 @@ class ConvNet(NormalisedNet):
             _conv(96, 96),
             nn.MaxPool2d(2),
             _conv(96, 128),
-            nn.AdaptiveAvgPool2d(HEAD_GRID),
+            GridPool(FEATURE_HW, HEAD_GRID),
         )
         self.hidden = nn.Sequential(
             nn.Flatten(),
