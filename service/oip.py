@@ -75,6 +75,8 @@ def _tensor(spec: dict[str, Any], raw: bytes | None, where: str) -> np.ndarray:
     shape = _shape(spec.get("shape"), where)
     try:
         if raw is not None:
+            if len(raw) % 4:
+                raise ProtocolError(400, f"{where}: {len(raw)} bytes are not float32 values")
             flat = np.frombuffer(raw, dtype=FP32_LE)
         else:
             flat = np.asarray(spec.get("data"), dtype=np.float32).reshape(-1)
@@ -111,8 +113,10 @@ def parse_infer_request(body: bytes, header_length: int | None) -> InferRequest:
     elif "data" not in spec:
         raise ProtocolError(400, f"{where}: no 'data'")
     images = None
-    if datatype == "BYTES":
-        images = _bytes_elements(raw, where) if raw is not None else _json_images(spec["data"], where)
+    if datatype == "BYTES" and raw is not None:
+        images = _bytes_elements(raw, where)
+    elif datatype == "BYTES":
+        images = _json_images(spec["data"], where)
     return InferRequest(
         id=str(doc["id"]) if "id" in doc else None,
         input_name=name,
