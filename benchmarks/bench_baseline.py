@@ -5,6 +5,9 @@ On the 26 real photographs (train/assets/real/chessboard-stereo) resized to each
 * the CNN: an ONNX model through `train.network.evaluate.onnx_predictor` (the service's
   preprocessing + onnxruntime), batch 64 and batch 1;
 * the feature baseline (`train.compare.baseline`, SIFT and ORB, images enlarged to 320 px wide);
+* the chessboard detector peer (`train.compare.chessboard_peer`: the image enlarged 4x,
+  `findChessboardCornersSB`, fallback `findChessboardCorners`, parity, IPPE PnP) and how many
+  of the photos it answers right;
 * box generation on the 640x480 photos: the service's sliding-window grid vs
   `service.proposals.propose_boxes`.
 
@@ -16,6 +19,7 @@ Prints ms / image and the ratios (the thesis: baseline about 10x slower than the
 from __future__ import annotations
 
 import argparse
+import csv
 import time
 from pathlib import Path
 
@@ -25,9 +29,12 @@ from service.preprocess import resize_rgb
 from service.proposals import propose_boxes
 from service.sliding import SlidingWindows
 from train.compare.baseline import BaselineConfig, FeatureBaseline
+from train.compare.chessboard_peer import ChessboardPeer
+from train.geometry import pose_class
 from train.network.evaluate import onnx_predictor, predict_all
 from train.profile import load_profile
 from train.real.calibration import Calibration
+from train.real.label import chessboard_pattern
 from train.real.realset import read_rgb
 
 REAL = Path(__file__).resolve().parent.parent / "train" / "assets" / "real" / "chessboard-stereo"
@@ -36,6 +43,29 @@ REAL = Path(__file__).resolve().parent.parent / "train" / "assets" / "real" / "c
 def best_of(repeat: int, run) -> float:  # noqa: ANN001
     """Smallest wall-clock ms / image of `repeat` runs of `run()` (which returns ms / image)."""
     return min(run() for _ in range(repeat))
+
+
+def chessboard_peer(profile, images, cameras, repeat: int) -> tuple[float, int]:  # noqa: ANN001
+    """Best ms / image of the chessboard peer over `repeat` runs, and how many it got right."""
+    z_split = float(profile.geometry.z_split_cm)
+    peer = ChessboardPeer(chessboard_pattern(profile), z_split)
+    with (REAL / "labels.csv").open(newline="") as fh:
+        rows = {r["file"]: r for r in csv.DictReader(fh)}
+    truth = [
+        int(pose_class(np.array([float(rows[f][k]) for k in ("cam_x", "cam_y", "cam_z")]), z_split))
+        for f in sorted(rows)
+    ]
+    labels: list[int] = []
+
+    def run() -> float:
+        labels.clear()
+        start = time.perf_counter()
+        for image, camera in zip(images, cameras, strict=True):
+            labels.append(peer.predict(image, camera).label)
+        return 1000 * (time.perf_counter() - start) / len(images)
+
+    ms = best_of(repeat, run)
+    return ms, int(np.sum(np.array(labels) == np.array(truth)))
 
 
 def main() -> None:
@@ -73,6 +103,12 @@ def main() -> None:
             f"baseline {features}: {ms:.2f} ms / image = {ms / cnn64:.1f}x the CNN (batch 64), "
             f"{ms / cnn1:.1f}x (batch 1)"
         )
+
+    peer_ms, right = chessboard_peer(profile, images, cameras, args.repeat)
+    print(
+        f"chessboard detector (4x): {peer_ms:.2f} ms / image = {peer_ms / cnn64:.1f}x the CNN "
+        f"(batch 64), {peer_ms / cnn1:.1f}x (batch 1); right on {right}/{len(images)}"
+    )
 
     aspect = size[0] / size[1]
     grid = SlidingWindows(aspect=aspect, scales=(1.0, 0.8, 0.6), stride=20, max_windows=256)

@@ -109,6 +109,10 @@ def test_dataset_cameras(tmp_path):
     _write_set(tmp_path / "own", [cols], {})
     (cam,) = dataset_cameras(tmp_path / "own", ["a.png"], (80, 60))
     assert cam.K[0, 0] == 100 and cam.K[1, 1] == 101 and cam.K[0, 2] == 40
+    rows = [cols, {**cols, "file": "neg.png", "class": 0, "fx": "", "fy": "", "cx": "", "cy": ""}]
+    _write_set(tmp_path / "corpus", rows, {})  # a corpus photo without the board: no camera
+    cams = dataset_cameras(tmp_path / "corpus", ["a.png", "neg.png"], (80, 60))
+    assert cams[0].K[0, 0] == 100 and np.allclose(cams[1].K[:2, :2], intrinsics((80, 60))[:2, :2])
 
     _write_set(tmp_path / "syn", [{"file": "a.png", "class": 1}], {"variant": "C"})
     (cam,) = dataset_cameras(tmp_path / "syn", ["a.png"], (80, 60))

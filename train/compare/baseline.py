@@ -10,9 +10,11 @@ Small images are enlarged (cubic) to `min_width` pixels before detection. The ra
 RANSAC thresholds can be tuned on a validation split (`tune`), never on the test split.
 
 Intrinsics per image (`dataset_cameras`): fx, fy, cx, cy (and k1.. if present) columns of the
-data set's labels.csv; else, for a real data set whose source folder holds a calibration.json,
-that calibration scaled to the image size (distortion included); else its focal_scale column
-(synthetic sets: the SPEC intrinsics for the image size, fx and fy scaled); else the SPEC ones.
+data set's labels.csv (empty for a corpus photo without the object: the default guess of
+`train.real.calibration.default_camera`); else, for a real data set whose source folder holds
+a calibration.json, that calibration scaled to the image size (distortion included); else its
+focal_scale column (synthetic sets: the SPEC intrinsics for the image size, fx and fy scaled);
+else the SPEC ones.
 """
 
 from __future__ import annotations
@@ -33,7 +35,7 @@ import numpy as np
 from train import REPO_ROOT
 from train.geometry import apply_homography, camera_centre, intrinsics, pose_class
 from train.network.evaluate import compute_metrics
-from train.real.calibration import Calibration, Camera
+from train.real.calibration import Calibration, Camera, default_camera
 from train.real.corners import FEATURES, ImageFeatures, MatchResult, TextureMatcher
 
 FEATURE_CHOICES = (*FEATURES, "both")
@@ -146,6 +148,9 @@ def dataset_cameras(folder: Path, files: Sequence[str], size: tuple[int, int]) -
         cams = []
         for f in files:
             r = rows[f]
+            if not r["fx"]:  # a photo without the object (class 0) has no calibration
+                cams.append(default_camera(size))
+                continue
             K = np.array(
                 [
                     [float(r["fx"]), 0, float(r["cx"])],
