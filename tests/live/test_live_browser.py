@@ -19,7 +19,7 @@ from typing import Any
 
 import httpx
 import pytest
-from live_support import PHOTO, Server
+from live_support import API_KEY, PHOTO, Server
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 CHROMEDRIVER = shutil.which("chromedriver") or (
@@ -244,3 +244,23 @@ def test_docs_and_redoc_render_without_any_other_host(
     urls = assert_only_local(browser, server)
     assert any(u.endswith("/docs-assets/swagger-ui-bundle.js") for u in urls)
     assert any(u.endswith("/docs-assets/redoc.standalone.js") for u in urls)
+
+
+def test_with_an_api_key_the_page_asks_for_it_then_uses_it(
+    browser: WebDriver, secured: Server
+) -> None:
+    browser.get(secured.url + "/")
+    status = browser.find_element(By.ID, "model-status")
+    WebDriverWait(browser, WAIT_S).until(lambda _: "needs an API key" in status.text)
+    drop_file(browser, PHOTO.read_bytes(), PHOTO.name, "image/jpeg")
+    refused = wait_for(browser, ".result[data-state='error'] .result-error")
+    assert refused.text.startswith("This service needs an API key")
+    key = browser.find_element(By.ID, "api-key")
+    key.send_keys(API_KEY + "\t")  # the change event reloads the card with the key
+    wait_for(browser, "#model-card:not([hidden])")
+    drop_file(browser, PHOTO.read_bytes(), PHOTO.name, "image/jpeg")
+    wait_for(browser, ".result[data-state='done']")
+    browser.find_element(By.ID, "camera").click()  # the key goes as the stream's first message
+    wait_for(browser, "#live .result[data-class-id]")
+    browser.find_element(By.ID, "camera").click()
+    assert_only_local(browser, secured)
