@@ -94,7 +94,8 @@ def read_source(folder: Path) -> dict[str, Any]:
         raise ValueError(f"{meta}: not valid JSON ({exc})") from None
     if not isinstance(doc, dict):
         raise ValueError(f"{meta}: expected a JSON object")
-    missing = [k for k in SOURCE_KEYS if not doc.get(k)]
+    # "folder" may be "" (the repository root); the others must be given.
+    missing = [k for k in SOURCE_KEYS if not doc.get(k) and not (k == "folder" and k in doc)]
     if missing:
         raise ValueError(f"{meta}: missing {', '.join(missing)}")
     if not (folder / "LICENSE").is_file():
