@@ -94,3 +94,27 @@ def test_card_is_in_the_metadata_and_beside_the_file(tmp_path):
     ]
     assert model.graph.output[0].name == "probabilities"
     assert path.stat().st_size < 2_000_000
+
+
+def test_a_shipped_model_is_measured_again(tmp_path):
+    from train.network.export import recard
+    from train.real.realset import build_real_dataset
+
+    ckpt, _ = _checkpoint(tmp_path, (80, 60))
+    path, card = export(ckpt, "tiny", tmp_path / "a", notes="first")
+    real = tmp_path / "real-s1-b0"
+    build_real_dataset(REAL, real, size=1, blur=0, profile="chessboard", seed=0)
+    again, new = recard(path, "tiny2", tmp_path / "b", [real], split="all")
+    assert new["name"] == "tiny2" and new["notes"] == "first"
+    assert new["training"] == card["training"] and new["input"] == card["input"]
+    assert new["accuracy"]["real-s1-b0"]["count"] == 26
+    meta = {p.key: p.value for p in onnx.load(str(again)).metadata_props}
+    assert (
+        json.loads(meta["model_card"]) == new == json.loads((tmp_path / "b/tiny2.json").read_text())
+    )
+    with pytest.raises(ValueError, match="no model card"):
+        bare = tmp_path / "bare.onnx"
+        model = onnx.load(str(path))
+        del model.metadata_props[:]
+        onnx.save(model, str(bare))
+        recard(bare, "x", tmp_path, [real])

@@ -161,7 +161,12 @@ def _model_name(path: Path, info: dict) -> str:
 
 
 def export(
-    checkpoint: Annotated[Path, typer.Argument(help="A checkpoint written by train (best.pt).")],
+    checkpoint: Annotated[
+        Path,
+        typer.Argument(
+            help="A checkpoint written by train (best.pt), or a shipped .onnx to measure again."
+        ),
+    ],
     name: Annotated[str, typer.Option(help="Model name: writes OUT_DIR/NAME.onnx and .json.")],
     out_dir: Annotated[Path, typer.Option(help="Where to write the model.")] = Path("models"),
     eval_data: Annotated[
@@ -172,10 +177,14 @@ def export(
     version: str = "1.0.0",
     notes: Annotated[str, typer.Option(help="Free text for the card (how it was made).")] = "",
 ) -> None:
-    """Export a checkpoint to ONNX (probabilities, dynamic batch) with its model card."""
+    """Export a checkpoint to ONNX (probabilities, dynamic batch) with its model card.
+
+    Given an .onnx model instead, measure it again on --eval and rewrite its card's accuracy.
+    """
     import re
 
     from train.network.export import export as run_export
+    from train.network.export import recard
 
     _check_split(split)
     if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.-]*", name):
@@ -185,9 +194,16 @@ def export(
     for path in eval_data or []:
         if not (path / "labels.csv").is_file():
             raise fail(f"not a data set (no labels.csv): {path}")
-    path, card = guard(
-        lambda: run_export(checkpoint, name, out_dir, eval_data, split, version, notes)
-    )
+    if checkpoint.suffix == ".onnx":
+        if not eval_data:
+            raise fail("measuring an .onnx model again needs --eval data set(s)", code=2)
+        path, card = guard(
+            lambda: recard(checkpoint, name, out_dir, eval_data, split, notes or None)
+        )
+    else:
+        path, card = guard(
+            lambda: run_export(checkpoint, name, out_dir, eval_data, split, version, notes)
+        )
     out.print(f"[green]wrote[/] {path} ({path.stat().st_size / 1e6:.2f} MB) and {name}.json")
     for ds, acc in card["accuracy"].items():
         out.print(f"  {ds} ({acc['split']}, {acc['count']} images): {100 * acc['accuracy']:.2f} %")

@@ -219,3 +219,41 @@ def export(
     onnx_path.write_bytes(with_card(raw, card))
     (out_dir / f"{name}.json").write_text(json.dumps(card, indent=1) + "\n")
     return onnx_path, card
+
+
+def recard(
+    onnx_path: Path,
+    name: str,
+    out_dir: Path,
+    eval_datasets: list[Path],
+    split: str = "test",
+    notes: str | None = None,
+) -> tuple[Path, dict[str, Any]]:
+    """Measure a shipped ONNX model again on `eval_datasets` and write it with its card's
+    accuracy replaced (training provenance unchanged) as out_dir/<name>.onnx + .json."""
+    import onnx
+    import onnxruntime as ort
+
+    from train.network.evaluate import network_batch
+
+    model = onnx.load(str(onnx_path))
+    cards = [p.value for p in model.metadata_props if p.key == "model_card"]
+    if not cards:
+        raise ValueError(f"{onnx_path} has no model card in its metadata")
+    card = json.loads(cards[0])
+    raw = onnx_path.read_bytes()
+    session = ort.InferenceSession(raw, providers=["CPUExecutionProvider"])
+    size = tuple(card["input"])
+
+    def predict(images: np.ndarray) -> np.ndarray:
+        return session.run(None, {INPUT_NAME: network_batch(images, size)})[0]
+
+    card |= {"name": name, "accuracy": accuracy_on(predict, eval_datasets, split)}
+    card["date_measured"] = datetime.now(UTC).isoformat(timespec="seconds")
+    if notes is not None:
+        card["notes"] = notes
+    out_dir.mkdir(parents=True, exist_ok=True)
+    path = out_dir / f"{name}.onnx"
+    path.write_bytes(with_card(raw, card))
+    (out_dir / f"{name}.json").write_text(json.dumps(card, indent=1) + "\n")
+    return path, card
