@@ -19,6 +19,7 @@ The protocol is documented in docs/live.md.
 from __future__ import annotations
 
 import json
+import logging
 import math
 import secrets
 from collections import deque
@@ -43,6 +44,8 @@ QUEUE_DEPTH = 2
 #: Seconds a client without credentials in its handshake has to send `{"api_key": ...}`.
 AUTH_TIMEOUT_S = 10.0
 MODES: tuple[str, ...] = get_args(Mode)
+
+log = logging.getLogger("uvicorn.error.pose")  # printed by uvicorn's handlers
 
 
 class CloseCode(IntEnum):
@@ -146,13 +149,21 @@ async def refuse(websocket: WebSocket, refused: StreamRefused) -> None:
         return
     try:
         await websocket.send_text(_error_json(refused.code, refused.message))
-        await websocket.close(refused.close, refused.message[:120])
+        reason = refused.message.encode()[:123].decode(errors="ignore")  # the protocol's limit
+        await websocket.close(refused.close, reason)
     except (WebSocketDisconnect, RuntimeError, OSError):
         pass  # the client left first
 
 
 def _error_json(code: str, message: str, **extra: int) -> str:
     return json.dumps({**extra, "error": {"code": code, "message": message}})
+
+
+_NOT_A_FRAME = _error_json(
+    "bad_request",
+    "frames must be binary messages (JPEG or PNG bytes); text is only accepted as the first "
+    'message {"api_key": ...}',
+)
 
 
 @dataclass(frozen=True)
@@ -319,13 +330,10 @@ class StreamSession:
                 return
             data = message.get("bytes")
             if data is None:
-                await self._send(
-                    _error_json(
-                        "bad_request",
-                        "frames must be binary messages (JPEG or PNG bytes); text is only "
-                        'accepted as the first message {"api_key": ...}',
-                    )
-                )
+                try:
+                    await self._send(_NOT_A_FRAME)
+                except (WebSocketDisconnect, RuntimeError, OSError):
+                    return
                 continue
             self.queue.put(Frame(seq, data))
             seq += 1
@@ -363,6 +371,12 @@ class StreamSession:
             code = "image_too_large" if isinstance(exc, ImageTooLargeError) else "undecodable_image"
             text = str(exc).removeprefix("image 1: ")
             return _error_json(code, f"frame {frame.seq}: {text}", **where)
+        except Exception:  # a bug or a failing session: logged, the stream goes on
+            log.exception("stream frame %d (mode %s) failed", frame.seq, mode)
+            self.metrics.frames.labels(mode, "error").inc()
+            return _error_json(
+                "internal_error", f"frame {frame.seq}: internal server error (logged)", **where
+            )
         self.metrics.frames.labels(mode, "answered").inc()
         self.metrics.metrics.observe(mode, 1, prediction.inference_s)
         result = self.smoother.apply(prediction.results[0])
