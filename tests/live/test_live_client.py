@@ -5,6 +5,7 @@ down, and the video written with --out read back."""
 from __future__ import annotations
 
 import asyncio
+import json
 import socket
 import subprocess
 import sys
@@ -134,6 +135,15 @@ def test_watch_prints_a_line_per_frame_and_writes_the_drawn_video(
     assert len(drawn) == len(frames) and drawn[0].shape == frames[0].shape
     # the label banner is drawn in the top-left corner: black background, white text
     assert drawn[0][:30, :200].mean() < frames[0][:30, :200].mean()
+
+
+def test_watch_json_lines_and_max_frames(server: Server, video: tuple[Path, list[int]]) -> None:
+    done = _watch(str(video[0]), "--max-frames", "5", "--json", "--url", server.url)
+    assert done.returncode == 0, done.stderr
+    answers = [json.loads(line) for line in done.stdout.splitlines()]
+    assert [a["seq"] for a in answers] == list(range(5))
+    assert all(len(a["probabilities"]) == 9 for a in answers)
+    assert done.stderr.startswith("5 frame(s) answered")  # the summary leaves stdout to JSON
 
 
 def test_watch_errors_have_their_exit_codes(server: Server, tmp_path: Path) -> None:
