@@ -67,3 +67,14 @@ def test_grid_pool_is_adaptive_average_pooling():
     x = torch.rand(2, 5, 7, 10)
     want = torch.nn.AdaptiveAvgPool2d((3, 4))(x)
     assert torch.allclose(GridPool((7, 10), (3, 4))(x), want, atol=1e-6)
+
+
+def test_corner_loss_takes_the_better_of_the_two_half_turns():
+    corners = np.array([[10, 20, 150, 20, 150, 100, 10, 100]], np.float32)
+    scale = np.tile([2 / 160, 2 / 120], 4)
+    exact = torch.from_numpy((corners * scale - 1).astype(np.float32))
+    turned = torch.roll(exact, 4, dims=1)  # (+X,+Y) first: the same board a half turn away
+    quarter = torch.roll(exact, 2, dims=1)  # a quarter turn is a different board pose
+    assert float(_corner_loss(exact, corners, 160, 120)) == 0.0
+    assert float(_corner_loss(turned, corners, 160, 120)) == 0.0
+    assert float(_corner_loss(quarter, corners, 160, 120)) > 0.5

@@ -426,13 +426,24 @@ def _train_epoch(
 
 def _corner_loss(predicted: torch.Tensor, corners: np.ndarray, w: int, h: int) -> torch.Tensor:
     """Smooth L1 between predicted corners [B, 8] (image coordinates scaled to [-1, 1]) and
-    the known ones (px, nan where unknown: class 0, photos without corners)."""
+    the known ones (px, nan where unknown: class 0, photos without corners), taking for each
+    image the better of the two orders a half turn apart.
+
+    The half turn is what only the squares' colour parity tells; without it the corners are
+    a geometry task (where the board is, which sides are long, which edges are near) that the
+    network learns early, and the class head learns the parity.
+    """
     known = torch.from_numpy(np.isfinite(corners).all(axis=1))
     if not bool(known.any()):
         return predicted.sum() * 0.0
     scale = np.tile([2.0 / w, 2.0 / h], 4).astype(np.float32)
-    target = torch.from_numpy(np.nan_to_num(corners) * scale - 1.0)
-    return F.smooth_l1_loss(predicted[known], target[known], beta=0.1)
+    target = torch.from_numpy(np.nan_to_num(corners) * scale - 1.0)[known]
+    turned = torch.roll(target, shifts=4, dims=1)  # corners 2, 3, 0, 1
+    pred = predicted[known]
+    losses = [
+        F.smooth_l1_loss(pred, t, beta=0.1, reduction="none").mean(dim=1) for t in (target, turned)
+    ]
+    return torch.minimum(*losses).mean()
 
 
 def _provenance(parent: dict[str, Any], path: Path | None) -> dict[str, Any]:
