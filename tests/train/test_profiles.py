@@ -10,6 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from train import ASSETS_DIR
 from train.geometry import look_at, pose_class
 from train.profile import (
     PROFILES_DIR,
@@ -19,7 +20,7 @@ from train.profile import (
     roll_of_pose,
 )
 
-REAL = Path(__file__).resolve().parent.parent / "train" / "assets" / "real" / "chessboard-stereo"
+REAL = ASSETS_DIR / "real" / "chessboard-stereo"
 
 
 def _copy_profile(tmp_path: Path, text: str | None = None) -> Path:

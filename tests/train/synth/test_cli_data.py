@@ -10,11 +10,12 @@ import cv2
 import pytest
 from typer.testing import CliRunner
 
+from train import ASSETS_DIR
 from train.cli import app
 from train.profile import PROFILES_DIR
 
 runner = CliRunner()
-REAL = Path(__file__).resolve().parent.parent / "train" / "assets" / "real" / "chessboard-stereo"
+REAL = ASSETS_DIR / "real" / "chessboard-stereo"
 
 
 def _run(*args: str):

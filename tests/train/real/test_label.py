@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from train import ASSETS_DIR
 from train.cli import app
 from train.dataset import load_dataset
 from train.geometry import homography_from_pose, intrinsics, look_at, pose_class, translation
@@ -19,7 +20,7 @@ from train.real.calibration import Calibration, default_camera
 from train.real.corners import ChessboardPattern, detect_chessboard, texture_to_object
 from train.real.label import compare_to_truth, label_folder, read_corner_csv
 
-SOURCE = Path(__file__).resolve().parent.parent / "train" / "assets" / "real" / "chessboard-stereo"
+SOURCE = ASSETS_DIR / "real" / "chessboard-stereo"
 runner = CliRunner()
 
 

@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
+from train import ASSETS_DIR
 from train.geometry import intrinsics, look_at, pose_class, project_points, translation
 from train.profile import load_profile
 from train.synth.background import BackgroundPool, procedural_backgrounds
@@ -124,9 +125,7 @@ def test_render_is_deterministic_and_class_zero_has_no_object(profile):
 def test_real_photo_crops_avoid_the_board():
     from train.synth.background import board_polygon, real_photo_crops
 
-    folder = (
-        Path(__file__).resolve().parent.parent / "train" / "assets" / "real" / "chessboard-stereo"
-    )
+    folder = ASSETS_DIR / "real" / "chessboard-stereo"
     crops = real_photo_crops(folder)
     assert len(crops) >= 10
     corners = {}

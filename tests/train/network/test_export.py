@@ -12,12 +12,13 @@ import pytest
 import torch
 
 from service.preprocess import to_network_input
+from train import ASSETS_DIR
 from train.network.export import export
 from train.network.fit import CHECKPOINT_FORMAT
 from train.network.model import PoseNet
 from train.real.realset import read_rgb
 
-REAL = Path(__file__).resolve().parent.parent / "train" / "assets" / "real" / "chessboard-stereo"
+REAL = ASSETS_DIR / "real" / "chessboard-stereo"
 
 
 def _checkpoint(

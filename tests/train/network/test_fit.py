@@ -13,6 +13,7 @@ from typer.testing import CliRunner
 
 import train.network.fit as fit_module
 from train.cli import app
+from train.network.config import ConfigError, load_config
 from train.network.fit import (
     Augmenter,
     FitConfig,
@@ -22,20 +23,9 @@ from train.network.fit import (
     load_network,
     load_split,
 )
-from train.network.config import ConfigError, load_config
 from train.network.model import PoseNet
-from train.profile import load_profile
-from train.synth.generate import DatasetSpec, make_dataset
 
 runner = CliRunner()
-
-
-@pytest.fixture(scope="module")
-def tiny_set(tmp_path_factory) -> Path:
-    """A tiny synthetic noC 80x60 data set made by the project's generator."""
-    out = tmp_path_factory.mktemp("data") / "tiny"
-    make_dataset(out, DatasetSpec("noC", 1, 0, 180, 3, load_profile("chessboard")))
-    return out
 
 
 def _config(data: Path, out: Path, **kw) -> FitConfig:

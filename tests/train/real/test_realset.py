@@ -11,12 +11,13 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from train import ASSETS_DIR
 from train.cli import app
 from train.dataset import load_dataset
 from train.geometry import pose_class
 from train.real.realset import build_real_dataset, moment_of, optical_axis_target, split_moments
 
-SOURCE = Path(__file__).resolve().parent.parent / "train" / "assets" / "real" / "chessboard-stereo"
+SOURCE = ASSETS_DIR / "real" / "chessboard-stereo"
 runner = CliRunner()
 
 

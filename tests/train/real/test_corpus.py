@@ -11,6 +11,7 @@ import cv2
 import pytest
 from typer.testing import CliRunner
 
+from train import ASSETS_DIR
 from train.cli import app
 from train.dataset import load_dataset
 from train.profile import load_profile
@@ -18,9 +19,8 @@ from train.real.corpus import STORE_MAX_SIDE, import_negatives, label_source, re
 from train.real.label import compare_to_truth
 from train.real.realset import build_corpus_dataset
 
-ROOT = Path(__file__).resolve().parent.parent
-STEREO = ROOT / "train" / "assets" / "real" / "chessboard-stereo"
-BACKGROUNDS = ROOT / "train" / "assets" / "backgrounds" / "photos"
+STEREO = ASSETS_DIR / "real" / "chessboard-stereo"
+BACKGROUNDS = ASSETS_DIR / "backgrounds" / "photos"
 runner = CliRunner()
 
 
