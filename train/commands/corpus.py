@@ -92,6 +92,7 @@ def run_check(corpus: Path, prof: Any) -> dict[str, Any]:
         raise ValueError(f"profile {prof.name!r} is not a chessboard")
     per_source: dict[str, tuple[int, int]] = {}
     diffs: list[float] = []
+    disagree_boundary: list[float] = []
     count = 0
     for src in corpus_sources(corpus):
         if src.parent.name != "boards":
@@ -101,6 +102,9 @@ def run_check(corpus: Path, prof: Any) -> dict[str, Any]:
         agree = sum(r["class"] == r["independent_class"] for r in found)
         per_source[src.name] = (agree, len(found))
         diffs += [r["centre_diff_cm"] for r in found]
+        disagree_boundary += [
+            r["boundary_cm"] for r in found if r["class"] != r["independent_class"]
+        ]
         count += len(rows)
     found_all = sum(f for _, f in per_source.values())
     agree_all = sum(a for a, _ in per_source.values())
@@ -110,6 +114,7 @@ def run_check(corpus: Path, prof: Any) -> dict[str, Any]:
         "agree": agree_all,
         "agreement": agree_all / found_all if found_all else None,
         "median_diff_cm": float(np.median(diffs)) if diffs else float("nan"),
+        "disagreement_max_boundary_cm": max(disagree_boundary, default=None),
         "per_source": per_source,
     }
 

@@ -51,11 +51,14 @@ def _source_line(folder: Path, split: str) -> list[Any]:
     src = m["source"]
     cal = m.get("calibration") or []
     rms = ", ".join(f"{c['rms_px']:.2f}" for c in cal) if cal else ""
-    sizes = ", ".join(f"{c['size'][0]}x{c['size'][1]}" for c in cal) or str(src.get("image_size"))
+    sizes = ", ".join(f"{c['size'][0]}x{c['size'][1]}" for c in cal)
+    repo = f"[{src['repo']}](https://github.com/{src['repo']})"
+    if m.get("kind") == "negative":
+        return [f"`{folder.name}`", repo, src["licence"], m["photos"], m["count"], split]
+    per_class = " / ".join(str(n) for n in m["class_counts"][1:])
     return [
-        f"`{folder.name}`", f"[{src['repo']}](https://github.com/{src['repo']})",
-        src["licence"], src.get("camera") or "", sizes, m["photos"], m["count"], m["failed"],
-        rms, split,
+        f"`{folder.name}`", repo, src["licence"], src.get("camera") or "", sizes, m["photos"],
+        m["count"], m["failed"], rms, per_class, split,
     ]  # fmt: skip
 
 
@@ -107,10 +110,14 @@ def write_corpus_readme(corpus: Path, check: dict[str, Any] | None = None) -> Pa
         group = [s for s in sources if s.parent.name == kind]
         lines += [f"## {title}", ""]
         body = [_source_line(s, splits.get(s.name, "?")) for s in group]
-        header = ["source", "repository", "licence", "camera", "size", "photos", "labelled",
-                  "dropped", "calibration RMS px", "split"]  # fmt: skip
+        header = (
+            ["source", "repository", "licence", "photos", "kept", "split"]
+            if kind == "negatives"
+            else ["source", "repository", "licence", "camera", "size", "photos", "labelled",
+                  "dropped", "calibration RMS px", "classes 1 / 2 / ... / 8", "split"]
+        )  # fmt: skip
         lines += table(header, body) + [""]
-        total = sum(int(r[6]) for r in body)
+        total = sum(int(r[header.index("photos") + 1]) for r in body)
         lines += [f"{len(group)} sources, {total} labelled photos.", ""]
     for s in sources:
         for row in _rows(s):
@@ -137,4 +144,10 @@ def check_summary(check: dict[str, Any]) -> str:
         f"found the board in {check['found']} of {check['count']} labelled photos; the class "
         f"agrees on {pct(check['agreement'])} of them ({check['agree']} / {check['found']}); "
         f"median camera-centre difference {check['median_diff_cm']:.2f} cm."
+        + (
+            f" Every disagreement is a camera within {check['disagreement_max_boundary_cm']:.1f}"
+            " cm of a region boundary (x = 0, y = 0 or the z split)."
+            if check.get("disagreement_max_boundary_cm") is not None
+            else ""
+        )
     )

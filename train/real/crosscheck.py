@@ -104,6 +104,8 @@ def crosscheck_folder(folder: Path, pattern: ChessboardPattern, z_split: float) 
                 "class": int(row["class"]),
                 "independent_class": None if theirs is None else int(pose_class(theirs, z_split)),
                 "centre_diff_cm": None if theirs is None else float(np.linalg.norm(ours - theirs)),
+                # How far the camera centre is from the nearest region boundary (cm).
+                "boundary_cm": float(min(abs(ours[0]), abs(ours[1]), abs(ours[2] - z_split))),
             }
         )
     return out
