@@ -73,7 +73,7 @@ def test_report_has_the_chessboard_peer_rows(report, real_sets):
     peer = metrics["opencv-chessboard"]
     w, h = json.loads((real_sets[0] / "manifest.json").read_text())["size"]
     section = text.split("## The network vs the chessboard detector")[1].split("\n## ")[0]
-    assert f"### real, {w}x{h}" in section
+    assert f"### real (chessboard-stereo), {w}x{h}" in section
     for ds, blur in zip(real_sets, (0, 3), strict=True):
         cell = peer[f"chessboard/{ds.name}"]
         assert cell["count"] == 6 and cell["ms_per_image"] > 0
@@ -83,7 +83,7 @@ def test_report_has_the_chessboard_peer_rows(report, real_sets):
     (stored,) = metrics["opencv-chessboard@stored"].values()
     assert stored["count"] == 6 and stored["accuracy"] == 1.0  # the photos as stored
     assert "stored photos, no blur (chessboard-stereo photos" in section
-    assert f"At {w}x{h} (real images): the network (`default`) is ahead at" in section
+    assert f"At {w}x{h}, real (chessboard-stereo): the network (`default`) is ahead at" in section
     assert "detector / CNN time" in section and "The detector took" in section
 
 

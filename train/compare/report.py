@@ -155,7 +155,7 @@ def verdict(group: list[dict], model: str, peer: str, models: Sequence[str]) -> 
     """One plain sentence: at which blur levels the network is ahead of the peer and at which
     the peer is, and their time ratio, over the rows of one (kind, size) group."""
     r0 = group[0]
-    where = f"At {r0['size'][0]}x{r0['size'][1]} ({r0['kind']} images)"
+    where = f"At {r0['size'][0]}x{r0['size'][1]}, {r0['kind']}"
     mine = [r for r in group if model in r["acc"] and peer in r["acc"]]
     net = [
         (r["blur"], r["acc"][model], r["acc"][peer])
@@ -222,9 +222,7 @@ def chessboard_section(ctx: ReportContext, rows: list[dict]) -> list[str]:
         "",
     ]
     groups: dict[tuple, list[dict]] = {}
-    for r in sorted(
-        mine, key=lambda r: (r["kind"] != "real", r["kind"], r["size"], str(r["blur"]))
-    ):
+    for r in sorted(mine, key=lambda r: (not r["real"], r["kind"], r["size"], str(r["blur"]))):
         groups.setdefault((r["kind"], r["size"]), []).append(r)
     for (kind, size), group in groups.items():
         models = [m for m in ctx.models if any(m in r["acc"] for r in group)]
@@ -306,14 +304,15 @@ def real_blur_section(ctx: ReportContext, rows: list[dict]) -> list[str]:
     cols = [*ctx.models, *ctx.peers]
     body = [
         [
+            r["kind"],
             f"{r['size'][0]}x{r['size'][1]}",
             str(r["blur"]),
             str(r["n"]),
             *(pct_cell(r["acc"].get(c)) for c in cols),
         ]
-        for r in sorted(real_rows, key=lambda r: (r["size"], str(r["blur"])))
+        for r in sorted(real_rows, key=lambda r: (r["kind"], r["size"], str(r["blur"])))
     ]
-    lines += table(["size", "blur", "n", *(f"{c} %" for c in cols)], body)
+    lines += table(["kind", "size", "blur", "n", *(f"{c} %" for c in cols)], body)
     if not any(finetuned_on_real(card) is False for _, _, card in ctx.models.values()):
         lines += [
             "",

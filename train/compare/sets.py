@@ -42,9 +42,12 @@ def manifest_of(folder: Path) -> dict[str, Any]:
 
 
 def describe(folder: Path, images: np.ndarray) -> dict[str, Any]:
-    """Object, kind (real / C / noC), size (W, H) and blur of a data set, from its manifest."""
+    """Object, kind ("real (<source folder>)" / C / noC), size (W, H) and blur of a data set,
+    from its manifest."""
     m = manifest_of(folder)
     kind = "real" if m.get("real") else str(m.get("variant", "synthetic"))
+    if m.get("real") and m.get("source"):  # real sets of different sources stay apart
+        kind += f" ({Path(str(m['source'])).name})"
     profile = m.get("profile")
     return {
         "object": str(profile.get("name", "?") if isinstance(profile, dict) else profile),
