@@ -4,12 +4,13 @@ cases, a factory for apps with other settings."""
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterator
-from contextlib import AbstractContextManager, contextmanager
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Any
 
 import pytest
 from fastapi.testclient import TestClient
+from service_support import AppFactory
 
 from service.app import create_app
 from service.settings import Settings
@@ -29,9 +30,6 @@ def running_app(
                 pytest.fail(f"{ready} did not answer 200: {client.get(ready).text}")
             time.sleep(0.02)
         yield client
-
-
-AppFactory = Callable[..., AbstractContextManager[TestClient]]
 
 
 @pytest.fixture(scope="session")

@@ -10,8 +10,8 @@ import socket
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
+from collections.abc import Callable, Iterator
+from contextlib import AbstractContextManager, contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -19,6 +19,7 @@ import cv2
 import httpx
 import numpy as np
 import pytest
+from fastapi.testclient import TestClient
 
 from service.regions import region_of_class
 from service.settings import DEFAULT_MODEL
@@ -27,6 +28,8 @@ ROOT = Path(__file__).resolve().parents[2]
 REAL = ROOT / "train" / "assets" / "real" / "chessboard-stereo"
 PHOTO = (REAL / "left01.jpg").read_bytes()
 CARD = json.loads(DEFAULT_MODEL.with_suffix(".json").read_text())
+#: `app_factory` (conftest): `with app_factory(**settings) as client:` an in-process app.
+AppFactory = Callable[..., AbstractContextManager[TestClient]]
 JPEG = {"content-type": "image/jpeg"}
 
 UVICORN = [sys.executable, "-m", "uvicorn", "service.app:app", "--port", "{port}"]

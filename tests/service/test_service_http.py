@@ -12,10 +12,9 @@ from typing import Any
 import cv2
 import numpy as np
 import pytest
-from conftest import AppFactory
 from fastapi.testclient import TestClient
 from image_bytes import png_claiming, with_exif_orientation
-from service_support import CARD, JPEG, PHOTO, REAL, check_answer, encode
+from service_support import CARD, JPEG, PHOTO, REAL, AppFactory, check_answer, encode
 
 from service.deps import get_predictor
 from service.model import PoseModel

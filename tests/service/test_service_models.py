@@ -12,9 +12,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import AppFactory
 from fastapi.testclient import TestClient
-from service_support import JPEG, PHOTO, check_answer
+from service_support import JPEG, PHOTO, AppFactory, check_answer
 
 from service.settings import DEFAULT_MODEL_DIR
 

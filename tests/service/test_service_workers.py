@@ -13,8 +13,7 @@ from pathlib import Path
 import httpx
 import psutil
 import pytest
-from conftest import AppFactory
-from service_support import JPEG, PHOTO, SERVE, live_server
+from service_support import JPEG, PHOTO, SERVE, AppFactory, live_server
 from test_service_models import LARGE, SMALL, put
 
 from service.settings import DEFAULT_MODEL_DIR
