@@ -105,6 +105,9 @@ def serve(
         "log_level": settings.log_level.lower(),
         "access_log": settings.access_log,
         "timeout_graceful_shutdown": settings.graceful_timeout_s,
+        # A stream frame as large as an upload reaches the route, which answers it with its
+        # payload_too_large message instead of the connection being cut.
+        "ws_max_size": settings.max_upload_bytes + 4096,
     }
     if settings.process_count == 1:
         from service.app import create_app
