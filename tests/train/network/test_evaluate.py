@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from train import ASSETS_DIR
 from train.cli import app
 from train.network.evaluate import compute_metrics, confusion_matrix, predict_all
 from train.network.report import write_report
@@ -119,9 +119,7 @@ def model_and_set(tmp_path_factory):
     from train.real.realset import build_real_dataset
 
     root = tmp_path_factory.mktemp("eval")
-    source = (
-        Path(__file__).resolve().parent.parent / "train" / "assets" / "real" / "chessboard-stereo"
-    )
+    source = ASSETS_DIR / "real" / "chessboard-stereo"
     build_real_dataset(source, root / "real", size=1, blur=0, profile="chessboard", seed=0)
     torch.manual_seed(0)
     ckpt = {

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from train import ASSETS_DIR, REPO_ROOT
 from train.cli import app
 from train.compare.detection import detection_variants
 from train.compare.sets import encode_png
@@ -16,9 +17,8 @@ from train.dataset import load_dataset
 from train.network.evaluate import evaluate_predictor, onnx_predictor
 from train.real.realset import build_real_dataset
 
-ROOT = Path(__file__).resolve().parent.parent
-SOURCE = ROOT / "train" / "assets" / "real" / "chessboard-stereo"
-MODEL = ROOT / "models" / "default.onnx"
+SOURCE = ASSETS_DIR / "real" / "chessboard-stereo"
+MODEL = REPO_ROOT / "models" / "default.onnx"
 runner = CliRunner()
 
 

@@ -12,13 +12,14 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from train import ASSETS_DIR
 from train.cli import app
 from train.compare.baseline import BaselineConfig, FeatureBaseline, dataset_cameras, tune
 from train.geometry import homography_from_pose, intrinsics, look_at, pose_class, translation
 from train.real.calibration import Camera
 from train.real.corners import texture_to_object
 
-REAL = Path(__file__).resolve().parent.parent / "train" / "assets" / "real" / "chessboard-stereo"
+REAL = ASSETS_DIR / "real" / "chessboard-stereo"
 W_CM, H_CM = 25.0, 17.5
 CENTRES = [
     (10, 8, 30), (-10, 8, 30), (-10, -8, 30), (10, -8, 30),
