@@ -19,7 +19,8 @@ import httpx
 import pytest
 from service_support import JPEG, PHOTO, ROOT, check_answer, free_port
 
-pytestmark = pytest.mark.slow
+# The build (pip install of the service's wheels) takes minutes on a loaded 2-core machine.
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(1500)]
 TAG = "localhost/planar-pose:test"
 
 

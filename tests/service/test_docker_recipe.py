@@ -114,6 +114,7 @@ def copy_into(
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(1200)  # a fresh venv's pip install, minutes on a loaded machine
 def test_image_install_and_command_outside_docker(tmp_path: Path) -> None:
     to_tmp = mapper(tmp_path)
     clean = {k: v for k, v in os.environ.items() if not k.startswith(("POSE_", "VIRTUAL_ENV"))}
