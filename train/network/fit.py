@@ -256,24 +256,9 @@ def fit(config: FitConfig, resume: bool = False) -> dict[str, Any]:
     if len(train.labels) == 0:
         raise TrainingError(f"no 'train' split images in {[str(p) for p in config.datasets]}")
     size = (train.images.shape[2], train.images.shape[1])
-    try:
-        build_network(config.arch, size, config.batch_norm)
-    except ValueError as exc:
-        raise TrainingError(f"training images: {exc}") from exc
 
     torch.manual_seed(config.seed)
-    parent: dict[str, Any] | None = None
-    if config.init is not None:  # fine-tuning keeps the parent's architecture and weights
-        net, parent = load_network(config.init)
-        if net.size != size:
-            raise TrainingError(
-                f"--init checkpoint {config.init} takes {net.size[0]}x{net.size[1]} "
-                f"images but the data sets are {size[0]}x{size[1]}"
-            )
-    else:
-        net = build_network(config.arch, size, config.batch_norm)
-        mean, std = channel_stats(torch.from_numpy(train.images))
-        net.set_normalisation(mean, std)
+    net, parent = _initial_network(config, train, size)
     net = net.to(memory_format=torch.channels_last)
     opt = _optimiser(config, net)
     sched = _schedule(config, opt)
@@ -298,17 +283,7 @@ def fit(config: FitConfig, resume: bool = False) -> dict[str, Any]:
         "history": [],
     }
     if resume:
-        last = config.out / "last.pt"
-        saved_net, saved = load_network(last)
-        if tuple(saved["size"]) != size:
-            raise TrainingError(f"{last} was trained on other image sizes than these data sets")
-        if saved_net.batch_norm != net.batch_norm:
-            flag = "--batch-norm" if saved_net.batch_norm else "--no-batch-norm"
-            raise TrainingError(f"{last} was trained with {flag}: resume with the same option")
-        net.load_state_dict(saved["model"])
-        opt.load_state_dict(saved["optimizer"])
-        sched.load_state_dict(saved["scheduler"])
-        state.update({k: saved[k] for k in ("epoch", "best", "bad_epochs", "history", "parent")})
+        _resume(config.out / "last.pt", size, net, opt, sched, state)
     elif log_path.exists():
         log_path.unlink()
 
@@ -320,25 +295,9 @@ def fit(config: FitConfig, resume: bool = False) -> dict[str, Any]:
         row["val_loss"], row["val_accuracy"] = (
             evaluate_split(net, val)
             if len(val.labels)
-            else (
-                row["train_loss"],
-                row["train_accuracy"],
-            )
+            else (row["train_loss"], row["train_accuracy"])
         )
-        best = state["best"]
-        improved = (row["val_accuracy"], -row["val_loss"]) > (
-            best["val_accuracy"],
-            -best["val_loss"],
-        )
-        if improved:
-            state["best"] = {k: row[k] for k in ("epoch", "val_accuracy", "val_loss")}
-            state["bad_epochs"] = 0
-        else:
-            state["bad_epochs"] += 1
-        state["epoch"] = epoch
-        state["history"].append(row)
-        with log_path.open("a") as fh:
-            fh.write(json.dumps(row) + "\n")
+        improved = _record(state, row, log_path)
         payload = {**state, "model": net.state_dict()}
         if improved:
             _save(config.out / "best.pt", payload)
@@ -360,6 +319,67 @@ def fit(config: FitConfig, resume: bool = False) -> dict[str, Any]:
         "stopped_early": state["epoch"] < config.epochs,
         "ms_per_image": float(np.mean([r["ms_per_image"] for r in history])) if history else None,
     }
+
+
+def _initial_network(
+    config: FitConfig, train: Split, size: tuple[int, int]
+) -> tuple[NormalisedNet, dict[str, Any] | None]:
+    """The network to train and the parent checkpoint (fine-tuning keeps the parent's
+    architecture, weights and normalisation), or a new `config.arch` network normalised to
+    the training images (parent None)."""
+    if config.init is not None:
+        net, parent = load_network(config.init)
+        if net.size != size:
+            raise TrainingError(
+                f"--init checkpoint {config.init} takes {net.size[0]}x{net.size[1]} "
+                f"images but the data sets are {size[0]}x{size[1]}"
+            )
+        return net, parent
+    try:
+        net = build_network(config.arch, size, config.batch_norm)
+    except ValueError as exc:
+        raise TrainingError(f"training images: {exc}") from exc
+    mean, std = channel_stats(torch.from_numpy(train.images))
+    net.set_normalisation(mean, std)
+    return net, None
+
+
+def _resume(
+    last: Path,
+    size: tuple[int, int],
+    net: NormalisedNet,
+    opt: torch.optim.Optimizer,
+    sched: torch.optim.lr_scheduler.LRScheduler,
+    state: dict[str, Any],
+) -> None:
+    """Load the weights, optimiser, schedule and history of `last` (last.pt) into the run."""
+    saved_net, saved = load_network(last)
+    if tuple(saved["size"]) != size:
+        raise TrainingError(f"{last} was trained on other image sizes than these data sets")
+    if saved_net.batch_norm != net.batch_norm:
+        flag = "--batch-norm" if saved_net.batch_norm else "--no-batch-norm"
+        raise TrainingError(f"{last} was trained with {flag}: resume with the same option")
+    net.load_state_dict(saved["model"])
+    opt.load_state_dict(saved["optimizer"])
+    sched.load_state_dict(saved["scheduler"])
+    state.update({k: saved[k] for k in ("epoch", "best", "bad_epochs", "history", "parent")})
+
+
+def _record(state: dict[str, Any], row: dict[str, Any], log_path: Path) -> bool:
+    """Add an epoch's row to the history and log.jsonl; True when it is the best so far
+    (validation accuracy, then loss)."""
+    best = state["best"]
+    improved = (row["val_accuracy"], -row["val_loss"]) > (best["val_accuracy"], -best["val_loss"])
+    if improved:
+        state["best"] = {k: row[k] for k in ("epoch", "val_accuracy", "val_loss")}
+        state["bad_epochs"] = 0
+    else:
+        state["bad_epochs"] += 1
+    state["epoch"] = row["epoch"]
+    state["history"].append(row)
+    with log_path.open("a") as fh:
+        fh.write(json.dumps(row) + "\n")
+    return improved
 
 
 def _train_epoch(

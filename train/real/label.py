@@ -241,6 +241,34 @@ def row_of(file: str, lab: Label, size: tuple[int, int], split: str) -> dict[str
     return row
 
 
+def _label_photo(
+    path: Path,
+    finder: ObjectFinder,
+    calibration: Calibration | None,
+    clicked: np.ndarray | None,
+) -> tuple[Label, np.ndarray] | str:
+    """(label, RGB image) of one photograph, or the reason it cannot be labelled."""
+    bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if bgr is None:
+        return "unreadable image"
+    rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+    size = (rgb.shape[1], rgb.shape[0])
+    try:
+        camera = calibration.for_image(path.name, size) if calibration else default_camera(size)
+    except ValueError as exc:
+        return str(exc)
+    if clicked is not None:
+        corr: Correspondences | None = Correspondences(finder.corners_xy(), clicked, "clicked")
+    else:
+        corr = finder.find(rgb, camera)
+    if corr is None:
+        return "object not found"
+    try:
+        return label_from_points(corr, camera, finder.corners_xy(), finder.z_split), rgb
+    except ValueError as exc:
+        return str(exc)
+
+
 def label_folder(
     images_dir: Path,
     out: Path,
@@ -271,34 +299,16 @@ def label_folder(
     labelled: list[tuple[str, Label, tuple[int, int]]] = []
     failed: list[str] = []
     for path in progress(paths):
-        bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
-        if bgr is None:
-            failed.append(f"{path.name}: unreadable image")
+        result = _label_photo(path, finder, calibration, corners.get(path.name))
+        if isinstance(result, str):
+            failed.append(f"{path.name}: {result}")
             continue
-        rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
-        size = (rgb.shape[1], rgb.shape[0])
-        try:
-            camera = calibration.for_image(path.name, size) if calibration else default_camera(size)
-        except ValueError as exc:
-            failed.append(f"{path.name}: {exc}")
-            continue
-        if path.name in corners:
-            corr = Correspondences(finder.corners_xy(), corners[path.name], "clicked")
-        else:
-            corr = finder.find(rgb, camera)
-        if corr is None:
-            failed.append(f"{path.name}: object not found")
-            continue
-        try:
-            lab = label_from_points(corr, camera, finder.corners_xy(), finder.z_split)
-        except ValueError as exc:
-            failed.append(f"{path.name}: {exc}")
-            continue
+        lab, rgb = result
         if (out / "images").resolve() != images_dir.resolve():
             shutil.copy2(path, out / "images" / path.name)
         overlay = draw_overlay(rgb, lab, finder.width_cm, finder.height_cm)
         cv2.imwrite(str(out / "overlays" / f"{path.stem}.png"), overlay)
-        labelled.append((f"images/{path.name}", lab, size))
+        labelled.append((f"images/{path.name}", lab, (rgb.shape[1], rgb.shape[0])))
 
     splits = split_moments([moment_of(f) for f, _, _ in labelled], seed)
     rows = [row_of(f, lab, size, splits[moment_of(f)]) for f, lab, size in labelled]
