@@ -1,5 +1,6 @@
 """Typed FastAPI dependencies reading `request.app.state.pose` (tests override them with
-`app.dependency_overrides[get_predictor] = ...`)."""
+`app.dependency_overrides[get_predictor] = ...`). All are `async def`: FastAPI would run a
+plain `def` dependency in a worker thread, a thread hop per dependency per request."""
 
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ from service.settings import Settings
 from service.state import ServiceState
 
 
-def get_state(request: Request) -> ServiceState:
+async def get_state(request: Request) -> ServiceState:
     """The app's shared state (set by `create_app`)."""
     state: ServiceState = request.app.state.pose
     return state
@@ -26,20 +27,20 @@ def get_state(request: Request) -> ServiceState:
 StateDep = Annotated[ServiceState, Depends(get_state)]
 
 
-def get_settings(state: StateDep) -> Settings:
+async def get_settings(state: StateDep) -> Settings:
     return state.settings
 
 
-def get_metrics(state: StateDep) -> Metrics:
+async def get_metrics(state: StateDep) -> Metrics:
     return state.metrics
 
 
-def get_limiter(state: StateDep) -> anyio.CapacityLimiter:
+async def get_limiter(state: StateDep) -> anyio.CapacityLimiter:
     """At most `Settings.inference_jobs` inference jobs at once; more requests queue."""
     return state.jobs
 
 
-def get_predictor(state: StateDep) -> Predictor:
+async def get_predictor(state: StateDep) -> Predictor:
     """The default model's predictor, or 503 `not_ready` with the reason."""
     predictor = state.predictor
     if predictor is None:
@@ -47,11 +48,11 @@ def get_predictor(state: StateDep) -> Predictor:
     return predictor
 
 
-def get_models(state: StateDep) -> ModelRegistry:
+async def get_models(state: StateDep) -> ModelRegistry:
     return state.models
 
 
-def get_named_predictor(name: str, state: StateDep) -> Predictor:
+async def get_named_predictor(name: str, state: StateDep) -> Predictor:
     """The predictor of the model `name` (path parameter), 404 listing the known names."""
     try:
         return state.models.get(name)
@@ -72,7 +73,7 @@ NamedPredictorDep = Annotated[Predictor, Depends(get_named_predictor)]
 ModelsDep = Annotated[ModelRegistry, Depends(get_models)]
 
 
-def authorise(request: Request, settings: SettingsDep) -> None:
+async def authorise(request: Request, settings: SettingsDep) -> None:
     """401 unless the request carries the API key (`Authorization: Bearer` or `X-API-Key`),
     when `POSE_API_KEY` is set."""
     if settings.api_key is None:

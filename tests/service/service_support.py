@@ -21,13 +21,39 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
+from service.model import PoseModel
+from service.preprocess import load_image, to_network_input
 from service.regions import region_of_class
-from service.settings import DEFAULT_MODEL
+from service.settings import DEFAULT_MODEL, DEFAULT_MODEL_DIR
 
 ROOT = Path(__file__).resolve().parents[2]
 REAL = ROOT / "train" / "assets" / "real" / "chessboard-stereo"
 PHOTO = (REAL / "left01.jpg").read_bytes()
 CARD = json.loads(DEFAULT_MODEL.with_suffix(".json").read_text())
+
+
+def card_of(model: Path) -> dict[str, Any]:
+    """The card beside a shipped model."""
+    card: dict[str, Any] = json.loads(model.with_suffix(".json").read_text())
+    return card
+
+
+def _answers(model: Path) -> np.ndarray:
+    """The model's probabilities for a photo (to tell two networks apart)."""
+    loaded = PoseModel.load(model)
+    rgb = load_image(PHOTO, min_size=loaded.input_size).rgb
+    return loaded.predict(to_network_input(rgb, loaded.input_size)[None])[0]
+
+
+#: Shipped models other than the default that are other networks (not a copy of the default
+#: under another name): the tests need two different networks, whichever the project ships.
+_DEFAULT_ANSWERS = _answers(DEFAULT_MODEL)
+OTHER_MODELS = [
+    p
+    for p in sorted(DEFAULT_MODEL_DIR.glob("*.onnx"))
+    if p.stem != "default" and np.abs(_answers(p) - _DEFAULT_ANSWERS).max() > 1e-3
+]
+assert len(OTHER_MODELS) >= 2, "the service tests need two shipped models besides the default"
 #: `app_factory` (conftest): `with app_factory(**settings) as client:` an in-process app.
 AppFactory = Callable[..., AbstractContextManager[TestClient]]
 JPEG = {"content-type": "image/jpeg"}

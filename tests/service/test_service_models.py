@@ -13,12 +13,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
-from service_support import JPEG, PHOTO, AppFactory, check_answer
+from service_support import CARD, JPEG, OTHER_MODELS, PHOTO, AppFactory, card_of, check_answer
 
-from service.settings import DEFAULT_MODEL_DIR
+from service.settings import DEFAULT_MODEL
 
-SMALL = DEFAULT_MODEL_DIR / "default.onnx"  # 80x60
-LARGE = DEFAULT_MODEL_DIR / "chessboard-noC-160x120.onnx"
+SMALL = DEFAULT_MODEL  # served as "default"
+LARGE = OTHER_MODELS[0]  # served as "board-large" (whatever its size)
+REPLACEMENT = OTHER_MODELS[1]
 KEY = {"x-api-key": "reload-key"}
 
 
@@ -53,7 +54,7 @@ def test_two_models_chosen_per_request(served: TestClient) -> None:
     small = predict(served, "/v1/models/default/predict")
     large = predict(served, "/v1/models/board-large/predict")
     check_answer(small, "whole", [(640, 480)], model="default")
-    check_answer(large, "whole", [(640, 480)], model="chessboard-noC-160x120")
+    check_answer(large, "whole", [(640, 480)], model=card_of(LARGE)["name"])
     default = predict(served)  # /v1/predict answers with the default model
     assert default["model"] == "default"
     assert default["results"][0]["probabilities"] == small["results"][0]["probabilities"]
@@ -62,7 +63,7 @@ def test_two_models_chosen_per_request(served: TestClient) -> None:
     sliding = served.post(
         "/v1/models/board-large/predict?mode=sliding", content=PHOTO, headers={**JPEG, **KEY}
     )
-    check_answer(sliding.json(), "sliding", [(640, 480)], model="chessboard-noC-160x120")
+    check_answer(sliding.json(), "sliding", [(640, 480)], model=card_of(LARGE)["name"])
 
 
 def test_the_list_of_models(served: TestClient) -> None:
@@ -70,9 +71,10 @@ def test_the_list_of_models(served: TestClient) -> None:
     assert body["default"] == "default" and body["problems"] == {}
     by_name = {m["name"]: m for m in body["models"]}
     assert set(by_name) == {"default", "board-large"}
-    assert by_name["board-large"]["input"] == [160, 120] and not by_name["board-large"]["default"]
-    assert by_name["default"]["default"] and by_name["default"]["profile"] == "chessboard"
-    assert by_name["default"]["accuracy"]["noC-s1-b0"]["split"] == "test"
+    assert by_name["board-large"]["input"] == card_of(LARGE)["input"]
+    assert not by_name["board-large"]["default"] and by_name["default"]["default"]
+    assert by_name["default"]["profile"] == CARD["profile"]["name"]
+    assert by_name["default"]["accuracy"] == CARD["accuracy"]
     assert served.get("/v1/models").status_code == 401
 
 
@@ -92,7 +94,7 @@ def test_reload_adds_replaces_refuses_and_removes(served: TestClient, folder: Pa
     first = predict(served)["results"][0]["probabilities"]
     held = served.app.state.pose.predictor  # type: ignore[attr-defined]  # as a request holds it
     put(folder, "extra", SMALL)
-    put(folder, "default", DEFAULT_MODEL_DIR / "chessboard-noC-80x60-real.onnx")
+    put(folder, "default", REPLACEMENT)
     (folder / "broken.onnx").write_bytes(b"not onnx")
     (folder / "board-large.onnx").unlink()
     report = served.post("/v1/models/reload", headers=KEY).json()
@@ -100,7 +102,7 @@ def test_reload_adds_replaces_refuses_and_removes(served: TestClient, folder: Pa
     assert sorted(report["loaded"]) == ["default", "extra"]
     assert report["removed"] == ["board-large"]
     assert "not a loadable ONNX model" in report["problems"]["broken"]
-    assert predict(served)["model"] == "chessboard-noC-80x60-real"
+    assert predict(served)["model"] == card_of(REPLACEMENT)["name"]
     assert predict(served, "/v1/models/extra/predict")["results"][0]["probabilities"] == first
     assert served.get("/v1/models", headers=KEY).json()["problems"] == report["problems"]
     # the old session still answers (what a request in flight at the swap does)

@@ -13,12 +13,17 @@ import numpy as np
 import pytest
 import tritonclient.http as triton
 from fastapi.testclient import TestClient
-from service_support import REAL, SERVE, live_server
+from service_support import CARD, OTHER_MODELS, REAL, SERVE, card_of, live_server
 from tritonclient.utils import InferenceServerException
 
 from service.preprocess import load_image, to_network_input
 
 PHOTOS = [(REAL / name).read_bytes() for name in ("left01.jpg", "right05.jpg", "left12.jpg")]
+SIZE = tuple(CARD["input"])  # the default model's (W, H)
+VERSION = CARD["version"]
+#: A shipped model with another input size than the default (for the shape error), if any.
+OTHER = next((p for p in OTHER_MODELS if tuple(card_of(p)["input"]) != SIZE), OTHER_MODELS[0])
+OTHER_SIZE = tuple(card_of(OTHER)["input"])
 
 
 @pytest.fixture(scope="module")
@@ -55,12 +60,12 @@ def test_health_and_metadata(triton_client: triton.InferenceServerClient) -> Non
     server = triton_client.get_server_metadata()
     assert server["name"] == "planar-pose" and "binary_tensor_data" in server["extensions"]
     meta = triton_client.get_model_metadata("default")
-    assert meta["name"] == "default" and meta["versions"] == ["1.0.0"]
+    assert meta["name"] == "default" and meta["versions"] == [VERSION]
     assert {(i["name"], i["datatype"]) for i in meta["inputs"]} == {
         ("image", "FP32"),
         ("image_bytes", "BYTES"),
     }
-    assert meta["inputs"][0]["shape"] == [-1, 3, 60, 80]
+    assert meta["inputs"][0]["shape"] == [-1, 3, SIZE[1], SIZE[0]]
     assert [(o["name"], o["datatype"], o["shape"]) for o in meta["outputs"]] == [
         ("probabilities", "FP32", [-1, 9]),
         ("class_id", "INT64", [-1]),
@@ -71,7 +76,7 @@ def test_health_and_metadata(triton_client: triton.InferenceServerClient) -> Non
 def test_fp32_network_input_gives_the_v1_probabilities(
     triton_client: triton.InferenceServerClient, expected: np.ndarray, binary: bool
 ) -> None:
-    tensor = network_inputs((80, 60))
+    tensor = network_inputs(SIZE)
     inp = triton.InferInput("image", list(tensor.shape), "FP32")
     inp.set_data_from_numpy(tensor, binary_data=binary)
     outputs = [triton.InferRequestedOutput(n, binary_data=False) for n in ("probabilities",)]
@@ -97,30 +102,32 @@ def test_bytes_images_give_the_v1_probabilities(
     inp.set_data_from_numpy(data, binary_data=binary)
     result = triton_client.infer("default", [inp], request_id="req-7")
     assert result.get_response()["id"] == "req-7"
-    assert result.get_response()["model_version"] == "1.0.0"
+    assert result.get_response()["model_version"] == VERSION
     probs = result.as_numpy("probabilities")
     assert probs is not None and np.abs(probs - expected).max() < 1e-6
     assert result.as_numpy("class_id").tolist() == expected.argmax(axis=1).tolist()
 
 
 def test_another_model_of_the_folder(triton_client: triton.InferenceServerClient) -> None:
-    tensor = network_inputs((160, 120))
+    tensor = network_inputs(OTHER_SIZE)
     inp = triton.InferInput("image", list(tensor.shape), "FP32")
     inp.set_data_from_numpy(tensor)
-    probs = triton_client.infer("chessboard-noC-160x120", [inp]).as_numpy("probabilities")
+    probs = triton_client.infer(OTHER.stem, [inp]).as_numpy("probabilities")
     assert probs is not None and probs.shape == (3, 9)
     assert np.allclose(probs.sum(axis=1), 1, atol=1e-5)
 
 
 def test_protocol_errors_through_tritonclient(triton_client: triton.InferenceServerClient) -> None:
-    tensor = network_inputs((80, 60))
+    tensor = network_inputs(SIZE)
     inp = triton.InferInput("image", list(tensor.shape), "FP32")
     inp.set_data_from_numpy(tensor)
     with pytest.raises(InferenceServerException, match="no model named 'nope'"):
         triton_client.infer("nope", [inp])
-    with pytest.raises(InferenceServerException, match=r"shape must be \[N, 3, 120, 160\]"):
-        triton_client.infer("chessboard-noC-160x120", [inp])
-    with pytest.raises(InferenceServerException, match="version '1.0.0', not '7'"):
+    if OTHER_SIZE != SIZE:
+        w, h = OTHER_SIZE
+        with pytest.raises(InferenceServerException, match=rf"shape must be \[N, 3, {h}, {w}\]"):
+            triton_client.infer(OTHER.stem, [inp])
+    with pytest.raises(InferenceServerException, match=f"version '{VERSION}', not '7'"):
         triton_client.infer("default", [inp], model_version="7")
     junk = triton.InferInput("image_bytes", [1], "BYTES")
     junk.set_data_from_numpy(np.array([b"not an image"], dtype=np.object_))
@@ -137,9 +144,9 @@ ERRORS: dict[str, tuple[bytes | dict[str, object], int, str]] = {
         "FP32 or BYTES",
     ),
     "shape-vs-data": (
-        {"inputs": [{"name": "x", "datatype": "FP32", "shape": [1, 3, 60, 80], "data": [0.5]}]},
+        {"inputs": [{"name": "x", "datatype": "FP32", "shape": [1, 3, 6, 8], "data": [0.5]}]},
         400,
-        "1 values for shape [1, 3, 60, 80]",
+        "1 values for shape [1, 3, 6, 8]",
     ),
     "bad-base64": (
         {"inputs": [{"name": "x", "datatype": "BYTES", "shape": [1], "data": ["%%%"]}]},

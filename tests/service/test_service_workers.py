@@ -13,12 +13,10 @@ from pathlib import Path
 import httpx
 import psutil
 import pytest
-from service_support import JPEG, PHOTO, SERVE, AppFactory, live_server
-from test_service_models import LARGE, SMALL, put
+from service_support import JPEG, PHOTO, SERVE, AppFactory, card_of, live_server
+from test_service_models import LARGE, REPLACEMENT, SMALL, put
 
-from service.settings import DEFAULT_MODEL_DIR
-
-REPLACEMENT = DEFAULT_MODEL_DIR / "chessboard-noC-80x60-real.onnx"
+NEW_NAME = card_of(REPLACEMENT)["name"]
 
 
 @pytest.fixture(scope="module")
@@ -93,14 +91,14 @@ def test_model_replaced_during_a_load_test_fails_no_request(workers: str, folder
         for t in threads:
             t.join()
     assert errors == [], errors[:5]
-    assert answers["default"] > 0 and answers["chessboard-noC-80x60-real"] > 0, answers
+    assert answers["default"] > 0 and answers[NEW_NAME] > 0, answers
     assert sum(answers.values()) > answers_at_swap
     # every worker now answers with the new model
     seen = set()
     for _ in range(10):
         with httpx.Client(base_url=workers, timeout=60) as c:
             seen.add(c.post("/v1/predict", content=PHOTO, headers=JPEG).json()["model"])
-    assert seen == {"chessboard-noC-80x60-real"}
+    assert seen == {NEW_NAME}
     put(folder, "default", SMALL)  # leave the folder as the module found it
 
 

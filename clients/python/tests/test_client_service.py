@@ -12,7 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from live_service import API_KEY
+from live_service import API_KEY, OTHER_MODEL
 from planar_pose_client import (
     AsyncPoseClient,
     AuthError,
@@ -206,18 +206,18 @@ def test_models_and_choosing_one_per_request(folder_url, photos):
     with PoseClient(folder_url, retries=0) as client:
         listing = client.models()
         names = {m.name for m in listing.models}
-        assert listing.default == "default" and {"default", "chessboard-noC-160x120"} <= names
-        large = next(m for m in listing.models if m.name == "chessboard-noC-160x120")
-        assert large.input == (160, 120) and large.profile == "chessboard" and not large.default
+        assert listing.default == "default" and {"default", OTHER_MODEL} <= names
+        large = next(m for m in listing.models if m.name == OTHER_MODEL)
+        assert len(large.input) == 2 and large.profile == "chessboard" and not large.default
         default = client.predict(photos[0])
-        other = client.predict(photos[0], model="chessboard-noC-160x120")
+        other = client.predict(photos[0], model=OTHER_MODEL)
         check_prediction(other, photos[0].name)
         assert other.probabilities != default.probabilities
-        many = client.predict_many(photos, mode="sliding", model="chessboard-noC-160x120")
+        many = client.predict_many(photos, mode="sliding", model=OTHER_MODEL)
         assert [p.filename for p in many] == [p.name for p in photos]
         with pytest.raises(ModelNotFoundError) as unknown:
             client.predict(photos[0], model="nope")
-        assert unknown.value.status == 404 and "chessboard-noC-160x120" in unknown.value.message
+        assert unknown.value.status == 404 and OTHER_MODEL in unknown.value.message
         with pytest.raises(ValueError, match="not a model name"):
             client.predict(photos[0], model="../v1/model")
 
