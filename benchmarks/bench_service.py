@@ -326,7 +326,10 @@ def main() -> None:
         f"on {started:%Y-%m-%d %H:%M} UTC: {cpu}, {cpu_count()} CPUs, Python "
         f"{platform.python_version()}, load generator {args.loadgen} (on the same CPUs), "
         f"{args.seconds:g} s per cell, best of {args.repeat}, load average {load0:.2f} at "
-        f"start and {os.getloadavg()[0]:.2f} at end._",
+        f"start and {os.getloadavg()[0]:.2f} at end. Model: the default "
+        f"(`{predictor.model.path.name}`, input "
+        f"{predictor.model.input_size[0]}x{predictor.model.input_size[1]}, version "
+        f"{predictor.model.card.get('version', '?')})._",
         "",
         *table(one, many, local, args.workers),
         "",
