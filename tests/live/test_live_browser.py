@@ -170,9 +170,10 @@ def test_the_page_answers_a_dropped_photo_like_the_api(
     card = {
         e.get_attribute("data-term"): e.text for e in browser.find_elements(By.CSS_SELECTOR, "dd")
     }
-    assert card["input size"] == "80 × 60 px"
+    served = httpx.get(server.url + "/v1/model", timeout=30).json()
+    assert card["input size"] == "{} × {} px".format(*served["input"])
     assert card["object"].startswith("chessboard")
-    first = next(iter(httpx.get(server.url + "/v1/model", timeout=30).json()["accuracy"].values()))
+    first = next(iter(served["accuracy"].values()))
     assert f"{100 * first['accuracy']:.1f} %" in card["measured accuracy"]
     Select(browser.find_element(By.ID, "mode")).select_by_value("proposals")
     drop_file(browser, photo, PHOTO.name, "image/jpeg")

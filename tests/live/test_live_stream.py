@@ -83,18 +83,18 @@ def test_video_frames_come_back_in_order_as_predict_answers_them(
         assert got["box"] == want["box"]
         assert got["probabilities"] == pytest.approx(want["probabilities"], abs=1e-6)
         assert set(want) <= set(got)  # the /v1/predict result, plus seq and dropped
-    # The rendered classes: the empty frames are class 0, and most views are recognised
-    # (the shipped model is ~76 % right on clean renders; a segment counts by its majority).
+    # The rendered classes (a segment counts by its majority): the empty frames are class 0
+    # and every view of the board is seen as the board (the x/y side is the model's accuracy,
+    # measured in docs/results.md, not the stream's behaviour).
     classes = [a["class_id"] for a in answers]
     majority = [
         Counter(classes[i : i + FRAMES_PER_VIEW]).most_common(1)[0][0]
         for i in range(0, len(classes), FRAMES_PER_VIEW)
     ]
     truth = rendered[::FRAMES_PER_VIEW]
-    assert majority[0] == 0
+    assert majority[0] == 0 and truth[0] == 0
     if mode == "whole":
-        right = sum(m == t for m, t in zip(majority, truth, strict=True))
-        assert right >= 6, f"streamed {majority}, rendered {truth}"
+        assert all(m > 0 for m in majority[1:]), f"streamed {majority}, rendered {truth}"
 
 
 def test_smoothing_is_the_exponential_average_of_the_frame_probabilities(
