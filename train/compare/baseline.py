@@ -27,7 +27,7 @@ from collections import Counter
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import cv2
 import numpy as np
@@ -177,13 +177,20 @@ def dataset_cameras(folder: Path, files: Sequence[str], size: tuple[int, int]) -
     return [spec] * len(files)
 
 
+class Peer(Protocol):
+    """A classical method: one RGB uint8 [H, W, 3] image seen by a camera -> its prediction."""
+
+    def predict(self, rgb: np.ndarray, camera: Camera) -> BaselinePrediction: ...
+
+
 def run_baseline(
-    baseline: FeatureBaseline,
-    images: np.ndarray,
+    baseline: Peer,
+    images: np.ndarray | Sequence[np.ndarray],
     cameras: Sequence[Camera],
     progress: Callable[[int], Any] | None = None,
 ) -> tuple[list[BaselinePrediction], float]:
-    """Predict images [N, H, W, 3] -> (predictions, wall-clock ms per image, all steps)."""
+    """Predict images (each RGB uint8 [H, W, 3]) -> (predictions, wall-clock ms per image,
+    all steps), with the feature baseline or any other peer."""
     preds = []
     start = time.perf_counter()
     for image, camera in zip(images, cameras, strict=True):

@@ -17,14 +17,13 @@ No board found (or no usable pose) means class 0. Every step is inside the measu
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
 import cv2
 import numpy as np
 
-from train.compare.baseline import BaselinePrediction, failure_summary
+from train.compare.baseline import BaselinePrediction, failure_summary, run_baseline
 from train.geometry import camera_centre, pose_class
 from train.network.evaluate import compute_metrics
 from train.real.calibration import Camera
@@ -87,22 +86,6 @@ class ChessboardPeer:
         return BaselinePrediction(label, centre, "", "chessboard", len(raw))
 
 
-def run_peer(
-    peer: ChessboardPeer,
-    images: np.ndarray | Sequence[np.ndarray],
-    cameras: Sequence[Camera],
-    progress: Callable[[int], Any] | None = None,
-) -> tuple[list[BaselinePrediction], float]:
-    """Predict images (each RGB uint8 [H, W, 3]) -> (predictions, wall-clock ms per image)."""
-    preds = []
-    start = time.perf_counter()
-    for image, camera in zip(images, cameras, strict=True):
-        preds.append(peer.predict(image, camera))
-        if progress is not None:
-            progress(1)
-    return preds, 1000.0 * (time.perf_counter() - start) / max(len(images), 1)
-
-
 def evaluate_peer(
     peer: ChessboardPeer,
     images: np.ndarray | Sequence[np.ndarray],
@@ -111,6 +94,6 @@ def evaluate_peer(
     progress: Callable[[int], Any] | None = None,
 ) -> tuple[dict, dict[str, int]]:
     """SPEC 10 metrics (`train.network.evaluate.compute_metrics`) and the failure reasons."""
-    preds, ms = run_peer(peer, images, cameras, progress)
+    preds, ms = run_baseline(peer, images, cameras, progress)
     metrics = compute_metrics(labels, np.array([p.label for p in preds], np.int64), ms)
     return metrics, failure_summary(preds)
