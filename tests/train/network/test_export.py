@@ -119,3 +119,20 @@ def test_a_shipped_model_is_measured_again(tmp_path):
         del model.metadata_props[:]
         onnx.save(model, str(bare))
         recard(bare, "x", tmp_path, [real])
+
+
+def test_catalog_lists_every_card_with_its_measured_accuracy(tmp_path):
+    from train.network.catalog import write_catalog
+
+    ckpt, _ = _checkpoint(tmp_path, (80, 60))
+    models = tmp_path / "models"
+    _, card = export(ckpt, "tiny", models, notes="how it was made")
+    card["accuracy"] = {"real-s1-b0": {"split": "test", "count": 10, "accuracy": 0.25}}
+    (models / "tiny.json").write_text(json.dumps(card))
+    page = write_catalog(models).read_text()
+    assert "| `tiny` | spec | 80x60 |" in page and "| 25.0 % |" in page
+    assert "how it was made" in page and "planar-pose catalog" in page
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with pytest.raises(ValueError, match="no model card"):
+        write_catalog(empty)
