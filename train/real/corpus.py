@@ -13,7 +13,9 @@ commit, folder, licence, camera, square size if documented).
    otherwise only the focal length (and radial k1 from `MIN_K1_VIEWS` views) is fitted to the
    views (principal point at the centre, square pixels);
 3. per photo: undistortion, DLT pose, camera centre, class by the profile's regions and the
-   colour-parity orientation (`corners.orient_grid`). A board of another square size is
+   colour-parity orientation (`corners.orient_grid`); a photo where the checker pattern goes on
+   outside the 10 x 7 squares (a 9 x 6 grid found inside a bigger board) is dropped. A board
+   of another square size is
    labelled as if its squares had the profile's size: the label follows the apparent size,
    which is what the network sees. Photos whose parity confidence is below `MIN_PARITY` or
    whose reprojection error is too large are dropped and listed in failed.txt with the reason;
@@ -52,6 +54,7 @@ from train.real.label import (
     draw_overlay,
     label_from_points,
     list_images,
+    project,
     row_of,
 )
 
@@ -156,6 +159,39 @@ def calibrate(views: list[View], pattern: ChessboardPattern) -> tuple[Camera, fl
     return Camera(K, np.asarray(dist, np.float64).ravel()[:5], size), float(rms), method
 
 
+def _ring_contrast(grey: np.ndarray, label: Label, pattern: ChessboardPattern, ring: int) -> float:
+    """Mean grey of the squares expected white minus those expected black, over the ring of
+    squares `ring` squares outside the board's outermost ones (0: the outermost squares
+    themselves), as if the checker pattern went on. Squares outside the image are skipped;
+    NaN when fewer than 4 are visible."""
+    cols, rows = pattern.inner_cols + 1, pattern.inner_rows + 1  # squares
+    idx = [(i, j) for i in range(-ring, cols + ring) for j in range(-ring, rows + ring)
+           if i in (-ring, cols - 1 + ring) or j in (-ring, rows - 1 + ring)]  # fmt: skip
+    s = pattern.square_cm
+    xy = np.array([[(i + 0.5) * s - cols * s / 2, (j + 0.5) * s - rows * s / 2] for i, j in idx])
+    uv = project(np.column_stack([xy, np.zeros(len(xy))]), label.R, label.t,
+                 label.camera.K, label.camera.dist)  # fmt: skip
+    h, w = grey.shape
+    inside = (uv[:, 0] >= 0) & (uv[:, 0] < w - 1) & (uv[:, 1] >= 0) & (uv[:, 1] < h - 1)
+    if inside.sum() < 4:
+        return float("nan")
+    g = cv2.blur(grey, (3, 3)).astype(np.float32)
+    vals = g[np.round(uv[inside, 1]).astype(int), np.round(uv[inside, 0]).astype(int)]
+    black = np.array([(i + j) % 2 == 0 for i, j in idx])[inside]
+    if black.all() or not black.any():
+        return float("nan")
+    return float(vals[~black].mean() - vals[black].mean())
+
+
+def pattern_continues(grey: np.ndarray, label: Label, pattern: ChessboardPattern) -> bool:
+    """True when the checker pattern goes on outside the labelled board (the detected 9 x 6
+    grid is part of a bigger board, whose orientation and size would be wrong): the ring of
+    squares just outside has more than half the colour contrast of the board's own edge."""
+    edge = _ring_contrast(grey, label, pattern, 0)
+    outside = _ring_contrast(grey, label, pattern, 1)
+    return bool(np.isfinite(edge) and np.isfinite(outside) and outside > 0.5 * edge)
+
+
 def scale_label(label: Label, scale: float, size: tuple[int, int]) -> Label:
     """The same pose seen in the photo resized by `scale` (pixel centres kept): K, corners."""
     corners = (label.corners + 0.5) * scale - 0.5
@@ -251,6 +287,9 @@ def label_source(
                 continue
             if lab.rms > MAX_RMS_FRACTION * max(size):
                 failed.append(f"{v.path.name}: reprojection RMS {lab.rms:.2f} px too large")
+                continue
+            if pattern_continues(grey, lab, pattern):
+                failed.append(f"{v.path.name}: the checker pattern goes on outside the board")
                 continue
             name = f"images/{v.path.stem}.jpg"
             small, scale = store_image(v.rgb, out / name)

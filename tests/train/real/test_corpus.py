@@ -8,6 +8,7 @@ import shutil
 from pathlib import Path
 
 import cv2
+import numpy as np
 import pytest
 from typer.testing import CliRunner
 
@@ -150,3 +151,31 @@ def test_cli_check_report_and_errors(corpus, tmp_path):
         read_source(bad)
     result = runner.invoke(app, ["corpus", "sets", str(tmp_path / "s"), "--size", "3"])
     assert result.exit_code == 2 and "--size must be 1 or 2" in result.output
+
+
+def _board_image(extended: bool) -> tuple[np.ndarray, object]:
+    """A camera 50 cm above the board looking down (10 px per cm) and its image: the 10 x 7
+    squares on white paper, or (extended) a checker pattern that goes on over the frame."""
+    from train.real.calibration import Camera
+    from train.real.label import Label
+
+    v, u = np.mgrid[0:480, 0:640]
+    x, y = (u - 320) / 10, (240 - v) / 10  # cm on the board
+    i, j = np.floor((x + 12.5) / 2.5), np.floor((y + 8.75) / 2.5)
+    image = np.where((i + j) % 2 == 0, 20, 235).astype(np.uint8)  # black at (-X, -Y)
+    if not extended:
+        image[(np.abs(x) > 12.5) | (np.abs(y) > 8.75)] = 235
+    K = np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]])
+    R, t = np.diag([1.0, -1.0, -1.0]), np.array([0.0, 0.0, 50.0])
+    return image, Label(R, t, np.array([0, 0, 50.0]), 1, None, Camera(K, np.zeros(5)), "", 54, 0)
+
+
+def test_a_grid_inside_a_bigger_board_is_recognised():
+    from train.real.corners import ChessboardPattern
+    from train.real.corpus import pattern_continues
+
+    pattern = ChessboardPattern(9, 6, 2.5)
+    whole, label = _board_image(extended=False)
+    bigger, _ = _board_image(extended=True)
+    assert not pattern_continues(whole, label, pattern)
+    assert pattern_continues(bigger, label, pattern)
