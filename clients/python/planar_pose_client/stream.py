@@ -192,12 +192,15 @@ class _Tally:
         return self.done and self.accounted >= self.sent
 
 
-def _headers(core: ClientCore) -> dict[str, str]:
-    return {k: v for k, v in core.headers.items() if k == "Authorization"}
-
-
-def _open_timeout(core: ClientCore) -> float | None:
-    return core.timeout.connect if core.timeout.connect is not None else None
+def _connect_options(core: ClientCore) -> dict[str, Any]:
+    """Keyword arguments of websockets' `connect`, the same for the sync and async clients:
+    the API key header, no compression (JPEG/PNG frames), the client's connect timeout."""
+    return {
+        "additional_headers": {k: v for k, v in core.headers.items() if k == "Authorization"},
+        "compression": None,
+        "open_timeout": core.timeout.connect,
+        "user_agent_header": "planar-pose-client",
+    }
 
 
 def stream_frames(
@@ -212,19 +215,13 @@ def stream_frames(
     _check_window(window)
     url = stream_url(core.base_url, mode, smooth, model)
     try:
-        ws = connect(
-            url,
-            additional_headers=_headers(core),
-            compression=None,
-            open_timeout=_open_timeout(core),
-            user_agent_header="planar-pose-client",
-        )
+        ws = connect(url, **_connect_options(core))
     except (OSError, TimeoutError, WebSocketException) as exc:
         raise open_error(exc, url) from exc
     tally, credit = _Tally(), threading.Semaphore(window) if window else None
     stop = threading.Event()
     with ws:
-        _wait_ready(lambda: ws.recv(timeout=_open_timeout(core)), url)
+        _wait_ready(lambda: ws.recv(timeout=core.timeout.connect), url)
         sender = threading.Thread(
             target=_send_all, args=(ws, frames, tally, credit, stop), daemon=True
         )
@@ -317,18 +314,12 @@ async def astream_frames(
     _check_window(window)
     url = stream_url(core.base_url, mode, smooth, model)
     try:
-        ws = await async_connect(
-            url,
-            additional_headers=_headers(core),
-            compression=None,
-            open_timeout=_open_timeout(core),
-            user_agent_header="planar-pose-client",
-        )
+        ws = await async_connect(url, **_connect_options(core))
     except (OSError, TimeoutError, WebSocketException) as exc:
         raise open_error(exc, url) from exc
     tally, credit = _Tally(), asyncio.Semaphore(window) if window else None
     async with ws:
-        await _await_ready(ws, url, _open_timeout(core))
+        await _await_ready(ws, url, core.timeout.connect)
         sender = asyncio.create_task(_asend_all(ws, frames, tally, credit))
         try:
             async for item in _areceive_all(ws, tally, credit, url):
