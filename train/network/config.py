@@ -20,7 +20,7 @@ from pydantic import TypeAdapter, ValidationError
 
 Optimizer = Literal["sgd", "adam"]
 Schedule = Literal["cosine", "step", "constant"]
-Arch = Literal["spec", "convnet"]
+Arch = Literal["spec", "convnet", "keypoint"]
 
 
 def _opt(default: Any, help: str, **bounds: Any) -> Any:
@@ -38,7 +38,11 @@ class FitConfig:
     out: Path
     epochs: int = _opt(30, "Epochs.", min=1)
     batch_size: int = _opt(32, "Images per batch.", min=1)
-    arch: Arch = _opt("spec", "Network: spec (SPEC section 8) or convnet (train.network.convnet).")
+    arch: Arch = _opt(
+        "spec",
+        "Network: spec (SPEC section 8), convnet (train.network.convnet) or keypoint "
+        "(train.network.keypoint).",
+    )
     optimizer: Optimizer = _opt("sgd", "sgd (with momentum) or adam.")
     lr: float = _opt(0.001, "Learning rate.", min=0.0)
     momentum: float = _opt(0.9, "SGD momentum.", min=0.0, max=1.0)
@@ -52,7 +56,10 @@ class FitConfig:
     threads: int = _opt(0, "Torch intra-op threads; 0 = torch default.", min=0)
     compile: bool = _opt(False, "torch.compile the training step.")
     corner_weight: float = _opt(
-        0.5, "convnet: weight of the auxiliary loss on the object's four image corners.", min=0.0
+        0.5, "convnet, keypoint: weight of the loss on the object's four image corners.", min=0.0
+    )
+    corner_beta: float = _opt(
+        0.1, "Corner loss: smooth-L1 beta in [-1, 1] image units (quadratic below it).", min=1e-4
     )
     repeat: list[int] = _opt(
         [], "Times each data set's train split appears per epoch (one per data set; default 1)."

@@ -24,6 +24,8 @@ OPSET = 17
 ARCHITECTURES = {
     "spec": "spec: the SPEC section 8 network (tanh, L2 pooling), batch norm folded away",
     "convnet": "convnet: train/network/convnet.py (ReLU, batch norm, max pooling, 3x4 head)",
+    "keypoint": "keypoint: train/network/keypoint.py (U-Net corner heat maps, class from the "
+    "corners' pose with a prior camera and the squares' colour parity)",
 }
 INPUT_NAME = "image"
 OUTPUT_NAME = "probabilities"

@@ -336,7 +336,8 @@ def _initial_network(
             )
         return net, parent
     try:
-        net = build_network(config.arch, size, config.batch_norm)
+        manifest = json.loads((config.datasets[0] / "manifest.json").read_text(encoding="utf-8"))
+        net = build_network(config.arch, size, config.batch_norm, manifest.get("profile"))
     except ValueError as exc:
         raise TrainingError(f"training images: {exc}") from exc
     mean, std = channel_stats(torch.from_numpy(train.images))
@@ -422,7 +423,7 @@ def _train_epoch(
         if isinstance(out, tuple):  # (log-probabilities, corners) of a net with a corner head
             out, predicted = out
             loss = F.nll_loss(out, y) + config.corner_weight * _corner_loss(
-                predicted, corners, x.shape[3], x.shape[2]
+                predicted, corners, x.shape[3], x.shape[2], config.corner_beta
             )
         else:
             loss = F.nll_loss(out, y)
@@ -444,7 +445,9 @@ def _train_epoch(
     }
 
 
-def _corner_loss(predicted: torch.Tensor, corners: np.ndarray, w: int, h: int) -> torch.Tensor:
+def _corner_loss(
+    predicted: torch.Tensor, corners: np.ndarray, w: int, h: int, beta: float = 0.1
+) -> torch.Tensor:
     """Smooth L1 between predicted corners [B, 8] (image coordinates scaled to [-1, 1]) and
     the known ones (px, nan where unknown: class 0, photos without corners), taking for each
     image the better of the two orders a half turn apart.
@@ -461,7 +464,7 @@ def _corner_loss(predicted: torch.Tensor, corners: np.ndarray, w: int, h: int) -
     turned = torch.roll(target, shifts=4, dims=1)  # corners 2, 3, 0, 1
     pred = predicted[known]
     losses = [
-        F.smooth_l1_loss(pred, t, beta=0.1, reduction="none").mean(dim=1) for t in (target, turned)
+        F.smooth_l1_loss(pred, t, beta=beta, reduction="none").mean(dim=1) for t in (target, turned)
     ]
     return torch.minimum(*losses).mean()
 

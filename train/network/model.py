@@ -15,7 +15,8 @@ the neighbouring convolution / linear layers, giving exactly the SPEC network ab
 
 from __future__ import annotations
 
-from typing import get_args
+import math
+from typing import Any, get_args
 
 import torch
 import torch.nn.functional as F
@@ -182,24 +183,45 @@ def fold_batch_norm(net: PoseNet) -> PoseNet:
     return plain
 
 
-#: Architectures: "spec" (`PoseNet`, SPEC section 8) and "convnet" (`train.network.convnet`).
+#: Architectures: "spec" (`PoseNet`, SPEC section 8), "convnet" (`train.network.convnet`) and
+#: "keypoint" (`train.network.keypoint`).
 ARCHS: tuple[str, ...] = get_args(Arch)
 
 
-def build_network(arch: str, size: tuple[int, int], batch_norm: bool = True) -> NormalisedNet:
-    """A fresh network of architecture `arch` for input `size` (W, H)."""
+def build_network(
+    arch: str, size: tuple[int, int], batch_norm: bool = True, profile: dict[str, Any] | None = None
+) -> NormalisedNet:
+    """A fresh network of architecture `arch` for input `size` (W, H); `profile` (a data set
+    manifest's profile: width_cm, height_cm, z_split_cm, focal_scale range) sets the geometry
+    of the keypoint network (default: the chessboard's)."""
     if arch == "spec":
         return PoseNet(size, batch_norm=batch_norm)
     if arch == "convnet":
         from train.network.convnet import ConvNet
 
         return ConvNet(size)
+    if arch == "keypoint":
+        from train.network.keypoint import KeypointNet
+
+        if not profile:
+            return KeypointNet(size)
+        lo, hi = profile.get("focal_scale", [1.0, 1.0])
+        return KeypointNet(
+            size,
+            board_cm=(float(profile["width_cm"]), float(profile["height_cm"])),
+            z_split_cm=float(profile["z_split_cm"]),
+            focal_scale=math.sqrt(float(lo) * float(hi)),
+        )
     raise ValueError(f"unknown architecture {arch!r}; known: {', '.join(ARCHS)}")
 
 
 def arch_of(net: NormalisedNet) -> str:
     """The architecture name of a network built by `build_network`."""
-    return "spec" if isinstance(net, PoseNet) else "convnet"
+    from train.network.convnet import ConvNet
+
+    if isinstance(net, PoseNet):
+        return "spec"
+    return "convnet" if isinstance(net, ConvNet) else "keypoint"
 
 
 def export_form(net: NormalisedNet) -> NormalisedNet:

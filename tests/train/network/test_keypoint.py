@@ -1,0 +1,128 @@
+"""The keypoint network: corners -> homography -> camera centre, parity, class probabilities,
+training-mode outputs and the ONNX export of the whole decode."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import onnxruntime as ort
+import pytest
+import torch
+from torch import nn
+
+from train.geometry import look_at, pose_class, project_points, translation
+from train.network.export import onnx_bytes
+from train.network.keypoint import KeypointNet
+from train.network.model import arch_of, build_network
+from train.profile import load_profile
+
+PROFILE = load_profile("chessboard")
+HALF = np.array([PROFILE.width_cm / 2, PROFILE.height_cm / 2])
+OBJECT_CORNERS = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]]) * [*HALF, 0]
+
+
+def _view(net: KeypointNet, centre: tuple[float, float, float], roll_deg: float) -> np.ndarray:
+    """Corners (4, 2) px of the board seen from `centre` (cm) with the net's prior camera."""
+    A = np.linalg.inv(net.A_inv.double().numpy())
+    R = look_at(np.array(centre), np.zeros(3), np.radians(roll_deg))
+    return project_points(A, R, translation(R, np.array(centre)), OBJECT_CORNERS)
+
+
+def _board_image(corners: np.ndarray, size: tuple[int, int] = (160, 120)) -> np.ndarray:
+    """RGB uint8 [H, W, 3]: the profile's texture warped onto `corners` over mid grey."""
+    texture = PROFILE.texture_rgb()
+    th, tw = texture.shape[:2]
+    src = np.float32([[0, th], [tw, th], [tw, 0], [0, 0]])  # (-X,-Y) is the bottom left
+    H = cv2.getPerspectiveTransform(src, np.float32(corners))
+    out = cv2.warpPerspective(texture, H, size, borderValue=(128, 128, 128))
+    return np.ascontiguousarray(out)
+
+
+def _input(image: np.ndarray) -> torch.Tensor:
+    return torch.from_numpy(image).permute(2, 0, 1)[None].float() / 255.0
+
+
+@pytest.mark.parametrize(
+    ("centre", "roll"), [((10.0, -15.0, 50.0), 30.0), ((-20.0, 12.0, 80.0), -150.0)]
+)
+def test_camera_centre_from_the_corners(centre, roll):
+    net = KeypointNet()
+    q = torch.from_numpy(_view(net, centre, roll)).float()[None]
+    H = net.homography(q)
+    unit = torch.tensor([[0.0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]])
+    mapped = torch.einsum("ij,kj->ki", H[0], unit)
+    assert torch.allclose(mapped[:, :2] / mapped[:, 2:], q[0], atol=1e-3)
+    c = net.camera_centre(H)[0].double().numpy()
+    assert np.abs(c - centre).max() < 0.05
+    # the half-turned order is the same board seen from (-cx, -cy, cz)
+    c_turned = net.camera_centre(net.homography(torch.roll(q, 2, 1)))[0].double().numpy()
+    assert np.abs(c_turned - np.array([-centre[0], -centre[1], centre[2]])).max() < 0.05
+
+
+def test_parity_tells_the_half_turn():
+    net = KeypointNet()
+    corners = _view(net, (12.0, 8.0, 45.0), 100.0)
+    x = _input(_board_image(corners))
+    q = torch.from_numpy(corners).float()[None]
+    assert float(net.parity(x, net.homography(q))) > 0.8
+    assert float(net.parity(x, net.homography(torch.roll(q, 2, 1)))) < -0.8
+    flat = torch.full_like(x, 0.5)  # no board: no parity evidence either way
+    assert abs(float(net.parity(flat, net.homography(q)))) < 0.05
+
+
+def test_class_probabilities_follow_the_centre_and_the_parity():
+    net = KeypointNet()
+    c = torch.tensor([[15.0, 10.0, 40.0], [-15.0, -10.0, 85.0], [0.0, 0.0, 60.0]])
+    sure = net.class_probabilities(c, torch.ones(3))
+    assert torch.allclose(sure.sum(1), torch.ones(3), atol=1e-6)
+    assert sure.argmax(1)[:2].tolist() == [0, 6]  # classes 1 and 7
+    assert torch.allclose(sure[2], torch.full((8,), 1 / 8), atol=1e-3)  # on every boundary
+    turned = net.class_probabilities(c, torch.zeros(3))
+    assert turned.argmax(1)[:2].tolist() == [2, 4]  # (-cx, -cy): classes 3 and 5
+    assert pose_class(c[:2].numpy(), 60.0).tolist() == [1, 7]
+
+
+class _FixedHeat(nn.Module):
+    """Heat-map logits [N, 4, 30, 40] peaked at given corners, whatever the features."""
+
+    def __init__(self, corners: np.ndarray) -> None:
+        super().__init__()
+        v, u = np.mgrid[0:30, 0:40] * 4 + 1.5
+        d2 = (u[None] - corners[:, :1, None]) ** 2 + (v[None] - corners[:, 1:, None]) ** 2
+        self.register_buffer("maps", torch.from_numpy(-d2 / 8.0).float()[None])
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.maps.expand(x.shape[0], -1, -1, -1)
+
+
+def test_the_exported_graph_decodes_like_torch():
+    torch.manual_seed(0)
+    net = KeypointNet()
+    corners = _view(net, (14.0, -9.0, 42.0), 25.0)
+    net.heat = _FixedHeat(corners)
+    net.eval()
+    x = _input(_board_image(corners)).repeat(3, 1, 1, 1).numpy()
+    with torch.no_grad():
+        want = net(torch.from_numpy(x)).exp().numpy()
+        q = net.corners(torch.from_numpy(x))[0].numpy()
+    assert np.abs(q - corners).max() < 0.5  # soft-argmax of the peaks
+    session = ort.InferenceSession(onnx_bytes(net), providers=["CPUExecutionProvider"])
+    got = session.run(None, {"image": x})[0]
+    assert np.abs(got - want).max() < 1e-4
+    assert got.shape == (3, 9) and np.allclose(got.sum(1), 1.0, atol=1e-5)
+    present = got[0, 1:] / got[0, 1:].sum()
+    assert int(present.argmax()) + 1 == 4  # near, x+, y-
+
+
+def test_training_mode_outputs_and_build():
+    profile = {"width_cm": 25, "height_cm": 17.5, "z_split_cm": 60, "focal_scale": [0.45, 0.8]}
+    net = build_network("keypoint", (160, 120), profile=profile)
+    assert arch_of(net) == "keypoint"
+    net.train()
+    logp, corners = net(torch.rand(2, 3, 120, 160))
+    assert logp.shape == (2, 9) and corners.shape == (2, 8)
+    assert torch.allclose(logp.exp().sum(1), torch.ones(2), atol=1e-5)
+    (logp[:, 0].sum() + corners.sum()).backward()
+    assert net.presence[-1].weight.grad is not None and net.heat.weight.grad is not None
+    with pytest.raises(ValueError, match="unsupported input size 80x60"):
+        KeypointNet((80, 60))

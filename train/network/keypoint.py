@@ -1,0 +1,227 @@
+"""A corner-keypoint pose network: the class comes from geometry, not from a classifier.
+
+The x/y side of the camera is a small perspective effect (a camera 5 cm off the board's axis
+at 60 cm makes the near edge of the board about 1 px longer than the far one at 160x120), and
+it has to be read after the board's in-plane orientation, which only the colour parity of
+the squares tells. A classifier head does not learn that composition (it stayed at chance
+on the x/y side, `docs/results.md`). This network finds the board's four corners instead,
+and the class follows from them as the SPEC labels define it:
+
+    corners   U-Net: encoder 160x120 -> 10x7 (ReLU + batch norm + max pooling), decoder back
+              to 40x30; 4 heat maps [N, 4, 30, 40], soft-argmax -> corners [N, 4, 2] px
+    pose      homography of the board rectangle onto the corners (closed form), pose with a
+              prior pinhole camera (principal point at the image centre, focal length from the
+              profile's range), camera centre c [N, 3] cm in the object frame
+    parity    the image sampled at the 70 square centres through the homography, correlated
+              with the checker pattern: its sign says whether the corner order is the true one
+              or a half turn (which maps c to (-cx, -cy, cz))
+    presence  a logit from the pooled encoder: object in view or not (class 0)
+    classes   P(cx >= 0), P(cy >= 0), P(cz < z_split) as normal CDFs of c with a spread that
+              grows with the distance, mixed over the two half-turn readings by the parity
+              confidence, times P(present); class 0 gets 1 - P(present)
+
+The heat-map channels are trained on the corners up to a half turn (the loss takes the better
+of the two orders, `fit._corner_loss`); parity is not learned. Input: float32 [N, 3, 120, 160],
+RGB in [0, 1]. Output of `forward`: log-probabilities [N, 9] (`corners` gives the corners).
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from train.geometry import intrinsics
+from train.network.convnet import _conv
+from train.network.model import NormalisedNet
+
+SIZE = (160, 120)
+STRIDE = 4  # input pixels per heat-map pixel
+SQUARES = (10, 7)  # squares of the board along its width (x) and height (y)
+
+
+def _block(cin: int, cout: int) -> nn.Sequential:
+    return nn.Sequential(_conv(cin, cout), _conv(cout, cout))
+
+
+class KeypointNet(NormalisedNet):
+    """The network above for input `size` (W, H) = 160x120 and a board of `board_cm`
+    (width, height) with the region split `z_split_cm`; the camera prior is the SPEC camera
+    with its focal length times `focal_scale` and the principal point at the image centre."""
+
+    def __init__(
+        self,
+        size: tuple[int, int] = SIZE,
+        board_cm: tuple[float, float] = (25.0, 17.5),
+        z_split_cm: float = 60.0,
+        focal_scale: float = 0.6,
+    ) -> None:
+        super().__init__()
+        size = (int(size[0]), int(size[1]))
+        if size != SIZE:
+            raise ValueError(
+                f"unsupported input size {size[0]}x{size[1]}; the network takes 160x120"
+            )
+        self.size = size
+        self.batch_norm = True
+        self.stem = _conv(3, 16, 3, 2)  # 80x60
+        self.down1 = _block(16, 32)  # 40x30
+        self.down2 = _block(32, 64)  # 20x15
+        self.down3 = _block(64, 128)  # 10x7
+        self.reduce = _conv(128, 32, 1)
+        self.up2 = _conv(32 + 64, 32)  # 20x15
+        self.up1 = _conv(32 + 32, 32)  # 40x30
+        self.heat = nn.Conv2d(32, 4, 1)
+        self.presence = nn.Sequential(
+            nn.Flatten(), nn.Linear(2 * 128, 64), nn.ReLU(), nn.Linear(64, 1)
+        )
+        w, h = size[0] // STRIDE, size[1] // STRIDE
+        self.register_buffer("grid_u", (torch.arange(w) * STRIDE + (STRIDE - 1) / 2).float())
+        self.register_buffer("grid_v", (torch.arange(h) * STRIDE + (STRIDE - 1) / 2).float())
+        self.register_buffer(
+            "px_to_unit", torch.tensor([2.0 / size[0], 2.0 / size[1]]), persistent=False
+        )
+        A = torch.tensor(intrinsics(size, focal_scale), dtype=torch.float32)
+        A[0, 2], A[1, 2] = (size[0] - 1) / 2, (size[1] - 1) / 2
+        self.register_buffer("A_inv", torch.linalg.inv(A))
+        bw, bh = board_cm
+        # object (X, Y) -> unit square (s, t), the inverse of X = -bw/2 + bw s, Y = -bh/2 + bh t
+        self.register_buffer(
+            "to_unit",
+            torch.tensor([[1 / bw, 0, 0.5], [0, 1 / bh, 0.5], [0, 0, 1.0]], dtype=torch.float32),
+        )
+        i, j = torch.meshgrid(torch.arange(SQUARES[0]), torch.arange(SQUARES[1]), indexing="xy")
+        self.register_buffer(
+            "square_st",
+            torch.stack([(i + 0.5) / SQUARES[0], (j + 0.5) / SQUARES[1]], -1).reshape(-1, 2),
+        )
+        # +1 on white squares; the square at corner 0 (-X, -Y) is black
+        self.register_buffer("checker", (((i + j) % 2) * 2 - 1).reshape(-1).float())
+        # buffers, so that a checkpoint carries them: the region split (cm), the sd of cx, cy
+        # per cm of distance and of cz per cm of cz, the parity correlation -> logit gain
+        self.register_buffer("z_split", torch.tensor(float(z_split_cm)))
+        self.register_buffer("side_spread", torch.tensor(0.08))
+        self.register_buffer("depth_spread", torch.tensor(0.08))
+        self.register_buffer("parity_gain", torch.tensor(8.0))
+
+    # -- network -------------------------------------------------------------------------------
+    def _encode(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Normalised RGB [N, 3, 120, 160] -> heat-map logits [N, 4, 30, 40], presence [N]."""
+        s1 = self.down1(F.max_pool2d(self.stem(x), 2))
+        s2 = self.down2(F.max_pool2d(s1, 2))
+        s3 = self.down3(F.max_pool2d(s2, 2))
+        u = self.up2(torch.cat([F.interpolate(self.reduce(s3), size=s2.shape[2:]), s2], 1))
+        u = self.up1(torch.cat([F.interpolate(u, size=s1.shape[2:]), s1], 1))
+        pooled = torch.cat([s3.mean((2, 3)), s3.amax((2, 3))], 1)
+        return self.heat(u), self.presence(pooled)[:, 0]
+
+    def _soft_argmax(self, heat: torch.Tensor) -> torch.Tensor:
+        """Heat-map logits [N, 4, h, w] -> expected corner positions [N, 4, 2] px (input image)."""
+        n, k, h, w = heat.shape
+        p = F.softmax(heat.reshape(n, k, h * w), dim=2).reshape(n, k, h, w)
+        u = (p.sum(2) * self.grid_u).sum(2)
+        v = (p.sum(3) * self.grid_v).sum(2)
+        return torch.stack([u, v], 2)
+
+    def corners(self, x: torch.Tensor) -> torch.Tensor:
+        """RGB [N, 3, H, W] in [0, 1] -> the four corners [N, 4, 2] px, in the order
+        (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y) up to a half turn."""
+        return self._soft_argmax(self._encode((x - self.mean) / self.std)[0])
+
+    # -- geometry ------------------------------------------------------------------------------
+    def homography(self, q: torch.Tensor) -> torch.Tensor:
+        """Corners [N, 4, 2] px -> [N, 3, 3] homography of the unit square (0,0), (1,0), (1,1),
+        (0,1) onto them (Heckbert's closed form: exports to ONNX, no solver)."""
+        x0, x1, x2, x3 = q[:, 0, 0], q[:, 1, 0], q[:, 2, 0], q[:, 3, 0]
+        y0, y1, y2, y3 = q[:, 0, 1], q[:, 1, 1], q[:, 2, 1], q[:, 3, 1]
+        dx1, dx2, dx3 = x1 - x2, x3 - x2, x0 - x1 + x2 - x3
+        dy1, dy2, dy3 = y1 - y2, y3 - y2, y0 - y1 + y2 - y3
+        den = dx1 * dy2 - dx2 * dy1
+        den = torch.where(den.abs() < 1e-6, torch.full_like(den, 1e-6), den)
+        g = (dx3 * dy2 - dx2 * dy3) / den
+        h = (dx1 * dy3 - dx3 * dy1) / den
+        one = torch.ones_like(g)
+        rows = [
+            torch.stack([x1 - x0 + g * x1, x3 - x0 + h * x3, x0], 1),
+            torch.stack([y1 - y0 + g * y1, y3 - y0 + h * y3, y0], 1),
+            torch.stack([g, h, one], 1),
+        ]
+        return torch.stack(rows, 1)
+
+    def camera_centre(self, H_unit: torch.Tensor) -> torch.Tensor:
+        """Unit-square homography [N, 3, 3] -> camera centre [N, 3] cm in the object frame,
+        with the prior intrinsics (M = A^-1 H = lambda [r1 r2 t], c = -R^T t)."""
+        M = self.A_inv @ H_unit @ self.to_unit
+        m1, m2, m3 = M[:, :, 0], M[:, :, 1], M[:, :, 2]
+        lam = 2.0 / (m1.norm(dim=1) + m2.norm(dim=1) + 1e-9)
+        lam = torch.where(m3[:, 2] < 0, -lam, lam)
+        r1, r2, t = m1 * lam[:, None], m2 * lam[:, None], m3 * lam[:, None]
+        r3 = torch.cross(r1, r2, dim=1)
+        return -torch.stack([(r1 * t).sum(1), (r2 * t).sum(1), (r3 * t).sum(1)], 1)
+
+    def parity(self, x: torch.Tensor, H_unit: torch.Tensor) -> torch.Tensor:
+        """Correlation [N] in [-1, 1] of the grey image at the 70 square centres (through
+        `H_unit`) with the checker pattern: > 0 when the corner order is the true one."""
+        n = x.shape[0]
+        st = torch.cat([self.square_st, torch.ones_like(self.square_st[:, :1])], 1)
+        p = torch.einsum("nij,kj->nki", H_unit, st)  # [N, 70, 3]
+        w = torch.where(p[..., 2:].abs() < 1e-6, torch.full_like(p[..., 2:], 1e-6), p[..., 2:])
+        uv = p[..., :2] / w
+        grid = ((uv + 0.5) * self.px_to_unit - 1.0).clamp(-2.0, 2.0).reshape(n, 1, -1, 2)
+        grey = x.mean(1, keepdim=True)
+        samples = F.grid_sample(grey, grid, align_corners=False).reshape(n, -1)
+        centred = samples - samples.mean(1, keepdim=True)
+        norm = centred.pow(2).mean(1).sqrt() + 1e-4
+        return (centred * self.checker).mean(1) / norm
+
+    def class_probabilities(self, c: torch.Tensor, order_ok: torch.Tensor) -> torch.Tensor:
+        """Camera centres [N, 3] cm and P(corner order is the true one) [N] -> P(class 1..8
+        | object present) [N, 8]."""
+        dist = c.norm(dim=1).clamp_min(1.0)
+        sd = self.side_spread * dist
+        px = 0.5 * (1 + torch.erf(c[:, 0] / (sd * math.sqrt(2))))
+        py = 0.5 * (1 + torch.erf(c[:, 1] / (sd * math.sqrt(2))))
+        sz = self.depth_spread * c[:, 2].abs().clamp_min(1.0)
+        near = 0.5 * (1 + torch.erf((self.z_split - c[:, 2]) / (sz * math.sqrt(2))))
+
+        def quadrants(px: torch.Tensor, py: torch.Tensor) -> torch.Tensor:
+            return torch.stack([px * py, (1 - px) * py, (1 - px) * (1 - py), px * (1 - py)], 1)
+
+        q = order_ok[:, None] * quadrants(px, py) + (1 - order_ok[:, None]) * quadrants(
+            1 - px, 1 - py
+        )
+        return torch.cat([near[:, None] * q, (1 - near[:, None]) * q], 1)
+
+    def _probabilities(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """RGB [N, 3, H, W] in [0, 1] -> (probabilities [N, 9], corners [N, 4, 2] px)."""
+        heat, presence = self._encode((x - self.mean) / self.std)
+        q = self._soft_argmax(heat)
+        H = self.homography(q)
+        order_ok = torch.sigmoid(self.parity_gain * self.parity(x, H))
+        pk = self.class_probabilities(self.camera_centre(H), order_ok)
+        present = torch.sigmoid(presence)[:, None]
+        return torch.cat([1 - present, present * pk], 1), q
+
+    def logits(self, x: torch.Tensor) -> torch.Tensor:
+        """RGB [N, 3, H, W] in [0, 1] -> log-probabilities [N, 9] (softmax gives them back)."""
+        return torch.log(self._probabilities(x)[0].clamp_min(1e-7))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
+        """RGB [N, 3, H, W] in [0, 1] -> log-probabilities [N, 9]; in training mode also the
+        corners [N, 8] ((u, v) x 4) scaled to [-1, 1], the target `fit._corner_loss` trains."""
+        if not self.training:
+            return self.logits(x)
+        heat, presence = self._encode((x - self.mean) / self.std)
+        q = self._soft_argmax(heat)
+        # the class loss trains the presence logit only; the corners learn from their own loss
+        with torch.no_grad():
+            H = self.homography(q)
+            pk = self.class_probabilities(
+                self.camera_centre(H), torch.sigmoid(self.parity_gain * self.parity(x, H))
+            )
+        log_present = F.logsigmoid(presence)[:, None]
+        log_absent = F.logsigmoid(-presence)[:, None]
+        log_p = torch.cat([log_absent, log_present + torch.log(pk.clamp_min(1e-7))], 1)
+        return log_p, (q * self.px_to_unit - 1.0).reshape(-1, 8)
