@@ -71,6 +71,8 @@ def _conv(cin: int, cout: int, k: int = 3, stride: int = 1) -> nn.Sequential:
 class ConvNet(NormalisedNet):
     """The network above for an input `size` (W, H) of 80x60 or 160x120."""
 
+    corner_order = "either"  # `fit._corner_loss`: the better of the two half-turn orders
+
     def __init__(self, size: tuple[int, int] = (160, 120), dropout: float = 0.2) -> None:
         super().__init__()
         size = (int(size[0]), int(size[1]))

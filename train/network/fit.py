@@ -423,7 +423,7 @@ def _train_epoch(
         if isinstance(out, tuple):  # (log-probabilities, corners) of a net with a corner head
             out, predicted = out
             loss = F.nll_loss(out, y) + config.corner_weight * _corner_loss(
-                predicted, corners, x.shape[3], x.shape[2], config.corner_beta
+                predicted, corners, x.shape[3], x.shape[2], config.corner_beta, net.corner_order
             )
         else:
             loss = F.nll_loss(out, y)
@@ -446,15 +446,22 @@ def _train_epoch(
 
 
 def _corner_loss(
-    predicted: torch.Tensor, corners: np.ndarray, w: int, h: int, beta: float = 0.1
+    predicted: torch.Tensor,
+    corners: np.ndarray,
+    w: int,
+    h: int,
+    beta: float = 0.1,
+    order: str = "either",
 ) -> torch.Tensor:
     """Smooth L1 between predicted corners [B, 8] (image coordinates scaled to [-1, 1]) and
-    the known ones (px, nan where unknown: class 0, photos without corners), taking for each
-    image the better of the two orders a half turn apart.
+    the known ones (px, nan where unknown: class 0, photos without corners).
 
-    The half turn is what only the squares' colour parity tells; without it the corners are
-    a geometry task (where the board is, which sides are long, which edges are near) that the
-    network learns early, and the class head learns the parity.
+    The half turn is what only the squares' colour parity tells; the corners alone are a
+    geometry task (where the board is, which sides are long, which edges are near). `order`
+    says which of the two orders a half turn apart is the target: "either" takes the better
+    of the two for each image (the class head learns the parity); "upper" takes the one whose
+    corner 0 is higher in the image than corner 2, a rule a heat map can follow (with "either",
+    a soft-argmax that cannot decide averages two opposite corners).
     """
     known = torch.from_numpy(np.isfinite(corners).all(axis=1))
     if not bool(known.any()):
@@ -463,6 +470,9 @@ def _corner_loss(
     target = torch.from_numpy(np.nan_to_num(corners) * scale - 1.0)[known]
     turned = torch.roll(target, shifts=4, dims=1)  # corners 2, 3, 0, 1
     pred = predicted[known]
+    if order == "upper":
+        upper = (target[:, 1] <= target[:, 5])[:, None]
+        return F.smooth_l1_loss(pred, torch.where(upper, target, turned), beta=beta)
     losses = [
         F.smooth_l1_loss(pred, t, beta=beta, reduction="none").mean(dim=1) for t in (target, turned)
     ]

@@ -20,8 +20,9 @@ and the class follows from them as the SPEC labels define it:
               grows with the distance, mixed over the two half-turn readings by the parity
               confidence, times P(present); class 0 gets 1 - P(present)
 
-The heat-map channels are trained on the corners up to a half turn (the loss takes the better
-of the two orders, `fit._corner_loss`); parity is not learned. Input: float32 [N, 3, 120, 160],
+The heat-map channels are trained on the corners up to a half turn: of the two orders, the
+target is the one whose corner 0 is the upper end of the 0-2 diagonal (`fit._corner_loss`);
+parity is not learned. Input: float32 [N, 3, 120, 160],
 RGB in [0, 1]. Output of `forward`: log-probabilities [N, 9] (`corners` gives the corners).
 """
 
@@ -51,12 +52,16 @@ class KeypointNet(NormalisedNet):
     (width, height) with the region split `z_split_cm`; the camera prior is the SPEC camera
     with its focal length times `focal_scale` and the principal point at the image centre."""
 
+    corner_order = "upper"  # `fit._corner_loss`: corner 0 is the upper end of the 0-2 diagonal
+
     def __init__(
         self,
         size: tuple[int, int] = SIZE,
         board_cm: tuple[float, float] = (25.0, 17.5),
         z_split_cm: float = 60.0,
         focal_scale: float = 0.6,
+        focal_range: tuple[float, float] = (0.45, 0.8),
+        self_calibrate: bool = True,
     ) -> None:
         super().__init__()
         size = (int(size[0]), int(size[1]))
@@ -83,9 +88,15 @@ class KeypointNet(NormalisedNet):
         self.register_buffer(
             "px_to_unit", torch.tensor([2.0 / size[0], 2.0 / size[1]]), persistent=False
         )
-        A = torch.tensor(intrinsics(size, focal_scale), dtype=torch.float32)
-        A[0, 2], A[1, 2] = (size[0] - 1) / 2, (size[1] - 1) / 2
-        self.register_buffer("A_inv", torch.linalg.inv(A))
+        # the prior camera: principal point at the image centre, focal length (px) of the SPEC
+        # camera times `focal_scale`, or (self_calibrate = 1) the one that makes the board's
+        # axes orthogonal, kept within `focal_range` x the SPEC camera's
+        spec_f = float(intrinsics(size)[0, 0])
+        lo, hi = focal_range
+        self.register_buffer("principal", torch.tensor([(size[0] - 1) / 2, (size[1] - 1) / 2]))
+        self.register_buffer("focal", torch.tensor(spec_f * focal_scale))
+        self.register_buffer("focal_bounds", torch.tensor([spec_f * lo, spec_f * hi]))
+        self.register_buffer("self_calibrate", torch.tensor(float(self_calibrate)))
         bw, bh = board_cm
         # object (X, Y) -> unit square (s, t), the inverse of X = -bw/2 + bw s, Y = -bh/2 + bh t
         self.register_buffer(
@@ -127,7 +138,7 @@ class KeypointNet(NormalisedNet):
 
     def corners(self, x: torch.Tensor) -> torch.Tensor:
         """RGB [N, 3, H, W] in [0, 1] -> the four corners [N, 4, 2] px, in the order
-        (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y) up to a half turn."""
+        (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y) or its half turn, corner 0 above corner 2."""
         return self._soft_argmax(self._encode((x - self.mean) / self.std)[0])
 
     # -- geometry ------------------------------------------------------------------------------
@@ -150,10 +161,28 @@ class KeypointNet(NormalisedNet):
         ]
         return torch.stack(rows, 1)
 
+    def focal_length(self, Hc: torch.Tensor) -> torch.Tensor:
+        """Focal length [N] px for centred object-plane homographies Hc [N, 3, 3]: the prior, or
+        the least-squares one that makes the images of the board's x and y axes orthogonal and
+        of equal length (Zhang's constraints, square pixels), clamped to `focal_bounds`."""
+        h1, h2 = Hc[:, :, 0], Hc[:, :, 1]
+        a1 = h1[:, 0] * h2[:, 0] + h1[:, 1] * h2[:, 1]
+        b1 = h1[:, 2] * h2[:, 2]
+        a2 = h1[:, 0] ** 2 + h1[:, 1] ** 2 - h2[:, 0] ** 2 - h2[:, 1] ** 2
+        b2 = h1[:, 2] ** 2 - h2[:, 2] ** 2
+        inv_f2 = -(a1 * b1 + a2 * b2) / (a1 * a1 + a2 * a2 + 1e-12)
+        lo, hi = self.focal_bounds[0], self.focal_bounds[1]
+        f = torch.where(inv_f2 > 0, inv_f2.clamp_min(1e-12).rsqrt(), hi).clamp(lo, hi)
+        return torch.where(self.self_calibrate > 0.5, f, self.focal.expand_as(f))
+
     def camera_centre(self, H_unit: torch.Tensor) -> torch.Tensor:
-        """Unit-square homography [N, 3, 3] -> camera centre [N, 3] cm in the object frame,
-        with the prior intrinsics (M = A^-1 H = lambda [r1 r2 t], c = -R^T t)."""
-        M = self.A_inv @ H_unit @ self.to_unit
+        """Unit-square homography [N, 3, 3] -> camera centre [N, 3] cm in the object frame
+        (M = A^-1 H = lambda [r1 r2 t], c = -R^T t), with the camera of `focal_length`."""
+        H = H_unit @ self.to_unit
+        w = H[:, 2:3, :]
+        Hc = torch.cat([H[:, :2, :] - self.principal[None, :, None] * w, w], 1)
+        f = self.focal_length(Hc)
+        M = torch.cat([Hc[:, :2, :] / f[:, None, None], w], 1)
         m1, m2, m3 = M[:, :, 0], M[:, :, 1], M[:, :, 2]
         lam = 2.0 / (m1.norm(dim=1) + m2.norm(dim=1) + 1e-9)
         lam = torch.where(m3[:, 2] < 0, -lam, lam)

@@ -211,6 +211,7 @@ def build_network(
             board_cm=(float(profile["width_cm"]), float(profile["height_cm"])),
             z_split_cm=float(profile["z_split_cm"]),
             focal_scale=math.sqrt(float(lo) * float(hi)),
+            focal_range=(float(lo), float(hi)),
         )
     raise ValueError(f"unknown architecture {arch!r}; known: {', '.join(ARCHS)}")
 

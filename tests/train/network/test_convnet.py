@@ -78,3 +78,13 @@ def test_corner_loss_takes_the_better_of_the_two_half_turns():
     assert float(_corner_loss(exact, corners, 160, 120)) < 1e-9
     assert float(_corner_loss(turned, corners, 160, 120)) < 1e-9
     assert float(_corner_loss(quarter, corners, 160, 120)) > 0.5
+
+
+def test_corner_loss_upper_order_takes_the_half_turn_with_corner_0_on_top():
+    corners = np.array([[10, 100, 150, 100, 150, 20, 10, 20]], np.float32)  # corner 0 below 2
+    scale = np.tile([2 / 160, 2 / 120], 4)
+    exact = torch.from_numpy((corners * scale - 1).astype(np.float32))
+    turned = torch.roll(exact, 4, dims=1)  # corner 2 (the upper one) first
+    assert float(_corner_loss(turned, corners, 160, 120, order="upper")) < 1e-9
+    assert float(_corner_loss(exact, corners, 160, 120, order="upper")) > 0.5
+    assert float(_corner_loss(exact, corners, 160, 120, order="either")) < 1e-9

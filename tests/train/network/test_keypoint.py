@@ -21,9 +21,14 @@ HALF = np.array([PROFILE.width_cm / 2, PROFILE.height_cm / 2])
 OBJECT_CORNERS = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]]) * [*HALF, 0]
 
 
-def _view(net: KeypointNet, centre: tuple[float, float, float], roll_deg: float) -> np.ndarray:
-    """Corners (4, 2) px of the board seen from `centre` (cm) with the net's prior camera."""
-    A = np.linalg.inv(net.A_inv.double().numpy())
+def _view(
+    net: KeypointNet, centre: tuple[float, float, float], roll_deg: float, focal: float = 0.0
+) -> np.ndarray:
+    """Corners (4, 2) px of the board seen from `centre` (cm) by a camera of focal length
+    `focal` px (default: the net's prior) with the principal point at the image centre."""
+    f = focal or float(net.focal)
+    (u0, v0) = net.principal.tolist()
+    A = np.array([[f, 0, u0], [0, f, v0], [0, 0, 1.0]])
     R = look_at(np.array(centre), np.zeros(3), np.radians(roll_deg))
     return project_points(A, R, translation(R, np.array(centre)), OBJECT_CORNERS)
 
@@ -57,6 +62,18 @@ def test_camera_centre_from_the_corners(centre, roll):
     # the half-turned order is the same board seen from (-cx, -cy, cz)
     c_turned = net.camera_centre(net.homography(torch.roll(q, 2, 1)))[0].double().numpy()
     assert np.abs(c_turned - np.array([-centre[0], -centre[1], centre[2]])).max() < 0.05
+
+
+def test_self_calibration_recovers_the_focal_length():
+    net = KeypointNet(focal_scale=0.6)
+    f_true = 0.72 * float(net.focal) / 0.6
+    centre = (18.0, -14.0, 40.0)  # a tilted view: the focal length is observable
+    q = torch.from_numpy(_view(net, centre, 40.0, f_true)).float()[None]
+    c = net.camera_centre(net.homography(q))[0].double().numpy()
+    assert np.abs(c - centre).max() < 0.3
+    net.self_calibrate.fill_(0.0)  # the fixed prior (0.6) puts the camera closer
+    c_prior = net.camera_centre(net.homography(q))[0].double().numpy()
+    assert c_prior[2] < centre[2] - 3.0
 
 
 def test_parity_tells_the_half_turn():
