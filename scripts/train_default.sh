@@ -6,18 +6,21 @@
 #
 #   1. data: free-target renders (training), the SPEC evaluation grid, the level-camera
 #      renders of the SPEC-network models, and the real corpus as data sets (split by source);
-#   2. the default model: the convnet, stage 1 on renders, stage 2 on renders + real train
-#      sources, best epoch on the real val sources;
-#   3. with SPEC=1 also the SPEC-network models A (80x60) and C (160x120), for comparison;
+#   2. the default model: the keypoint network on renders + real train sources, best epoch on
+#      the real val sources;
+#   3. with CONVNET=1 also the convnet (stage 1 on renders, stage 2 on renders + real train
+#      sources), with SPEC=1 the SPEC-network models A (80x60) and C (160x120); otherwise the
+#      shipped ones are measured again on this run's data sets;
 #   4. export to models/ (ONNX + card with accuracies measured on the exported graph), the
-#      evaluation grid (docs/results.md) and models/default.
+#      evaluation grid (docs/results.md), the comparison with the chessboard detector
+#      (docs/comparison.md) and models/README.md.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PP=${PP:-.venv/bin/planar-pose}
 D=runs/default/data   # the recipes name their data and run folders under runs/default
 R=runs/default/runs
 N_EVAL=${N_EVAL:-1000}  # images per synthetic evaluation set; its 20 % test split is evaluated
-VERSION=${VERSION:-2.0.0}
+VERSION=${VERSION:-3.0.0}
 mkdir -p "$D" "$R"
 
 make_set() {  # OUT VARIANT SIZE BLUR COUNT SEED [PROFILE]
@@ -40,6 +43,12 @@ export_model() {  # RUN NAME SIZE NOTES
         --eval "$D/real-s$3-b0" --eval "$D/real-s$3-b3" --notes "$4"
 }
 
+remeasure() {  # NAME SIZE NOTES: a shipped model measured again on this run's data sets
+    $PP export "models/$1.onnx" --name "$1" --out-dir models \
+        --eval "$D/free-s$2-b0" --eval "$D/free-s$2-b3" --eval "$D/noC-s$2-b0" \
+        --eval "$D/real-s$2-b0" --eval "$D/real-s$2-b3" --notes "$3"
+}
+
 # 1. Data.
 make_set "$D/train-free-s2" free 2 0 40000 401
 for size in 1 2; do
@@ -51,13 +60,21 @@ done
 [ -f "$D/real-s2-b3/manifest.json" ] || $PP corpus sets "$D"
 
 # 2. The default model.
-train_recipe chessboard-convnet-160x120-pretrain
-train_recipe chessboard-convnet-160x120
-NOTES="Made by scripts/train_default.sh from recipes/chessboard-convnet-160x120.toml."
-export_model chessboard-convnet-160x120 chessboard-convnet-160x120 2 "$NOTES"
-export_model chessboard-convnet-160x120 default 2 "The default model. $NOTES"
+train_recipe chessboard-keypoint-160x120
+NOTES="Made by scripts/train_default.sh from recipes/chessboard-keypoint-160x120.toml."
+export_model chessboard-keypoint-160x120 chessboard-keypoint-160x120 2 "$NOTES"
+export_model chessboard-keypoint-160x120 default 2 "The default model. $NOTES"
 
-# 3. The SPEC-network models (level camera, as the thesis), for comparison.
+CONVNET_NOTES="The convnet (the default of version 2), kept for comparison. Recipes: \
+recipes/chessboard-convnet-160x120*.toml (stage 1 stopped after 5 of its 10 epochs)."
+if [ "${CONVNET:-0}" = 1 ]; then
+    train_recipe chessboard-convnet-160x120-pretrain
+    train_recipe chessboard-convnet-160x120
+    export_model chessboard-convnet-160x120 chessboard-convnet-160x120 2 "$CONVNET_NOTES"
+else
+    remeasure chessboard-convnet-160x120 2 "$CONVNET_NOTES"
+fi
+
 if [ "${SPEC:-0}" = 1 ]; then
     make_set "$D/level-noC-s1" noC 1 0 40000 101 chessboard-level
     make_set "$D/level-noC-s2" noC 2 0 12000 102 chessboard-level
@@ -72,21 +89,20 @@ if [ "${SPEC:-0}" = 1 ]; then
     done
 else  # the shipped SPEC models, measured again on this run's data sets
     for wh in 80x60 160x120; do
-        size=$([ "$wh" = 80x60 ] && echo 1 || echo 2)
-        $PP export "models/chessboard-noC-$wh.onnx" --name "chessboard-noC-$wh" --out-dir models \
-            --eval "$D/free-s$size-b0" --eval "$D/free-s$size-b3" --eval "$D/noC-s$size-b0" \
-            --eval "$D/real-s$size-b0" --eval "$D/real-s$size-b3" --notes "The SPEC network \
-(thesis), level camera (profile chessboard-level), kept for comparison. Recipes: \
+        remeasure "chessboard-noC-$wh" "$([ "$wh" = 80x60 ] && echo 1 || echo 2)" "The SPEC \
+network (thesis), level camera (profile chessboard-level), kept for comparison. Recipes: \
 recipes/chessboard-noC-$wh*.toml; measured again on the corpus and the free renders."
     done
 fi
 
-# 4. The evaluation grid: each shipped model on the sets of its own size (test splits).
-$PP evaluate models/chessboard-convnet-160x120.onnx models/chessboard-noC-{80x60,160x120}.onnx \
+MODELS=(models/chessboard-{keypoint,convnet}-160x120.onnx models/chessboard-noC-{80x60,160x120}.onnx)
+$PP evaluate "${MODELS[@]}" \
     "$D"/real-s{1,2}-b{0,1,2,3} "$D"/free-s{1,2}-b{0,1,2,3} "$D"/noC-s{1,2}-b{0,1,2,3} \
     --same-size --split test --out docs/results --markdown docs/results.md \
     --title "Results of the shipped chessboard models" \
     --note "Written by \`planar-pose evaluate\` at the end of \`scripts/train_default.sh\`." \
     --note "Real sets: the corpus's test sources (train/assets/real/corpus/README.md), never used for training or model selection. Synthetic sets: $N_EVAL renders each, the 20 % test split."
+$PP compare $(printf -- "--models %s " "${MODELS[@]}") --peer chessboard --split test \
+    $(printf -- "--datasets %s " "$D"/real-s{1,2}-b{0,1,2,3}) --out docs/comparison.md
 $PP catalog models
-echo "done: models/default.onnx; results in docs/results.md, models/README.md"
+echo "done: models/default.onnx; results in docs/results.md, docs/comparison.md, models/README.md"

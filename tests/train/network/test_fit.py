@@ -175,3 +175,14 @@ def test_bad_recipes(tmp_path, text, message):
         load_config(recipe, {})
     result = runner.invoke(app, ["train", "--config", str(recipe)])
     assert result.exit_code == 2 and message in result.output
+
+
+@pytest.mark.parametrize(
+    "recipe", sorted((Path(__file__).parents[3] / "recipes").glob("*.toml")), ids=lambda p: p.stem
+)
+def test_shipped_recipes_are_valid_configs(recipe):
+    config = load_config(recipe, {})
+    assert config.datasets and config.out.parts[:3] == ("runs", "default", "runs")
+    assert all(
+        p.parts[:3] == ("runs", "default", "data") for p in [*config.datasets, *config.select]
+    )
