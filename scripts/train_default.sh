@@ -60,6 +60,7 @@ done
 [ -f "$D/real-s2-b3/manifest.json" ] || $PP corpus sets "$D"
 
 # 2. The default model.
+train_recipe chessboard-keypoint-160x120-pretrain
 train_recipe chessboard-keypoint-160x120
 NOTES="Made by scripts/train_default.sh from recipes/chessboard-keypoint-160x120.toml."
 export_model chessboard-keypoint-160x120 chessboard-keypoint-160x120 2 "$NOTES"
