@@ -108,6 +108,11 @@ class KeypointNet(NormalisedNet):
             "square_st",
             torch.stack([(i + 0.5) / SQUARES[0], (j + 0.5) / SQUARES[1]], -1).reshape(-1, 2),
         )
+        third = torch.tensor([-1.0, 0.0, 1.0]) / 3
+        shifts = torch.stack(
+            torch.meshgrid(third / SQUARES[0], third / SQUARES[1], indexing="xy"), -1
+        )
+        self.register_buffer("parity_shifts", shifts.reshape(-1, 2), persistent=False)
         # +1 on white squares; the square at corner 0 (-X, -Y) is black
         self.register_buffer("checker", (((i + j) % 2) * 2 - 1).reshape(-1).float())
         # buffers, so that a checkpoint carries them: the region split (cm), the sd of cx, cy
@@ -192,18 +197,25 @@ class KeypointNet(NormalisedNet):
 
     def parity(self, x: torch.Tensor, H_unit: torch.Tensor) -> torch.Tensor:
         """Correlation [N] in [-1, 1] of the grey image at the 70 square centres (through
-        `H_unit`) with the checker pattern: > 0 when the corner order is the true one."""
-        n = x.shape[0]
-        st = torch.cat([self.square_st, torch.ones_like(self.square_st[:, :1])], 1)
-        p = torch.einsum("nij,kj->nki", H_unit, st)  # [N, 70, 3]
+        `H_unit`) with the checker pattern: > 0 when the corner order is the true one.
+
+        The centres are also tried shifted by a third of a square along each axis (9 grids),
+        and the grid with the strongest correlation answers: corners a few pixels off put
+        the exact centres near square edges, where the correlation fades."""
+        n, k = x.shape[0], self.square_st.shape[0]
+        st = (self.square_st[None] + self.parity_shifts[:, None]).reshape(-1, 2)
+        st = torch.cat([st, torch.ones_like(st[:, :1])], 1)
+        p = torch.einsum("nij,kj->nki", H_unit, st)  # [N, 9 * 70, 3]
         w = torch.where(p[..., 2:].abs() < 1e-6, torch.full_like(p[..., 2:], 1e-6), p[..., 2:])
         uv = p[..., :2] / w
         grid = ((uv + 0.5) * self.px_to_unit - 1.0).clamp(-2.0, 2.0).reshape(n, 1, -1, 2)
         grey = x.mean(1, keepdim=True)
-        samples = F.grid_sample(grey, grid, align_corners=False).reshape(n, -1)
-        centred = samples - samples.mean(1, keepdim=True)
-        norm = centred.pow(2).mean(1).sqrt() + 1e-4
-        return (centred * self.checker).mean(1) / norm
+        samples = F.grid_sample(grey, grid, align_corners=False).reshape(n, -1, k)
+        centred = samples - samples.mean(2, keepdim=True)
+        norm = centred.pow(2).mean(2).sqrt() + 1e-4
+        corr = (centred * self.checker).mean(2) / norm  # [N, 9]
+        best = corr.abs().argmax(1, keepdim=True)
+        return torch.gather(corr, 1, best)[:, 0]
 
     def class_probabilities(self, c: torch.Tensor, order_ok: torch.Tensor) -> torch.Tensor:
         """Camera centres [N, 3] cm and P(corner order is the true one) [N] -> P(class 1..8
