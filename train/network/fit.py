@@ -339,7 +339,7 @@ def _initial_network(
         manifest = json.loads((config.datasets[0] / "manifest.json").read_text(encoding="utf-8"))
         net = build_network(config.arch, size, config.batch_norm, manifest.get("profile"))
     except ValueError as exc:
-        raise TrainingError(f"training images: {exc}") from exc
+        raise TrainingError(f"--arch {config.arch}: {exc}") from exc
     mean, std = channel_stats(torch.from_numpy(train.images))
     net.set_normalisation(mean, std)
     return net, None

@@ -205,10 +205,16 @@ def build_network(
 
         if not profile:
             return KeypointNet(size)
+        w_cm, h_cm = float(profile["width_cm"]), float(profile["height_cm"])
+        if abs(w_cm / h_cm - 10 / 7) > 1e-3:
+            raise ValueError(
+                f"the keypoint network reads a 10 x 7-square checkerboard; profile "
+                f"{profile.get('name', '?')!r} is {w_cm:g} x {h_cm:g} cm (use convnet or spec)"
+            )
         lo, hi = profile.get("focal_scale", [1.0, 1.0])
         return KeypointNet(
             size,
-            board_cm=(float(profile["width_cm"]), float(profile["height_cm"])),
+            board_cm=(w_cm, h_cm),
             z_split_cm=float(profile["z_split_cm"]),
             focal_scale=math.sqrt(float(lo) * float(hi)),
             focal_range=(float(lo), float(hi)),

@@ -143,3 +143,5 @@ def test_training_mode_outputs_and_build():
     assert net.presence[-1].weight.grad is not None and net.heat.weight.grad is not None
     with pytest.raises(ValueError, match="unsupported input size 80x60"):
         KeypointNet((80, 60))
+    with pytest.raises(ValueError, match="10 x 7-square checkerboard; profile 'poster'"):
+        build_network("keypoint", (160, 120), profile=profile | {"name": "poster", "height_cm": 20})
