@@ -10,8 +10,9 @@ and the class follows from them as the SPEC labels define it:
     corners   U-Net: encoder 160x120 -> 10x7 (ReLU + batch norm + max pooling), decoder back
               to 40x30; 4 heat maps [N, 4, 30, 40], soft-argmax -> corners [N, 4, 2] px
     pose      homography of the board rectangle onto the corners (closed form), pose with a
-              prior pinhole camera (principal point at the image centre, focal length from the
-              profile's range), camera centre c [N, 3] cm in the object frame
+              pinhole camera (principal point at the image centre, the focal length that makes
+              the board's axes orthogonal, clamped to the profile's range), camera centre
+              c [N, 3] cm in the object frame
     parity    the image sampled at the 70 square centres through the homography, correlated
               with the checker pattern: its sign says whether the corner order is the true one
               or a half turn (which maps c to (-cx, -cy, cz))
@@ -22,8 +23,8 @@ and the class follows from them as the SPEC labels define it:
 
 The heat-map channels are trained on the corners up to a half turn: of the two orders, the
 target is the one whose corner 0 is the upper end of the 0-2 diagonal (`fit._corner_loss`);
-parity is not learned. Input: float32 [N, 3, 120, 160],
-RGB in [0, 1]. Output of `forward`: log-probabilities [N, 9] (`corners` gives the corners).
+parity is not learned. Input: float32 [N, 3, 120, 160], RGB in [0, 1]. Output of `forward`:
+log-probabilities [N, 9] (`corners` gives the corners).
 """
 
 from __future__ import annotations
