@@ -4,12 +4,8 @@ video made from rendered frames, raw WebSocket helpers and the stream's Promethe
 from __future__ import annotations
 
 import json
-import os
 import re
-import socket
-import subprocess
 import sys
-import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -19,13 +15,12 @@ from typing import Any
 import cv2
 import httpx
 import numpy as np
-import pytest
+from server_process import live_server
 
 ROOT = Path(__file__).resolve().parents[2]
 REAL = ROOT / "train" / "assets" / "real" / "chessboard-stereo"
 PHOTO = REAL / "left01.jpg"
 API_KEY = "live-tests-key"
-STARTUP_TIMEOUT_S = 90.0  # onnxruntime import + model load on a loaded 2-core machine
 FRAME_SIZE = (640, 480)
 
 #: Camera centres (cm, object frame) of the rendered frames and their class (SPEC 3: quadrant
@@ -54,49 +49,13 @@ class Server:
         return "ws" + self.url.removeprefix("http") + "/v1/stream"
 
 
-def _free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
-
-
 @contextmanager
 def run_server(log: Path, ready: str = "/readyz", **env: str) -> Iterator[Server]:
     """`uvicorn service.app:app` with POSE_* settings `env`, once `ready` answers 200."""
-    port = _free_port()
-    clean = {k: v for k, v in os.environ.items() if not k.startswith("POSE_")}
     command = [sys.executable, "-m", "uvicorn", "service.app:app", "--host", "127.0.0.1"]
-    with log.open("wb") as sink:
-        proc = subprocess.Popen(
-            [*command, "--port", str(port), "--log-level", "warning"],
-            cwd=ROOT,
-            env={**clean, **env},
-            stdout=sink,
-            stderr=subprocess.STDOUT,
-        )
-    server = Server(f"http://127.0.0.1:{port}", proc.pid)
-    try:
-        _wait_ready(server.url + ready, proc, log)
-        yield server
-    finally:
-        proc.terminate()
-        try:
-            proc.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-
-
-def _wait_ready(url: str, proc: subprocess.Popen[bytes], log: Path) -> None:
-    deadline = time.monotonic() + STARTUP_TIMEOUT_S
-    while time.monotonic() < deadline and proc.poll() is None:
-        try:
-            if httpx.get(url, timeout=2).status_code == 200:
-                return
-        except httpx.TransportError:
-            pass
-        time.sleep(0.1)
-    pytest.fail(f"{url} did not answer 200; the server's log:\n{log.read_text()}")
+    command += ["--port", "{port}", "--log-level", "warning"]
+    with live_server(command, log, env, ready) as (url, proc):
+        yield Server(url, proc.pid)
 
 
 def render_frames() -> tuple[list[np.ndarray], list[int]]:

@@ -17,7 +17,8 @@ from types import ModuleType
 
 import httpx
 import pytest
-from service_support import JPEG, PHOTO, ROOT, check_answer, free_port
+from server_process import free_port
+from service_support import JPEG, PHOTO, ROOT, check_answer
 
 # The build (pip install of the service's wheels) takes minutes on a loaded 2-core machine.
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(1500)]

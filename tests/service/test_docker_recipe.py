@@ -20,7 +20,8 @@ from pathlib import Path
 
 import httpx
 import pytest
-from service_support import PHOTO, ROOT, check_answer, free_port, live_server
+from server_process import free_port, live_server
+from service_support import PHOTO, ROOT, check_answer
 
 DOCKERFILE = ROOT / "Dockerfile"
 

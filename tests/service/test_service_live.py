@@ -12,7 +12,8 @@ from pathlib import Path
 
 import httpx
 import pytest
-from service_support import JPEG, PHOTO, SERVE, UVICORN, check_answer, live_server
+from server_process import live_server
+from service_support import JPEG, PHOTO, SERVE, UVICORN, check_answer
 
 
 @pytest.fixture(scope="module")

@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 import tritonclient.http as triton
 from fastapi.testclient import TestClient
-from service_support import CARD, OTHER_MODELS, REAL, SERVE, card_of, live_server
+from server_process import live_server
+from service_support import CARD, OTHER_MODELS, REAL, SERVE, card_of
 from tritonclient.utils import InferenceServerException
 
 from service.preprocess import load_image, to_network_input

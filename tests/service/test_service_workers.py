@@ -13,7 +13,8 @@ from pathlib import Path
 import httpx
 import psutil
 import pytest
-from service_support import JPEG, PHOTO, SERVE, AppFactory, card_of, live_server
+from server_process import live_server
+from service_support import JPEG, PHOTO, SERVE, AppFactory, card_of
 from test_service_models import LARGE, REPLACEMENT, SMALL, put
 
 NEW_NAME = card_of(REPLACEMENT)["name"]
