@@ -258,7 +258,7 @@ def fit(config: FitConfig, resume: bool = False) -> dict[str, Any]:
     size = (train.images.shape[2], train.images.shape[1])
 
     torch.manual_seed(config.seed)
-    net, parent = _initial_network(config, train, size)
+    net, parent = _initial_network(config, train, size, train_info[0].get("profile"))
     net = net.to(memory_format=torch.channels_last)
     opt = _optimiser(config, net)
     sched = _schedule(config, opt)
@@ -322,11 +322,11 @@ def fit(config: FitConfig, resume: bool = False) -> dict[str, Any]:
 
 
 def _initial_network(
-    config: FitConfig, train: Split, size: tuple[int, int]
+    config: FitConfig, train: Split, size: tuple[int, int], profile: dict[str, Any] | None
 ) -> tuple[NormalisedNet, dict[str, Any] | None]:
     """The network to train and the parent checkpoint (fine-tuning keeps the parent's
-    architecture, weights and normalisation), or a new `config.arch` network normalised to
-    the training images (parent None)."""
+    architecture, weights and normalisation), or a new `config.arch` network for the first
+    data set's object `profile` (manifest), normalised to the training images (parent None)."""
     if config.init is not None:
         net, parent = load_network(config.init)
         if net.size != size:
@@ -336,8 +336,7 @@ def _initial_network(
             )
         return net, parent
     try:
-        manifest = json.loads((config.datasets[0] / "manifest.json").read_text(encoding="utf-8"))
-        net = build_network(config.arch, size, config.batch_norm, manifest.get("profile"))
+        net = build_network(config.arch, size, config.batch_norm, profile)
     except ValueError as exc:
         raise TrainingError(f"--arch {config.arch}: {exc}") from exc
     mean, std = channel_stats(torch.from_numpy(train.images))
