@@ -236,19 +236,19 @@ class KeypointNet(NormalisedNet):
         )
         return torch.cat([near[:, None] * q, (1 - near[:, None]) * q], 1)
 
-    def _probabilities(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """RGB [N, 3, H, W] in [0, 1] -> (probabilities [N, 9], corners [N, 4, 2] px)."""
-        heat, presence = self._encode((x - self.mean) / self.std)
-        q = self._soft_argmax(heat)
+    def _classes_if_present(self, x: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
+        """RGB [N, 3, H, W] in [0, 1] and its corners [N, 4, 2] px -> P(class 1..8 | object
+        present) [N, 8]: homography, parity, camera centre."""
         H = self.homography(q)
         order_ok = torch.sigmoid(self.parity_gain * self.parity(x, H))
-        pk = self.class_probabilities(self.camera_centre(H), order_ok)
-        present = torch.sigmoid(presence)[:, None]
-        return torch.cat([1 - present, present * pk], 1), q
+        return self.class_probabilities(self.camera_centre(H), order_ok)
 
     def logits(self, x: torch.Tensor) -> torch.Tensor:
         """RGB [N, 3, H, W] in [0, 1] -> log-probabilities [N, 9] (softmax gives them back)."""
-        return torch.log(self._probabilities(x)[0].clamp_min(1e-7))
+        heat, presence = self._encode((x - self.mean) / self.std)
+        pk = self._classes_if_present(x, self._soft_argmax(heat))
+        present = torch.sigmoid(presence)[:, None]
+        return torch.log(torch.cat([1 - present, present * pk], 1).clamp_min(1e-7))
 
     def forward(self, x: torch.Tensor) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
         """RGB [N, 3, H, W] in [0, 1] -> log-probabilities [N, 9]; in training mode also the
@@ -259,10 +259,7 @@ class KeypointNet(NormalisedNet):
         q = self._soft_argmax(heat)
         # the class loss trains the presence logit only; the corners learn from their own loss
         with torch.no_grad():
-            H = self.homography(q)
-            pk = self.class_probabilities(
-                self.camera_centre(H), torch.sigmoid(self.parity_gain * self.parity(x, H))
-            )
+            pk = self._classes_if_present(x, q)
         log_present = F.logsigmoid(presence)[:, None]
         log_absent = F.logsigmoid(-presence)[:, None]
         log_p = torch.cat([log_absent, log_present + torch.log(pk.clamp_min(1e-7))], 1)
