@@ -201,15 +201,15 @@ def build_network(
 
         return ConvNet(size)
     if arch == "keypoint":
-        from train.network.keypoint import KeypointNet
+        from train.network.keypoint import SQUARES, KeypointNet
 
         if not profile:
             return KeypointNet(size)
         w_cm, h_cm = float(profile["width_cm"]), float(profile["height_cm"])
-        if abs(w_cm / h_cm - 10 / 7) > 1e-3:
+        if abs(w_cm / h_cm - SQUARES[0] / SQUARES[1]) > 1e-3:
             raise ValueError(
-                f"the keypoint network reads a 10 x 7-square checkerboard; profile "
-                f"{profile.get('name', '?')!r} is {w_cm:g} x {h_cm:g} cm (use convnet or spec)"
+                f"the keypoint network reads a {SQUARES[0]} x {SQUARES[1]}-square checkerboard; "
+                f"profile {profile.get('name', '?')!r} is {w_cm:g} x {h_cm:g} cm (use convnet or spec)"
             )
         lo, hi = profile.get("focal_scale", [1.0, 1.0])
         return KeypointNet(

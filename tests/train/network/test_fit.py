@@ -12,6 +12,7 @@ import torch
 from typer.testing import CliRunner
 
 import train.network.fit as fit_module
+from train import REPO_ROOT
 from train.cli import app
 from train.network.config import ConfigError, load_config
 from train.network.fit import (
@@ -178,7 +179,7 @@ def test_bad_recipes(tmp_path, text, message):
 
 
 @pytest.mark.parametrize(
-    "recipe", sorted((Path(__file__).parents[3] / "recipes").glob("*.toml")), ids=lambda p: p.stem
+    "recipe", sorted((REPO_ROOT / "recipes").glob("*.toml")), ids=lambda p: p.stem
 )
 def test_shipped_recipes_are_valid_configs(recipe):
     config = load_config(recipe, {})
