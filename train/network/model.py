@@ -209,7 +209,8 @@ def build_network(
         if abs(w_cm / h_cm - SQUARES[0] / SQUARES[1]) > 1e-3:
             raise ValueError(
                 f"the keypoint network reads a {SQUARES[0]} x {SQUARES[1]}-square checkerboard; "
-                f"profile {profile.get('name', '?')!r} is {w_cm:g} x {h_cm:g} cm (use convnet or spec)"
+                f"profile {profile.get('name', '?')!r} is {w_cm:g} x {h_cm:g} cm "
+                "(use convnet or spec)"
             )
         lo, hi = profile.get("focal_scale", [1.0, 1.0])
         return KeypointNet(
