@@ -65,22 +65,65 @@ def add(
             raise fail(f"no photo of {src} could be used (see {dest / 'failed.txt'})")
 
 
+OriginalsOption = Annotated[
+    Path | None,
+    typer.Option(
+        "--originals",
+        help="Folder of the full-resolution originals, laid out like staged sources: "
+        "DIR/<source>/images/<original> (the labels.csv column `original`). The check reads "
+        "them instead of the stored photos; a photo without its original is read as stored.",
+    ),
+]
+
+
 @app.command()
 def check(
     corpus: CorpusOption = CORPUS,
     profile: Annotated[str, typer.Option(help="Object profile.")] = "chessboard",
+    originals: OriginalsOption = None,
+    disagreements: Annotated[
+        bool, typer.Option("--disagreements", help="List the photos whose classes differ.")
+    ] = False,
 ) -> None:
     """Relabel every board photo with an independent labeller; print the class agreement."""
     from train.real.corpus_report import check_summary
 
-    stats = guard(lambda: run_check(corpus, profile_or_exit(profile)))
+    _originals_or_exit(originals)
+    stats = guard(lambda: run_check(corpus, profile_or_exit(profile), originals))
     for name, (agree, found) in stats["per_source"].items():
-        out.print(f"{name}: {agree} / {found} agree")
+        read = stats["per_source_read"][name]
+        note = f" (read {read['original']} originals, {read['stored']} stored)" if originals else ""
+        out.print(f"{name}: {agree} / {found} agree{note}")
+    if disagreements:
+        for d in stats["disagreements"]:
+            diff = "" if d["centre_diff_cm"] is None else f"{d['centre_diff_cm']:.1f}"
+            out.print(
+                f"  {d['source']}/{d['file']} ({d['read']}): class {d['class']}, independent "
+                f"{d['independent_class']}, centre difference {diff} cm, "
+                f"{d['boundary_cm']:.1f} cm from a region boundary",
+                soft_wrap=True,
+            )
+    for reason, n in stats["fallbacks"].items():
+        err.print(f"  read as stored, {n} photos: {reason}")
     out.print(check_summary(stats))
 
 
-def run_check(corpus: Path, prof: Any) -> dict[str, Any]:
-    """Independent labeller over the corpus's board sources: agreement counts."""
+def _originals_or_exit(originals: Path | None) -> None:
+    if originals is None:
+        return
+    if not originals.exists():
+        raise fail(f"--originals folder not found: {originals}")
+    if not originals.is_dir():
+        raise fail(f"--originals is not a folder: {originals}")
+
+
+def run_check(corpus: Path, prof: Any, originals: Path | None = None) -> dict[str, Any]:
+    """Independent labeller over the corpus's board sources: agreement counts.
+
+    With `originals` (see `train.real.crosscheck`), the full-resolution originals are read
+    where found; `read` counts the photos read as "original" and as "stored"."""
+    from collections import Counter
+
     import numpy as np
 
     from train.real.crosscheck import crosscheck_folder
@@ -91,19 +134,24 @@ def run_check(corpus: Path, prof: Any) -> dict[str, Any]:
     if pattern is None:
         raise ValueError(f"profile {prof.name!r} is not a chessboard")
     per_source: dict[str, tuple[int, int]] = {}
+    per_source_read: dict[str, dict[str, int]] = {}
     diffs: list[float] = []
-    disagree_boundary: list[float] = []
+    disagree: list[dict[str, Any]] = []
+    fallbacks: Counter[str] = Counter()
     count = 0
     for src in corpus_sources(corpus):
         if src.parent.name != "boards":
             continue
-        rows = crosscheck_folder(src, pattern, float(prof.geometry.z_split_cm))
+        rows = crosscheck_folder(src, pattern, float(prof.geometry.z_split_cm), originals)
         found = [r for r in rows if r["independent_class"] is not None]
         agree = sum(r["class"] == r["independent_class"] for r in found)
         per_source[src.name] = (agree, len(found))
+        read = Counter(r["read"] for r in rows)
+        per_source_read[src.name] = {"original": read["original"], "stored": read["stored"]}
+        fallbacks.update(r["fallback"] for r in rows if r["fallback"])
         diffs += [r["centre_diff_cm"] for r in found]
-        disagree_boundary += [
-            r["boundary_cm"] for r in found if r["class"] != r["independent_class"]
+        disagree += [
+            {"source": src.name, **r} for r in found if r["class"] != r["independent_class"]
         ]
         count += len(rows)
     found_all = sum(f for _, f in per_source.values())
@@ -114,8 +162,13 @@ def run_check(corpus: Path, prof: Any) -> dict[str, Any]:
         "agree": agree_all,
         "agreement": agree_all / found_all if found_all else None,
         "median_diff_cm": float(np.median(diffs)) if diffs else float("nan"),
-        "disagreement_max_boundary_cm": max(disagree_boundary, default=None),
+        "disagreement_max_boundary_cm": max((d["boundary_cm"] for d in disagree), default=None),
         "per_source": per_source,
+        "originals": originals is not None,
+        "read": {k: sum(r[k] for r in per_source_read.values()) for k in ("original", "stored")},
+        "per_source_read": per_source_read,
+        "fallbacks": dict(fallbacks),
+        "disagreements": disagree,
     }
 
 
@@ -147,11 +200,13 @@ def report(
     corpus: CorpusOption = CORPUS,
     profile: Annotated[str, typer.Option(help="Object profile.")] = "chessboard",
     with_check: Annotated[bool, typer.Option("--check/--no-check", help="Run `check`.")] = True,
+    originals: OriginalsOption = None,
 ) -> None:
     """Write the corpus README (tables per source, region and split) and contact sheets."""
     from train.real.corpus_report import write_corpus_readme
 
     prof = profile_or_exit(profile)
-    stats = guard(lambda: run_check(corpus, prof)) if with_check else None
+    _originals_or_exit(originals)
+    stats = guard(lambda: run_check(corpus, prof, originals)) if with_check else None
     path = guard(lambda: write_corpus_readme(corpus, stats))
     out.print(f"[green]wrote[/] {path}")

@@ -19,7 +19,7 @@ import numpy as np
 
 from service.regions import region_of_class
 from train.markdown import pct, table
-from train.real.corpus import contact_sheet
+from train.real.corpus import STORE_MAX_SIDE, contact_sheet
 from train.real.realset import SPLITS, corpus_sources, read_splits
 
 SHEET_PER_CLASS = 30
@@ -138,7 +138,8 @@ def write_corpus_readme(corpus: Path, check: dict[str, Any] | None = None) -> Pa
 
 
 def check_summary(check: dict[str, Any]) -> str:
-    """One paragraph: how often the independent labeller agrees on the class."""
+    """One paragraph: how often the independent labeller agrees on the class, and which
+    photos it read (the stored ones, or the full-resolution originals where found)."""
     return (
         f"`train.real.crosscheck` (classic corner detector, IPPE PnP, corner-square colours) "
         f"found the board in {check['found']} of {check['count']} labelled photos; the class "
@@ -150,4 +151,35 @@ def check_summary(check: dict[str, Any]) -> str:
             if check.get("disagreement_max_boundary_cm") is not None
             else ""
         )
+        + " "
+        + _read_sentence(check)
+    )
+
+
+def _read_sentence(check: dict[str, Any]) -> str:
+    """Which photos the check read: the stored ones, or the originals and how many of each."""
+    read = check.get("read") or {"original": 0, "stored": check["count"]}
+    stored = f"stored photos (longer side at most {STORE_MAX_SIDE} px)"
+    if not check.get("originals"):
+        return (
+            f"Photos read: the {read['stored']} {stored}, not the full-resolution originals the "
+            "labels were made from (`planar-pose corpus check --originals DIR` reads those)."
+        )
+    why = "; ".join(f"{reason}: {n}" for reason, n in (check.get("fallbacks") or {}).items())
+    where = [
+        f"`{name}` {n['stored']}"
+        for name, n in (check.get("per_source_read") or {}).items()
+        if n["stored"]
+    ]
+    detail = ", ".join(x for x in (why, ", ".join(where) if len(where) <= 6 else "") if x)
+    return (
+        f"Photos read: the full-resolution originals (which the labels were made from) of "
+        f"{read['original']} photos"
+        + (
+            f", and the {stored} of the other {read['stored']}" + (f" ({detail})" if detail else "")
+            if read["stored"]
+            else ""
+        )
+        + ". The originals are not in the repository: on a clone, `planar-pose corpus check` "
+        "reads the stored photos (`--originals DIR` reads a folder of originals)."
     )

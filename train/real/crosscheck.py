@@ -10,6 +10,14 @@ labeller, and differs in every step that decides the class:
   side are black), sampled outside the inner-corner grid (not the parity of the inner squares).
 
 `crosscheck_folder` returns, per photo, both classes and the camera-centre difference.
+
+The stored photos are downscaled (longer side at most 640 px) while the labels were made at
+full resolution. Given `originals` (a folder laid out like the staged sources,
+`<originals>/<source>/images/<original>`, the file named by the `original` column of
+labels.csv), the check reads each photo's full-resolution original instead, with the stored
+intrinsics scaled back to the original's size (`intrinsics_for_size`). A photo whose original
+is missing, or is not of a size the stored photo could have been made from, is read as
+stored; the row says which (`read`: "original" or "stored"; `fallback`: why, or None).
 """
 
 from __future__ import annotations
@@ -23,6 +31,7 @@ import numpy as np
 
 from train.geometry import pose_class
 from train.real.corners import ChessboardPattern
+from train.real.corpus import STORE_MAX_SIDE
 
 
 def _classic_corners(grey: np.ndarray, pattern: ChessboardPattern) -> np.ndarray | None:
@@ -86,21 +95,73 @@ def independent_centre(
     return (-R.T @ tvec).ravel()
 
 
-def crosscheck_folder(folder: Path, pattern: ChessboardPattern, z_split: float) -> list[dict]:
-    """Both labellers on every photo of a labelled corpus folder: one dict per photo."""
+def original_path(originals: Path, source: str, original: str) -> Path:
+    """Where the full-resolution original of a stored photo is: the staged-source layout."""
+    return originals / source / "images" / original
+
+
+def stored_size(size: tuple[int, int]) -> tuple[int, int]:
+    """The size (W, H) a photo of `size` is stored at (longer side at most STORE_MAX_SIDE,
+    sides rounded, as `train.real.corpus.store_image` does)."""
+    scale = min(1.0, STORE_MAX_SIDE / max(size))
+    return (round(size[0] * scale), round(size[1] * scale)) if scale < 1.0 else tuple(size)
+
+
+def intrinsics_for_size(K: np.ndarray, size: tuple[int, int], new: tuple[int, int]) -> np.ndarray:
+    """K (3, 3) of a photo of `size` (W, H) for the same photo resized to `new` (W, H).
+
+    Per axis s = new / size, with pixel centres at integers (u' + 0.5 = (u + 0.5) * s), the
+    convention the corpus used to scale the full-resolution labels down, so that scaling
+    the stored K back to the original's size inverts it. Distortion does not depend on it.
+    """
+    sx, sy = new[0] / size[0], new[1] / size[1]
+    out = np.array(K, dtype=np.float64)
+    out[0, 0], out[0, 1], out[1, 1] = out[0, 0] * sx, out[0, 1] * sx, out[1, 1] * sy
+    out[0, 2] = (out[0, 2] + 0.5) * sx - 0.5
+    out[1, 2] = (out[1, 2] + 0.5) * sy - 0.5
+    return out
+
+
+def _photo(
+    folder: Path, row: dict[str, str], K: np.ndarray, originals: Path | None
+) -> tuple[np.ndarray | None, np.ndarray, str, str | None]:
+    """(grey image, its K, "original" | "stored", why the original was not used or None)."""
+    stored = cv2.imread(str(folder / row["file"]), cv2.IMREAD_GRAYSCALE)
+    if originals is None:
+        return stored, K, "stored", None
+    path = original_path(originals, folder.name, row.get("original") or "")
+    grey = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE) if path.is_file() else None
+    if grey is None:
+        return stored, K, "stored", "original not found"
+    size = (grey.shape[1], grey.shape[0])
+    small = (int(row["width"]), int(row["height"]))
+    if stored_size(size) != small:
+        return stored, K, "stored", "original of another size than the stored photo's"
+    return grey, intrinsics_for_size(K, small, size), "original", None
+
+
+def crosscheck_folder(
+    folder: Path, pattern: ChessboardPattern, z_split: float, originals: Path | None = None
+) -> list[dict]:
+    """Both labellers on every photo of a labelled corpus folder: one dict per photo.
+
+    Reads the stored photos, or with `originals` the full-resolution originals where found
+    (see the module docstring)."""
     with (folder / "labels.csv").open(newline="") as fh:
         rows = list(csv.DictReader(fh))
     out: list[dict[str, Any]] = []
     for row in rows:
-        grey = cv2.imread(str(folder / row["file"]), cv2.IMREAD_GRAYSCALE)
         K = np.array([[float(row["fx"]), 0, float(row["cx"])],
                       [0, float(row["fy"]), float(row["cy"])], [0, 0, 1]])  # fmt: skip
         dist = np.array([float(row[k] or 0) for k in ("k1", "k2", "p1", "p2", "k3")])
+        grey, K, read, fallback = _photo(folder, row, K, originals)
         ours = np.array([float(row[f"cam_{a}"]) for a in "xyz"])
         theirs = None if grey is None else independent_centre(grey, K, dist, pattern)
         out.append(
             {
                 "file": row["file"],
+                "read": read,
+                "fallback": fallback,
                 "class": int(row["class"]),
                 "independent_class": None if theirs is None else int(pose_class(theirs, z_split)),
                 "centre_diff_cm": None if theirs is None else float(np.linalg.norm(ours - theirs)),

@@ -140,6 +140,7 @@ def test_cli_check_report_and_errors(corpus, tmp_path):
     assert result.exit_code == 0, result.output
     readme = (root / "README.md").read_text()
     assert "| `left` |" in readme and "**test** sources: `right`" in readme
+    assert "Photos read: the 17 stored photos" in " ".join(readme.split())
     assert (root / "sheets" / "class-0.jpg").is_file()
     bad = tmp_path / "bad"
     (bad / "images").mkdir(parents=True)
