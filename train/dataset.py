@@ -79,6 +79,21 @@ class LoadedDataset:
         """One labels.csv column of these images."""
         return [row[name] for row in self.rows]
 
+    def boundary_margin_cm(self) -> np.ndarray:
+        """float [N]: how far (cm) each image's camera centre is from the nearest region
+        boundary (the planes x = 0, y = 0, z = z_split of the object frame, SPEC section 3);
+        nan for class 0 and rows without a camera centre."""
+        z_split = float(self.manifest.get("profile", {}).get("z_split_cm", "nan"))
+        out = np.full(len(self.rows), np.nan)
+        for i, (row, label) in enumerate(zip(self.rows, self.labels, strict=True)):
+            try:
+                x, y, z = (float(row[f"cam_{a}"]) for a in "xyz")
+            except (KeyError, ValueError):
+                continue
+            if label > 0:
+                out[i] = min(abs(x), abs(y), abs(z - z_split))
+        return out
+
 
 def _read_table(path: Path) -> tuple[bytes, list[dict[str, str]]]:
     labels = path / "labels.csv"

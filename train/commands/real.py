@@ -32,7 +32,8 @@ def label(
     ] = None,
     seed: Annotated[int, typer.Option(help="Seed of the train/val/test split.")] = 0,
 ) -> None:
-    """Label photographs: corners (found or clicked) -> DLT homography -> pose -> class.
+    """Label photographs: corners (found or clicked) -> DLT homography -> pose, refined on the
+    reprojection error -> class.
 
     Writes labels.csv, manifest.json, failed.txt, the images and overlays/ to check by eye.
     """

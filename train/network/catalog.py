@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from train.markdown import pct, table
+from train.network.report import margin_line
 
 INTRO = """# Shipped models
 
@@ -76,6 +77,8 @@ def write_catalog(models_dir: Path) -> Path:
                 *table(["source", "photos", "accuracy"], rows),
                 "",
             ]
+            if line := margin_line(card["accuracy"][key].get("by_margin")):
+                lines += [line, ""]
     stamp = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
     lines.append(f"Written {stamp} on {platform.node()} by `planar-pose catalog`.")
     out = models_dir / "README.md"

@@ -7,6 +7,7 @@ metrics.json, Markdown and plots. Both are shared with the feature baseline.
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -38,7 +39,16 @@ def confusion_matrix(y_true: np.ndarray, y_pred: np.ndarray) -> np.ndarray:
     return flat.reshape(NUM_CLASSES, NUM_CLASSES)
 
 
-def compute_metrics(y_true: np.ndarray, y_pred: np.ndarray, ms_per_image: float) -> dict:
+#: Bands (cm) of the camera centre's distance from the nearest region boundary (`by_margin`).
+MARGIN_BANDS_CM: tuple[tuple[float, float], ...] = ((0, 2), (2, 5), (5, 10), (10, math.inf))
+
+
+def compute_metrics(
+    y_true: np.ndarray,
+    y_pred: np.ndarray,
+    ms_per_image: float,
+    margin_cm: np.ndarray | None = None,
+) -> dict:
     """SPEC 10 metrics of predicted classes `y_pred` against `y_true` (both int [N], 0..8).
 
     Returns a JSON-ready dict: `count`, `accuracy` (global, in [0, 1]), `per_class_accuracy`,
@@ -48,6 +58,11 @@ def compute_metrics(y_true: np.ndarray, y_pred: np.ndarray, ms_per_image: float)
     class's images classified correctly (the confusion diagonal over its row, like recall). A
     value whose denominator is zero is None: precision of a class never predicted, recall of
     a class absent from the ground truth, F1 of a class absent from both.
+
+    With `margin_cm` (float [N], `LoadedDataset.boundary_margin_cm`: the camera centre's
+    distance from the nearest region boundary, nan for class 0), `by_margin` lists per band
+    of `MARGIN_BANDS_CM` the object images in it and the share classified right: how close
+    to a boundary the errors are.
     """
     cm = confusion_matrix(y_true, y_pred)
     total = int(cm.sum())
@@ -69,7 +84,27 @@ def compute_metrics(y_true: np.ndarray, y_pred: np.ndarray, ms_per_image: float)
         "confusion": cm.tolist(),
         "ms_per_image": float(ms_per_image),
         "regions": region_breakdown(cm),
-    }
+    } | ({} if margin_cm is None else {"by_margin": margin_breakdown(y_true, y_pred, margin_cm)})
+
+
+def margin_breakdown(
+    y_true: np.ndarray, y_pred: np.ndarray, margin_cm: np.ndarray
+) -> list[dict[str, float | int | None]]:
+    """Per band [lo, hi) cm of `MARGIN_BANDS_CM`: `lo_cm`, `hi_cm` (None for no bound), the
+    object images whose camera centre is that far from a region boundary (`count`) and the
+    share of them classified right (`accuracy`, None when the band is empty)."""
+    bands = []
+    for lo, hi in MARGIN_BANDS_CM:
+        inside = (margin_cm >= lo) & (margin_cm < hi)
+        bands.append(
+            {
+                "lo_cm": lo,
+                "hi_cm": None if math.isinf(hi) else hi,
+                "count": int(inside.sum()),
+                "accuracy": _ratio(float((y_true[inside] == y_pred[inside]).sum()), inside.sum()),
+            }
+        )
+    return bands
 
 
 def region_breakdown(cm: np.ndarray) -> dict[str, float | None]:
@@ -164,8 +199,13 @@ def predict_all(
 
 
 def evaluate_predictor(
-    predict: Predictor, images: np.ndarray, labels: np.ndarray, progress: Callable | None = None
+    predict: Predictor,
+    images: np.ndarray,
+    labels: np.ndarray,
+    progress: Callable | None = None,
+    margin_cm: np.ndarray | None = None,
 ) -> dict:
-    """Metrics (see `compute_metrics`) of a predictor on images [N, H, W, 3] with labels [N]."""
+    """Metrics (see `compute_metrics`) of a predictor on images [N, H, W, 3] with labels [N]
+    (and the camera centres' margins [N] cm, if given)."""
     probs, ms = predict_all(predict, images, progress=progress)
-    return compute_metrics(labels, probs.argmax(axis=1), ms)
+    return compute_metrics(labels, probs.argmax(axis=1), ms, margin_cm)

@@ -160,7 +160,8 @@ def with_card(model_bytes: bytes, card: dict[str, Any]) -> bytes:
 
 
 def accuracy_on(predict: Any, datasets: list[Path], split: str) -> dict[str, dict[str, Any]]:
-    """{data set folder name: {accuracy, class0_accuracy, count, split}} of a predictor."""
+    """{data set folder name: {accuracy, class0_accuracy, count, split, by_margin}} of a
+    predictor (`by_margin`: `train.network.evaluate.margin_breakdown`)."""
     from train.dataset import load_dataset
     from train.network.evaluate import compute_metrics, predict_all
 
@@ -171,12 +172,13 @@ def accuracy_on(predict: Any, datasets: list[Path], split: str) -> dict[str, dic
             raise ValueError(f"{path} has no images in split {split!r}")
         probs, ms = predict_all(predict, data.images)
         predicted = probs.argmax(axis=1)
-        m = compute_metrics(data.labels, predicted, ms)
+        m = compute_metrics(data.labels, predicted, ms, data.boundary_margin_cm())
         out[path.name] = {
             "split": split,
             "count": m["count"],
             "accuracy": round(m["accuracy"], 4),
             "class0_accuracy": m["per_class_accuracy"][0],
+            "by_margin": m["by_margin"],
         }
         sources = data.column("source") if data.rows and "source" in data.rows[0] else []
         if sources:  # a real corpus set: accuracy per source (camera) too

@@ -122,6 +122,22 @@ def _regions_line(metrics: dict) -> list[str]:
     ]
 
 
+def margin_line(bands: list[dict] | None) -> str:
+    """`by_margin` bands as one sentence ('' without them)."""
+    if not bands:
+        return ""
+    parts = [
+        (f"{b['lo_cm']:g}-{b['hi_cm']:g} cm" if b["hi_cm"] is not None else f">= {b['lo_cm']:g} cm")
+        + f": {pct_cell(b['accuracy'])} % of {b['count']}"
+        for b in bands
+    ]
+    return (
+        "Right class by the camera centre's distance from the nearest region boundary: "
+        + ", ".join(parts)
+        + "."
+    )
+
+
 def cell_section(model: str, dataset: str, metrics: dict, image: str) -> list[str]:
     """Markdown details of one (model, data set): summary, per-class table, plot."""
     lines = [
@@ -132,6 +148,7 @@ def cell_section(model: str, dataset: str, metrics: dict, image: str) -> list[st
         f"{metrics['ms_per_image']:.2f} ms / image.",
         "",
         *_regions_line(metrics),
+        *([line, ""] if (line := margin_line(metrics.get("by_margin"))) else []),
     ]
     keys = ("per_class_accuracy", "precision", "recall", "f1")
     body = [

@@ -12,13 +12,15 @@ commit, folder, licence, camera, square size if documented).
    of one image size, k1 k2 p1 p2 with k3 fixed) when there are at least `MIN_CALIBRATION_VIEWS`;
    otherwise only the focal length (and radial k1 from `MIN_K1_VIEWS` views) is fitted to the
    views (principal point at the centre, square pixels);
-3. per photo: undistortion, DLT pose, camera centre, class by the profile's regions and the
-   colour-parity orientation (`corners.orient_grid`); a photo where the checker pattern goes on
-   outside the 10 x 7 squares (a 9 x 6 grid found inside a bigger board) is dropped. A board
-   of another square size is
-   labelled as if its squares had the profile's size: the label follows the apparent size,
-   which is what the network sees. Photos whose parity confidence is below `MIN_PARITY` or
-   whose reprojection error is too large are dropped and listed in failed.txt with the reason;
+3. per photo: the colour-parity orientation (`corners.orient_grid`), undistortion, DLT pose
+   refined on the reprojection error of all corners through the lens distortion
+   (`label.refine_pose`), camera centre, class by the profile's regions; a photo where the
+   checker pattern goes on outside the 10 x 7 squares (a 9 x 6 grid found inside a bigger
+   board) is dropped. A board of another square size is labelled as if its squares had the
+   profile's size: the label follows the apparent size, which is what the network sees.
+   Photos whose parity confidence is below `MIN_PARITY` or whose reprojection error is too
+   large (`MAX_RMS_FRACTION`, tested on the DLT pose) are dropped and listed in failed.txt
+   with the reason;
 4. the photo is stored with its longer side at most `STORE_MAX_SIDE` px (JPEG, quality 90);
    intrinsics and corners in labels.csv are for the stored size.
 
@@ -65,7 +67,9 @@ MIN_CALIBRATION_VIEWS = 8
 MIN_K1_VIEWS = 3
 #: Below this parity confidence the half turn of the board is a guess: the photo is dropped.
 MIN_PARITY = 0.35
-#: Largest per-photo reprojection RMS kept, as a fraction of the photo's longer side.
+#: Largest per-photo reprojection RMS kept, as a fraction of the photo's longer side. It is
+#: tested on the DLT pose (before `refine_pose`): stricter than on the refined pose, it keeps
+#: out the photos it dropped before the refinement was added (their corners fit badly).
 MAX_RMS_FRACTION = 0.004
 #: Longer side (px) at which photos without the object are searched for a board.
 NEGATIVE_CHECK_SIDE = 800
@@ -285,8 +289,11 @@ def label_source(
             except ValueError as exc:
                 failed.append(f"{v.path.name}: {exc}")
                 continue
-            if lab.rms > MAX_RMS_FRACTION * max(size):
-                failed.append(f"{v.path.name}: reprojection RMS {lab.rms:.2f} px too large")
+            if lab.dlt_rms > MAX_RMS_FRACTION * max(size):
+                failed.append(
+                    f"{v.path.name}: reprojection RMS {lab.dlt_rms:.2f} px too large (DLT pose; "
+                    f"refined {lab.rms:.2f} px)"
+                )
                 continue
             if pattern_continues(grey, lab, pattern):
                 failed.append(f"{v.path.name}: the checker pattern goes on outside the board")

@@ -4,14 +4,20 @@ For each photograph: the object is found automatically (`train.real.corners`: th
 detector for a chessboard profile, SIFT matching to the profile texture otherwise) or taken
 from a CSV of clicked corners; the points are undistorted with the camera's calibration; the
 object-plane -> image homography comes from the normalised DLT over all points
-(`train.geometry.dlt_homography`), the pose from `pose_from_homography`, the camera centre
-c = -R^T t (cm, object frame) and the class from `pose_class` with the profile's z split.
+(`train.geometry.dlt_homography`) and the initial pose from `pose_from_homography` (nearest
+rotation); `refine_pose` then minimises the reprojection error of all points in raw pixels,
+through the camera's distortion (Levenberg-Marquardt, `cv2.solvePnPRefineLM`), and keeps the
+refined pose only when it is not worse and has the same orientation (board normal, in-plane
+axes, camera in front): the DLT alone can be pixels off where the refinement is a fraction of
+a pixel. The object frame (which corner is (-X, -Y), the half turn) is fixed before and is not
+changed. Then the camera centre c = -R^T t (cm, object frame) and the class from `pose_class`
+with the profile's z split.
 
 Output folder (the data set layout of SPEC section 7, readable by `load_dataset` and
 `planar-pose realset`): images/ (the photographs, copied), labels.csv (data set columns +
 image size, intrinsics, distortion, OpenCV rvec/tvec, the four object corners in raw pixels,
-method, reprojection RMS), manifest.json, failed.txt and overlays/<stem>.png with the
-projected outline and axes.
+method, reprojection RMS of the final pose in raw pixels), manifest.json, failed.txt and
+overlays/<stem>.png with the projected outline and axes.
 """
 
 from __future__ import annotations
@@ -58,7 +64,8 @@ class Label:
 
     R (3, 3), t (3,) cm: object -> camera; `centre` (3,) cm in the object frame; `corners`
     (4, 2) raw pixels of the object corners (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y); `rms` the
-    reprojection RMS (px, undistorted) of the points used; `points` how many were used.
+    reprojection RMS (raw px, through the distortion) of the points used by the pose, after
+    `refine_pose`; `points` how many were used; `dlt_rms` the same RMS of the DLT pose.
     """
 
     R: np.ndarray
@@ -70,6 +77,7 @@ class Label:
     method: str
     points: int
     rms: float
+    dlt_rms: float = float("nan")
 
 
 class ObjectFinder:
@@ -126,21 +134,77 @@ def chessboard_pattern(profile: Any) -> ChessboardPattern | None:
 def label_from_points(
     corr: Correspondences, camera: Camera, corners_xy: np.ndarray, z_split: float
 ) -> Label:
-    """Pose and class from correspondences: undistort, normalised DLT, pose from homography."""
+    """Pose and class from correspondences: undistort, normalised DLT, pose from homography,
+    then `refine_pose` (reprojection error of all points, with the distortion)."""
     ideal = camera.undistort(corr.image_uv)
     H = dlt_homography(corr.object_xy, ideal)
-    R, t = pose_from_homography(H, camera.K)
-    centre = camera_centre(R, t)
-    if centre[2] <= 0:
+    R0, t0 = pose_from_homography(H, camera.K)
+    if camera_centre(R0, t0)[2] <= 0:
         raise ValueError("the points put the camera behind the object (mirrored corner order?)")
-    obj3 = np.column_stack([corr.object_xy, np.zeros(len(corr.object_xy))])
-    reproj = project(obj3, R, t, camera.K, None)
-    rms = float(np.sqrt(np.mean(np.sum((reproj - ideal) ** 2, axis=1))))
+    dlt_rms = reprojection_rms(corr.object_xy, corr.image_uv, R0, t0, camera)
+    R, t, rms = refine_pose(corr.object_xy, corr.image_uv, camera, R0, t0, dlt_rms)
+    centre = camera_centre(R, t)
     corners = project(np.column_stack([corners_xy, np.zeros(4)]), R, t, camera.K, camera.dist)
     return Label(
         R, t, centre, int(pose_class(centre, z_split)), corners, camera, corr.method,
-        len(ideal), rms,
+        len(ideal), rms, dlt_rms,
     )  # fmt: skip
+
+
+def reprojection_rms(
+    object_xy: np.ndarray, image_uv: np.ndarray, R: np.ndarray, t: np.ndarray, camera: Camera
+) -> float:
+    """RMS distance (raw px) between `image_uv` (N, 2) and the object points `object_xy`
+    (N, 2) cm projected through the pose (R, t) and the camera, distortion included."""
+    obj3 = np.column_stack([object_xy, np.zeros(len(object_xy))])
+    err = project(obj3, R, t, camera.K, camera.dist) - np.asarray(image_uv, np.float64)
+    return float(np.sqrt(np.mean(np.sum(err**2, axis=1))))
+
+
+#: Levenberg-Marquardt stop of `refine_pose`: iterations, step size.
+REFINE_CRITERIA = (cv2.TERM_CRITERIA_MAX_ITER + cv2.TERM_CRITERIA_EPS, 100, 1e-10)
+
+
+def refine_pose(
+    object_xy: np.ndarray,
+    image_uv: np.ndarray,
+    camera: Camera,
+    R0: np.ndarray,
+    t0: np.ndarray,
+    rms0: float | None = None,
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """The pose (R, t, reprojection RMS raw px) refined from the initial (R0, t0).
+
+    Minimises the reprojection error of all points `object_xy` (N, 2) cm seen at raw pixels
+    `image_uv` (N, 2) through the camera's distortion (`cv2.solvePnPRefineLM`). The refined
+    pose is kept only when it is finite, keeps the orientation of the initial one (board
+    normal and in-plane x axis on the same side, camera in front of the board: the object
+    frame, half turn included, stays the one the points were given in) and reprojects no
+    worse; otherwise the initial pose is returned with its own RMS (`rms0` when given).
+    """
+    R0, t0 = np.asarray(R0, np.float64), np.asarray(t0, np.float64).ravel()
+    if rms0 is None:
+        rms0 = reprojection_rms(object_xy, image_uv, R0, t0, camera)
+    obj3 = np.column_stack([object_xy, np.zeros(len(object_xy))]).astype(np.float64)
+    uv = np.asarray(image_uv, np.float64).reshape(-1, 1, 2)
+    rvec0, _ = cv2.Rodrigues(R0)
+    try:
+        rvec, tvec = cv2.solvePnPRefineLM(
+            obj3, uv, camera.K, camera.dist, rvec0.copy(), t0.reshape(3, 1).copy(),
+            REFINE_CRITERIA,
+        )  # fmt: skip
+    except cv2.error:
+        return R0, t0, rms0
+    if not (np.all(np.isfinite(rvec)) and np.all(np.isfinite(tvec))):
+        return R0, t0, rms0
+    R, t = cv2.Rodrigues(rvec)[0], tvec.ravel()
+    same_side = R[:, 2] @ R0[:, 2] > 0 and R[:, 0] @ R0[:, 0] > 0
+    if not same_side or camera_centre(R, t)[2] <= 0:
+        return R0, t0, rms0
+    rms = reprojection_rms(object_xy, image_uv, R, t, camera)
+    if not np.isfinite(rms) or rms > rms0:
+        return R0, t0, rms0
+    return R, t, rms
 
 
 def project(

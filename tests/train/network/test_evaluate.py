@@ -11,7 +11,7 @@ from typer.testing import CliRunner
 from train import ASSETS_DIR
 from train.cli import app
 from train.network.evaluate import compute_metrics, confusion_matrix, predict_all
-from train.network.report import write_report
+from train.network.report import margin_line, write_report
 
 runner = CliRunner()
 
@@ -63,6 +63,22 @@ def test_region_breakdown_of_object_images():
     )
     none_shown = compute_metrics(np.zeros(3, int), np.array([0, 1, 0]), 1.0)["regions"]
     assert none_shown == dict.fromkeys(("detected", "side", "distance", "opposite_side"))
+
+
+def test_accuracy_by_the_cameras_margin_from_a_region_boundary():
+    y_true = np.array([1, 1, 2, 5, 6, 0])
+    y_pred = np.array([1, 2, 2, 5, 6, 0])
+    margin = np.array([0.5, 1.5, 3.0, 12.0, 40.0, np.nan])  # class 0 has no camera centre
+    bands = compute_metrics(y_true, y_pred, 1.0, margin)["by_margin"]
+    assert [(b["lo_cm"], b["hi_cm"], b["count"]) for b in bands] == [
+        (0, 2, 2), (2, 5, 1), (5, 10, 0), (10, None, 2)
+    ]  # fmt: skip
+    assert [b["accuracy"] for b in bands] == [0.5, 1.0, None, 1.0]
+    assert margin_line(bands).startswith(
+        "Right class by the camera centre's distance from the nearest region boundary: "
+        "0-2 cm: 50.0 % of 2, 2-5 cm: 100.0 % of 1, 5-10 cm: - % of 0, >= 10 cm: 100.0 % of 2"
+    )
+    assert "by_margin" not in compute_metrics(y_true, y_pred, 1.0)
 
 
 def test_bad_inputs_are_refused():
@@ -143,6 +159,8 @@ def test_cli_evaluates_onnx_and_checkpoint_the_same(model_and_set, tmp_path):
     onnx_m = doc["results"]["tiny"]["real"]
     torch_m = doc["results"][ckpt.parent.name]["real"]
     assert onnx_m["count"] == 26
+    # the OpenCV pair's cameras: margins from their labelled centres, all photos show the board
+    assert sum(b["count"] for b in onnx_m["by_margin"]) == 26
     assert onnx_m["confusion"] == torch_m["confusion"]
     assert sum(map(sum, onnx_m["confusion"])) == 26
     assert (out / "report.md").is_file() and (out / "plots" / "grid.png").is_file()

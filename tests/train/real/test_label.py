@@ -211,3 +211,70 @@ def test_calibration_scales_with_the_image():
     assert cal.camera_name("right07.jpg") == "right"
     with pytest.raises(ValueError, match="aspect"):
         cal.for_image("left01.jpg", (80, 80))
+
+
+def _noisy_view(c: tuple[float, float, float], seed: int = 0):
+    """The 9 x 6 inner corners seen from camera centre `c` (cm) through a distorting camera,
+    with 0.5 px of noise: (grid cm, raw pixels, camera, true R, true t)."""
+    from train.real.calibration import Camera
+    from train.real.label import project
+
+    K = np.array([[700.0, 0, 330], [0, 700, 235], [0, 0, 1]])
+    camera = Camera(K, np.array([-0.35, 0.15, 0.001, -0.002, 0.0]), (640, 480))
+    grid = ChessboardPattern(9, 6, 2.5).grid_xy()
+    R = look_at(np.array(c), np.zeros(3))
+    t = translation(R, np.array(c))
+    uv = project(np.column_stack([grid, np.zeros(len(grid))]), R, t, K, camera.dist)
+    noisy = uv + np.random.default_rng(seed).normal(0.0, 0.5, uv.shape)
+    return grid, noisy, camera, R, t
+
+
+@pytest.mark.parametrize("c", [(25.0, 18.0, 30.0), (-30.0, 10.0, 45.0), (30.0, 25.0, 70.0)])
+def test_refinement_lowers_the_reprojection_error_and_keeps_the_orientation(c):
+    from train.geometry import camera_centre, dlt_homography, pose_from_homography
+    from train.real.corners import Correspondences
+    from train.real.label import label_from_points
+
+    grid, uv, camera, R_true, _ = _noisy_view(c)
+    lab = label_from_points(Correspondences(grid, uv, "chessboard"), camera, grid[:4], 60.0)
+    R0, t0 = pose_from_homography(dlt_homography(grid, camera.undistort(uv)), camera.K)
+    dlt_error = np.linalg.norm(camera_centre(R0, t0) - c)
+    error = np.linalg.norm(lab.centre - c)
+    assert lab.rms < lab.dlt_rms and lab.rms < 0.75  # 0.5 px per axis: about 0.7 px
+    assert error < 0.5 and error < 0.6 * dlt_error
+    # Same orientation: board normal and in-plane axes as the truth's, class unchanged.
+    assert np.all(np.einsum("ij,ij->j", lab.R, R_true) > 0.99)
+    assert lab.label == int(pose_class(np.array(c), 60.0))
+
+
+@pytest.mark.parametrize("bad", ["half turn", "worse", "error"])
+def test_refinement_falls_back_to_the_initial_pose(monkeypatch, bad):
+    """A refinement that turns the board, reprojects worse or fails leaves the initial pose.
+
+    For "half turn" the points are given in reverse order (the grid is symmetric: they are
+    the board turned by half a turn), so the turned pose fits them far better than the
+    initial one: only the orientation test refuses it."""
+    import train.real.label as label_module
+    from train.geometry import dlt_homography, pose_from_homography
+    from train.real.label import refine_pose, reprojection_rms
+
+    grid, uv, camera, _, _ = _noisy_view((25.0, 18.0, 30.0))
+    R0, t0 = pose_from_homography(dlt_homography(grid, camera.undistort(uv)), camera.K)
+    turned = R0 @ np.diag([-1.0, -1.0, 1.0])
+    if bad == "half turn":
+        uv = uv[::-1]
+        assert reprojection_rms(grid, uv, turned, t0, camera) < 0.1 * reprojection_rms(
+            grid, uv, R0, t0, camera
+        )
+
+    def fake(obj, img, K, dist, rvec, tvec, criteria):
+        if bad == "error":
+            raise cv2.error("no convergence")
+        if bad == "half turn":
+            return cv2.Rodrigues(turned)[0], tvec
+        return rvec + 0.05, tvec * 1.1
+
+    monkeypatch.setattr(label_module.cv2, "solvePnPRefineLM", fake)
+    R, t, rms = refine_pose(grid, uv, camera, R0, t0)
+    assert np.array_equal(R, R0) and np.array_equal(t, t0)
+    assert rms == pytest.approx(reprojection_rms(grid, uv, R0, t0, camera))

@@ -106,6 +106,11 @@ def test_loader_round_trip_and_cache(small_set, tmp_path):
     assert (out / ".cache" / "images-80x60.npy").is_file()
     everything = load_dataset(out)  # from the cache now
     assert len(everything.labels) == 90 and data.size == (80, 60)
+    margin = data.boundary_margin_cm()
+    centres = np.array([[float(r[f"cam_{a}"] or "nan") for a in "xyz"] for r in rows])
+    want = np.minimum(np.abs(centres[:, :2]).min(1), np.abs(centres[:, 2] - 60.0))
+    shown = data.labels > 0
+    assert np.isnan(margin[~shown]).all() and np.allclose(margin[shown], want[shown])
 
 
 def test_cache_is_invalidated_when_labels_change(tmp_path):
