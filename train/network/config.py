@@ -20,7 +20,7 @@ from pydantic import TypeAdapter, ValidationError
 
 Optimizer = Literal["sgd", "adam"]
 Schedule = Literal["cosine", "step", "constant"]
-Arch = Literal["spec", "convnet", "keypoint", "grid"]
+Arch = Literal["spec", "convnet", "keypoint"]
 
 
 def _opt(default: Any, help: str, **bounds: Any) -> Any:
@@ -40,9 +40,8 @@ class FitConfig:
     batch_size: int = _opt(32, "Images per batch.", min=1)
     arch: Arch = _opt(
         "spec",
-        "Network: spec (SPEC section 8), convnet (train.network.convnet), keypoint "
-        "(train.network.keypoint) or grid (train.network.grid; with `init` a keypoint "
-        "checkpoint, it starts from that network).",
+        "Network: spec (SPEC section 8), convnet (train.network.convnet) or keypoint "
+        "(train.network.keypoint).",
     )
     optimizer: Optimizer = _opt("sgd", "sgd (with momentum) or adam.")
     lr: float = _opt(0.001, "Learning rate.", min=0.0)
@@ -57,9 +56,7 @@ class FitConfig:
     threads: int = _opt(0, "Torch intra-op threads; 0 = torch default.", min=0)
     compile: bool = _opt(False, "torch.compile the training step.")
     corner_weight: float = _opt(
-        0.5,
-        "convnet, keypoint, grid: weight of the loss on the object's corners in the image.",
-        min=0.0,
+        0.5, "convnet, keypoint: weight of the loss on the object's four image corners.", min=0.0
     )
     corner_beta: float = _opt(
         0.1, "Corner loss: smooth-L1 beta in [-1, 1] image units (quadratic below it).", min=1e-4

@@ -26,8 +26,6 @@ ARCHITECTURES = {
     "convnet": "convnet: train/network/convnet.py (ReLU, batch norm, max pooling, 3x4 head)",
     "keypoint": "keypoint: train/network/keypoint.py (U-Net corner heat maps, class from the "
     "corners' pose with a prior camera and the squares' colour parity)",
-    "grid": "grid: train/network/grid.py (the keypoint network with heat maps of all 88 square "
-    "corners, least-squares homography)",
 }
 INPUT_NAME = "image"
 OUTPUT_NAME = "probabilities"

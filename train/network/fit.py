@@ -20,7 +20,6 @@ from __future__ import annotations
 import json
 import math
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -335,10 +334,6 @@ def _initial_network(
                 f"--init checkpoint {config.init} takes {net.size[0]}x{net.size[1]} "
                 f"images but the data sets are {size[0]}x{size[1]}"
             )
-        if config.arch == "grid" and arch_of(net) == "keypoint":
-            grid = build_network("grid", size, profile=profile)
-            grid.grow_from(net)
-            return grid, parent
         return net, parent
     try:
         net = build_network(config.arch, size, config.batch_norm, profile)
@@ -427,13 +422,7 @@ def _train_epoch(
         if isinstance(out, tuple):  # (log-probabilities, corners) of a net with a corner head
             out, predicted = out
             loss = F.nll_loss(out, y) + config.corner_weight * _corner_loss(
-                predicted,
-                corners,
-                x.shape[3],
-                x.shape[2],
-                config.corner_beta,
-                net.corner_order,
-                getattr(net, "point_targets", None),
+                predicted, corners, x.shape[3], x.shape[2], config.corner_beta, net.corner_order
             )
         else:
             loss = F.nll_loss(out, y)
@@ -462,7 +451,6 @@ def _corner_loss(
     h: int,
     beta: float = 0.1,
     order: str = "either",
-    points: Callable[[torch.Tensor], torch.Tensor] | None = None,
 ) -> torch.Tensor:
     """Smooth L1 between predicted corners [B, 8] (image coordinates scaled to [-1, 1]) and
     the known ones (px, nan where unknown: class 0, photos without corners).
@@ -472,9 +460,7 @@ def _corner_loss(
     says which of the two orders a half turn apart is the target: "either" takes the better
     of the two for each image (the class head learns the parity); "upper" takes the one whose
     corner 0 is higher in the image than corner 2, a rule a heat map can follow (with "either",
-    a soft-argmax that cannot decide averages two opposite corners). `points` maps the
-    target corners [B, 8] to the targets of a net that locates more points (e.g. the grid
-    network's 88, [B, 176]); those outside the image (beyond +-1) are not trained.
+    a soft-argmax that cannot decide averages two opposite corners).
     """
     known = torch.from_numpy(np.isfinite(corners).all(axis=1))
     if not bool(known.any()):
@@ -485,13 +471,7 @@ def _corner_loss(
     pred = predicted[known]
     if order == "upper":
         upper = (target[:, 1] <= target[:, 5])[:, None]
-        target = torch.where(upper, target, turned)
-        if points is None:
-            return F.smooth_l1_loss(pred, target, beta=beta)
-        target = points(target)
-        inside = (target.abs() <= 1.0).float()
-        loss = F.smooth_l1_loss(pred, target, beta=beta, reduction="none")
-        return (loss * inside).sum() / inside.sum().clamp_min(1.0)
+        return F.smooth_l1_loss(pred, torch.where(upper, target, turned), beta=beta)
     losses = [
         F.smooth_l1_loss(pred, t, beta=beta, reduction="none").mean(dim=1) for t in (target, turned)
     ]

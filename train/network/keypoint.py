@@ -134,29 +134,18 @@ class KeypointNet(NormalisedNet):
         pooled = torch.cat([s3.mean((2, 3)), s3.amax((2, 3))], 1)
         return self.heat(u), self.presence(pooled)[:, 0]
 
-    def _soft_argmax(self, heat: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Heat-map logits [N, K, h, w] -> expected positions [N, K, 2] px (input image) and
-        the variance [N, K] px^2 (u and v summed) of each softmax map around it."""
+    def _soft_argmax(self, heat: torch.Tensor) -> torch.Tensor:
+        """Heat-map logits [N, 4, h, w] -> expected corner positions [N, 4, 2] px (input image)."""
         n, k, h, w = heat.shape
         p = F.softmax(heat.reshape(n, k, h * w), dim=2).reshape(n, k, h, w)
-        pu, pv = p.sum(2), p.sum(3)
-        u, v = (pu * self.grid_u).sum(2), (pv * self.grid_v).sum(2)
-        var = (pu * self.grid_u**2).sum(2) - u**2 + (pv * self.grid_v**2).sum(2) - v**2
-        return torch.stack([u, v], 2), var
-
-    def _board(self, heat: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Heat-map logits -> the points they locate [N, K, 2] px (here K = 4: the corners)
-        and the homography [N, 3, 3] of the unit square onto the board."""
-        q = self._soft_argmax(heat)[0]
-        return q, self.homography(q)
+        u = (p.sum(2) * self.grid_u).sum(2)
+        v = (p.sum(3) * self.grid_v).sum(2)
+        return torch.stack([u, v], 2)
 
     def corners(self, x: torch.Tensor) -> torch.Tensor:
         """RGB [N, 3, H, W] in [0, 1] -> the four corners [N, 4, 2] px, in the order
         (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y) or its half turn, corner 0 above corner 2."""
-        H = self._board(self._encode((x - self.mean) / self.std)[0])[1]
-        unit = torch.tensor([[0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [1.0, 1.0, 1.0], [0.0, 1.0, 1.0]])
-        p = torch.einsum("nij,kj->nki", H, unit)
-        return p[..., :2] / p[..., 2:]
+        return self._soft_argmax(self._encode((x - self.mean) / self.std)[0])
 
     # -- geometry ------------------------------------------------------------------------------
     def homography(self, q: torch.Tensor) -> torch.Tensor:
@@ -247,30 +236,31 @@ class KeypointNet(NormalisedNet):
         )
         return torch.cat([near[:, None] * q, (1 - near[:, None]) * q], 1)
 
-    def _classes_if_present(self, x: torch.Tensor, H: torch.Tensor) -> torch.Tensor:
-        """RGB [N, 3, H, W] in [0, 1] and the board's unit-square homography [N, 3, 3] ->
-        P(class 1..8 | object present) [N, 8]: parity, camera centre."""
+    def _classes_if_present(self, x: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
+        """RGB [N, 3, H, W] in [0, 1] and its corners [N, 4, 2] px -> P(class 1..8 | object
+        present) [N, 8]: homography, parity, camera centre."""
+        H = self.homography(q)
         order_ok = torch.sigmoid(self.parity_gain * self.parity(x, H))
         return self.class_probabilities(self.camera_centre(H), order_ok)
 
     def logits(self, x: torch.Tensor) -> torch.Tensor:
         """RGB [N, 3, H, W] in [0, 1] -> log-probabilities [N, 9] (softmax gives them back)."""
         heat, presence = self._encode((x - self.mean) / self.std)
-        pk = self._classes_if_present(x, self._board(heat)[1])
+        pk = self._classes_if_present(x, self._soft_argmax(heat))
         present = torch.sigmoid(presence)[:, None]
         return torch.log(torch.cat([1 - present, present * pk], 1).clamp_min(1e-7))
 
     def forward(self, x: torch.Tensor) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
         """RGB [N, 3, H, W] in [0, 1] -> log-probabilities [N, 9]; in training mode also the
-        points [N, 2K] ((u, v) x K) scaled to [-1, 1], the target `fit._corner_loss` trains."""
+        corners [N, 8] ((u, v) x 4) scaled to [-1, 1], the target `fit._corner_loss` trains."""
         if not self.training:
             return self.logits(x)
         heat, presence = self._encode((x - self.mean) / self.std)
-        q, H = self._board(heat)
-        # the class loss trains the presence logit only; the points learn from their own loss
+        q = self._soft_argmax(heat)
+        # the class loss trains the presence logit only; the corners learn from their own loss
         with torch.no_grad():
-            pk = self._classes_if_present(x, H)
+            pk = self._classes_if_present(x, q)
         log_present = F.logsigmoid(presence)[:, None]
         log_absent = F.logsigmoid(-presence)[:, None]
         log_p = torch.cat([log_absent, log_present + torch.log(pk.clamp_min(1e-7))], 1)
-        return log_p, (q * self.px_to_unit - 1.0).reshape(len(x), -1)
+        return log_p, (q * self.px_to_unit - 1.0).reshape(-1, 8)

@@ -183,8 +183,8 @@ def fold_batch_norm(net: PoseNet) -> PoseNet:
     return plain
 
 
-#: Architectures: "spec" (`PoseNet`, SPEC section 8), "convnet" (`train.network.convnet`),
-#: "keypoint" (`train.network.keypoint`) and "grid" (`train.network.grid`).
+#: Architectures: "spec" (`PoseNet`, SPEC section 8), "convnet" (`train.network.convnet`) and
+#: "keypoint" (`train.network.keypoint`).
 ARCHS: tuple[str, ...] = get_args(Arch)
 
 
@@ -193,20 +193,18 @@ def build_network(
 ) -> NormalisedNet:
     """A fresh network of architecture `arch` for input `size` (W, H); `profile` (a data set
     manifest's profile: width_cm, height_cm, z_split_cm, focal_scale range) sets the geometry
-    of the keypoint and grid networks (default: the chessboard's)."""
+    of the keypoint network (default: the chessboard's)."""
     if arch == "spec":
         return PoseNet(size, batch_norm=batch_norm)
     if arch == "convnet":
         from train.network.convnet import ConvNet
 
         return ConvNet(size)
-    if arch in ("keypoint", "grid"):
-        from train.network.grid import GridNet
+    if arch == "keypoint":
         from train.network.keypoint import SQUARES, KeypointNet
 
-        kind = GridNet if arch == "grid" else KeypointNet
         if not profile:
-            return kind(size)
+            return KeypointNet(size)
         w_cm, h_cm = float(profile["width_cm"]), float(profile["height_cm"])
         if abs(w_cm / h_cm - SQUARES[0] / SQUARES[1]) > 1e-3:
             raise ValueError(
@@ -215,7 +213,7 @@ def build_network(
                 "(use convnet or spec)"
             )
         lo, hi = profile.get("focal_scale", [1.0, 1.0])
-        return kind(
+        return KeypointNet(
             size,
             board_cm=(w_cm, h_cm),
             z_split_cm=float(profile["z_split_cm"]),
@@ -228,13 +226,10 @@ def build_network(
 def arch_of(net: NormalisedNet) -> str:
     """The architecture name of a network built by `build_network`."""
     from train.network.convnet import ConvNet
-    from train.network.grid import GridNet
 
     if isinstance(net, PoseNet):
         return "spec"
-    if isinstance(net, ConvNet):
-        return "convnet"
-    return "grid" if isinstance(net, GridNet) else "keypoint"
+    return "convnet" if isinstance(net, ConvNet) else "keypoint"
 
 
 def export_form(net: NormalisedNet) -> NormalisedNet:
