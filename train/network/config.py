@@ -20,7 +20,7 @@ from pydantic import TypeAdapter, ValidationError
 
 Optimizer = Literal["sgd", "adam"]
 Schedule = Literal["cosine", "step", "constant"]
-Arch = Literal["spec", "convnet", "keypoint"]
+Arch = Literal["spec", "convnet", "keypoint", "keypoint-s2"]
 
 
 def _opt(default: Any, help: str, **bounds: Any) -> Any:
@@ -40,8 +40,9 @@ class FitConfig:
     batch_size: int = _opt(32, "Images per batch.", min=1)
     arch: Arch = _opt(
         "spec",
-        "Network: spec (SPEC section 8), convnet (train.network.convnet) or keypoint "
-        "(train.network.keypoint).",
+        "Network: spec (SPEC section 8), convnet (train.network.convnet), keypoint "
+        "(train.network.keypoint) or keypoint-s2 (its heat maps at stride 2; with `init` a "
+        "keypoint checkpoint, it starts from that network's weights).",
     )
     optimizer: Optimizer = _opt("sgd", "sgd (with momentum) or adam.")
     lr: float = _opt(0.001, "Learning rate.", min=0.0)

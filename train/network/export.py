@@ -26,6 +26,8 @@ ARCHITECTURES = {
     "convnet": "convnet: train/network/convnet.py (ReLU, batch norm, max pooling, 3x4 head)",
     "keypoint": "keypoint: train/network/keypoint.py (U-Net corner heat maps, class from the "
     "corners' pose with a prior camera and the squares' colour parity)",
+    "keypoint-s2": "keypoint-s2: train/network/keypoint.py with corner heat maps at 80x60 "
+    "(stride 2)",
 }
 INPUT_NAME = "image"
 OUTPUT_NAME = "probabilities"

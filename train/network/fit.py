@@ -334,6 +334,8 @@ def _initial_network(
                 f"--init checkpoint {config.init} takes {net.size[0]}x{net.size[1]} "
                 f"images but the data sets are {size[0]}x{size[1]}"
             )
+        if config.arch == "keypoint-s2" and arch_of(net) == "keypoint":
+            return _grown(net, build_network(config.arch, size, profile=profile)), parent
         return net, parent
     try:
         net = build_network(config.arch, size, config.batch_norm, profile)
@@ -342,6 +344,17 @@ def _initial_network(
     mean, std = channel_stats(torch.from_numpy(train.images))
     net.set_normalisation(mean, std)
     return net, None
+
+
+def _grown(parent: NormalisedNet, net: NormalisedNet) -> NormalisedNet:
+    """`net` with every parameter and buffer of `parent` that has the same name and shape
+    (the layers `net` adds or reshapes keep their fresh initialisation)."""
+    own = net.state_dict()
+    net.load_state_dict(
+        {k: v for k, v in parent.state_dict().items() if k in own and own[k].shape == v.shape},
+        strict=False,
+    )
+    return net
 
 
 def _resume(

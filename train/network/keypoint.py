@@ -8,7 +8,8 @@ on the x/y side, `docs/results.md`). This network finds the board's four corners
 and the class follows from them as the SPEC labels define it:
 
     corners   U-Net: encoder 160x120 -> 10x7 (ReLU + batch norm + max pooling), decoder back
-              to 40x30; 4 heat maps [N, 4, 30, 40], soft-argmax -> corners [N, 4, 2] px
+              to 40x30 (or, `stride` 2, to 80x60 with the stem's features); 4 heat maps
+              [N, 4, 30, 40] (or [N, 4, 60, 80]), soft-argmax -> corners [N, 4, 2] px
     pose      homography of the board rectangle onto the corners (closed form), pose with a
               pinhole camera (principal point at the image centre, the focal length that makes
               the board's axes orthogonal, clamped to the profile's range), camera centre
@@ -40,7 +41,7 @@ from train.network.convnet import _conv
 from train.network.model import NormalisedNet
 
 SIZE = (160, 120)
-STRIDE = 4  # input pixels per heat-map pixel
+STRIDES = (4, 2)  # input pixels per heat-map pixel: 40x30 maps, or 80x60 ("keypoint-s2")
 SQUARES = (10, 7)  # squares of the board along its width (x) and height (y)
 
 
@@ -51,7 +52,8 @@ def _block(cin: int, cout: int) -> nn.Sequential:
 class KeypointNet(NormalisedNet):
     """The network above for input `size` (W, H) = 160x120 and a board of `board_cm`
     (width, height) with the region split `z_split_cm`; the camera prior is the SPEC camera
-    with its focal length times `focal_scale` and the principal point at the image centre."""
+    with its focal length times `focal_scale` and the principal point at the image centre;
+    heat maps at `stride` 4 or 2 input pixels."""
 
     corner_order = "upper"  # `fit._corner_loss`: corner 0 is the upper end of the 0-2 diagonal
 
@@ -63,6 +65,7 @@ class KeypointNet(NormalisedNet):
         focal_scale: float = 0.6,
         focal_range: tuple[float, float] = (0.45, 0.8),
         self_calibrate: bool = True,
+        stride: int = 4,
     ) -> None:
         super().__init__()
         size = (int(size[0]), int(size[1]))
@@ -70,7 +73,10 @@ class KeypointNet(NormalisedNet):
             raise ValueError(
                 f"unsupported input size {size[0]}x{size[1]}; the network takes 160x120"
             )
+        if stride not in STRIDES:
+            raise ValueError(f"unsupported heat-map stride {stride}; one of {STRIDES}")
         self.size = size
+        self.stride = stride
         self.batch_norm = True
         self.stem = _conv(3, 16, 3, 2)  # 80x60
         self.down1 = _block(16, 32)  # 40x30
@@ -79,13 +85,15 @@ class KeypointNet(NormalisedNet):
         self.reduce = _conv(128, 32, 1)
         self.up2 = _conv(32 + 64, 32)  # 20x15
         self.up1 = _conv(32 + 32, 32)  # 40x30
-        self.heat = nn.Conv2d(32, 4, 1)
+        # stride 2: one more decoder step, on the stem's 80x60 features
+        self.up0 = _conv(32 + 16, 16) if stride == 2 else None
+        self.heat = nn.Conv2d(16 if stride == 2 else 32, 4, 1)
         self.presence = nn.Sequential(
             nn.Flatten(), nn.Linear(2 * 128, 64), nn.ReLU(), nn.Linear(64, 1)
         )
-        w, h = size[0] // STRIDE, size[1] // STRIDE
-        self.register_buffer("grid_u", (torch.arange(w) * STRIDE + (STRIDE - 1) / 2).float())
-        self.register_buffer("grid_v", (torch.arange(h) * STRIDE + (STRIDE - 1) / 2).float())
+        w, h = size[0] // stride, size[1] // stride
+        self.register_buffer("grid_u", (torch.arange(w) * stride + (stride - 1) / 2).float())
+        self.register_buffer("grid_v", (torch.arange(h) * stride + (stride - 1) / 2).float())
         self.register_buffer(
             "px_to_unit", torch.tensor([2.0 / size[0], 2.0 / size[1]]), persistent=False
         )
@@ -125,12 +133,16 @@ class KeypointNet(NormalisedNet):
 
     # -- network -------------------------------------------------------------------------------
     def _encode(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Normalised RGB [N, 3, 120, 160] -> heat-map logits [N, 4, 30, 40], presence [N]."""
-        s1 = self.down1(F.max_pool2d(self.stem(x), 2))
+        """Normalised RGB [N, 3, 120, 160] -> heat-map logits [N, 4, 30, 40] (stride 2:
+        [N, 4, 60, 80]), presence [N]."""
+        s0 = self.stem(x)
+        s1 = self.down1(F.max_pool2d(s0, 2))
         s2 = self.down2(F.max_pool2d(s1, 2))
         s3 = self.down3(F.max_pool2d(s2, 2))
         u = self.up2(torch.cat([F.interpolate(self.reduce(s3), size=s2.shape[2:]), s2], 1))
         u = self.up1(torch.cat([F.interpolate(u, size=s1.shape[2:]), s1], 1))
+        if self.up0 is not None:
+            u = self.up0(torch.cat([F.interpolate(u, size=s0.shape[2:]), s0], 1))
         pooled = torch.cat([s3.mean((2, 3)), s3.amax((2, 3))], 1)
         return self.heat(u), self.presence(pooled)[:, 0]
 

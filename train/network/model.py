@@ -183,8 +183,8 @@ def fold_batch_norm(net: PoseNet) -> PoseNet:
     return plain
 
 
-#: Architectures: "spec" (`PoseNet`, SPEC section 8), "convnet" (`train.network.convnet`) and
-#: "keypoint" (`train.network.keypoint`).
+#: Architectures: "spec" (`PoseNet`, SPEC section 8), "convnet" (`train.network.convnet`),
+#: "keypoint" and "keypoint-s2" (`train.network.keypoint`, heat maps at stride 4 / 2).
 ARCHS: tuple[str, ...] = get_args(Arch)
 
 
@@ -200,11 +200,12 @@ def build_network(
         from train.network.convnet import ConvNet
 
         return ConvNet(size)
-    if arch == "keypoint":
+    if arch in ("keypoint", "keypoint-s2"):
         from train.network.keypoint import SQUARES, KeypointNet
 
+        stride = 2 if arch == "keypoint-s2" else 4
         if not profile:
-            return KeypointNet(size)
+            return KeypointNet(size, stride=stride)
         w_cm, h_cm = float(profile["width_cm"]), float(profile["height_cm"])
         if abs(w_cm / h_cm - SQUARES[0] / SQUARES[1]) > 1e-3:
             raise ValueError(
@@ -219,6 +220,7 @@ def build_network(
             z_split_cm=float(profile["z_split_cm"]),
             focal_scale=math.sqrt(float(lo) * float(hi)),
             focal_range=(float(lo), float(hi)),
+            stride=stride,
         )
     raise ValueError(f"unknown architecture {arch!r}; known: {', '.join(ARCHS)}")
 
@@ -229,7 +231,9 @@ def arch_of(net: NormalisedNet) -> str:
 
     if isinstance(net, PoseNet):
         return "spec"
-    return "convnet" if isinstance(net, ConvNet) else "keypoint"
+    if isinstance(net, ConvNet):
+        return "convnet"
+    return "keypoint-s2" if getattr(net, "stride", 4) == 2 else "keypoint"
 
 
 def export_form(net: NormalisedNet) -> NormalisedNet:

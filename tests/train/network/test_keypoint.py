@@ -12,9 +12,11 @@ from torch import nn
 
 from train.geometry import look_at, pose_class, project_points, translation
 from train.network.export import onnx_bytes
+from train.network.fit import FitConfig, _grown, fit, load_network
 from train.network.keypoint import KeypointNet
 from train.network.model import arch_of, build_network
 from train.profile import load_profile
+from train.synth.generate import DatasetSpec, make_dataset
 
 PROFILE = load_profile("chessboard")
 HALF = np.array([PROFILE.width_cm / 2, PROFILE.height_cm / 2])
@@ -100,11 +102,12 @@ def test_class_probabilities_follow_the_centre_and_the_parity():
 
 
 class _FixedHeat(nn.Module):
-    """Heat-map logits [N, 4, 30, 40] peaked at given corners, whatever the features."""
+    """Heat-map logits [N, 4, 120 / stride, 160 / stride] peaked at given corners, whatever
+    the features."""
 
-    def __init__(self, corners: np.ndarray) -> None:
+    def __init__(self, corners: np.ndarray, stride: int = 4) -> None:
         super().__init__()
-        v, u = np.mgrid[0:30, 0:40] * 4 + 1.5
+        v, u = np.mgrid[0 : 120 // stride, 0 : 160 // stride] * stride + (stride - 1) / 2
         d2 = (u[None] - corners[:, :1, None]) ** 2 + (v[None] - corners[:, 1:, None]) ** 2
         self.register_buffer("maps", torch.from_numpy(-d2 / 8.0).float()[None])
 
@@ -112,11 +115,12 @@ class _FixedHeat(nn.Module):
         return self.maps.expand(x.shape[0], -1, -1, -1)
 
 
-def test_the_exported_graph_decodes_like_torch():
+@pytest.mark.parametrize("stride", [4, 2])
+def test_the_exported_graph_decodes_like_torch(stride):
     torch.manual_seed(0)
-    net = KeypointNet()
+    net = KeypointNet(stride=stride)
     corners = _view(net, (14.0, -9.0, 42.0), 25.0)
-    net.heat = _FixedHeat(corners)
+    net.heat = _FixedHeat(corners, stride)
     net.eval()
     x = _input(_board_image(corners)).repeat(3, 1, 1, 1).numpy()
     with torch.no_grad():
@@ -143,5 +147,36 @@ def test_training_mode_outputs_and_build():
     assert net.presence[-1].weight.grad is not None and net.heat.weight.grad is not None
     with pytest.raises(ValueError, match="unsupported input size 80x60"):
         KeypointNet((80, 60))
+    with pytest.raises(ValueError, match="unsupported heat-map stride 3"):
+        KeypointNet(stride=3)
     with pytest.raises(ValueError, match="10 x 7-square checkerboard; profile 'poster'"):
         build_network("keypoint", (160, 120), profile=profile | {"name": "poster", "height_cm": 20})
+
+
+def test_stride_2_heat_maps_and_growing_from_a_stride_4_network():
+    torch.manual_seed(0)
+    parent = KeypointNet()
+    net = build_network("keypoint-s2", (160, 120))
+    assert arch_of(net) == "keypoint-s2" and arch_of(parent) == "keypoint"
+    x = torch.rand(2, 3, 120, 160)
+    assert net._encode(x)[0].shape == (2, 4, 60, 80)
+    grown = _grown(parent, net)
+    ours, theirs = grown.state_dict(), parent.state_dict()
+    shared = [k for k in theirs if k in ours and ours[k].shape == theirs[k].shape]
+    assert all(torch.equal(ours[k], theirs[k]) for k in shared)
+    assert {"heat.weight", "grid_u", "grid_v"} <= set(theirs) - set(shared)  # reshaped: fresh
+    assert "up0.0.weight" in ours and "up0.0.weight" not in theirs
+
+
+def test_fit_grows_a_stride_2_network_from_a_keypoint_checkpoint(tmp_path):
+    data = tmp_path / "tiny160"
+    make_dataset(data, DatasetSpec("noC", 2, 0, 27, 4, PROFILE))
+    base = {"epochs": 1, "batch_size": 8, "progress": False, "threads": 1, "optimizer": "adam"}
+    fit(FitConfig(datasets=[data], out=tmp_path / "kp", arch="keypoint", **base))
+    init = tmp_path / "kp" / "best.pt"
+    fit(FitConfig(datasets=[data], out=tmp_path / "s2", arch="keypoint-s2", init=init, **base))
+    parent, _ = load_network(init)
+    grown, checkpoint = load_network(tmp_path / "s2" / "last.pt")
+    assert arch_of(grown) == "keypoint-s2" and checkpoint["arch"] == "keypoint-s2"
+    assert checkpoint["parent"]["checkpoint"] == str(init)
+    assert grown.heat.weight.shape == (4, 16, 1, 1)
