@@ -92,8 +92,11 @@ def evaluate_peer(
     labels: np.ndarray,
     cameras: Sequence[Camera],
     progress: Callable[[int], Any] | None = None,
+    margin_cm: np.ndarray | None = None,
 ) -> tuple[dict, dict[str, int]]:
-    """SPEC 10 metrics (`train.network.evaluate.compute_metrics`) and the failure reasons."""
+    """SPEC 10 metrics (`train.network.evaluate.compute_metrics`, by the cameras' margins
+    [N] cm when given) and the failure reasons."""
     preds, ms = run_baseline(peer, images, cameras, progress)
-    metrics = compute_metrics(labels, np.array([p.label for p in preds], np.int64), ms)
+    predicted = np.array([p.label for p in preds], np.int64)
+    metrics = compute_metrics(labels, predicted, ms, margin_cm)
     return metrics, failure_summary(preds)

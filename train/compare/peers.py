@@ -114,7 +114,7 @@ def run_chessboard_on(
         return None
     with _bar(len(data.labels), f"chessboard detector on {data.path.name}", verbose) as bar:
         metrics, failures = evaluate_peer(
-            peer, data.images, data.labels, _cameras(data), bar.update
+            peer, data.images, data.labels, _cameras(data), bar.update, data.boundary_margin_cm()
         )
     return metrics, {"tuning": None, "failures": failures}
 

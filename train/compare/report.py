@@ -2,8 +2,9 @@
 `train.markdown.table`, percentages through `train.markdown.pct`.
 
 A *row* is one data set: `name`, `object`, `kind`, `size` (W, H), `blur`, `real`, `n`,
-`acc` / `ms` {method: accuracy in [0, 1] / ms per image}, `info` {peer: {failures, tuning}}
-and `reference` {peer: (what was measured, metrics) on the stored photos, or None}.
+`acc` / `ms` {method: accuracy in [0, 1] / ms per image}, `margin` {method: `by_margin` bands
+of `train.network.evaluate.margin_breakdown`}, `info` {peer: {failures, tuning}} and
+`reference` {peer: (what was measured, metrics) on the stored photos, or None}.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ import numpy as np
 from train.compare.detection import PROPOSALS_MAX
 from train.compare.sets import finetuned_on_real
 from train.markdown import link, pct, pct_cell, table
+from train.network.report import band_label
 
 #: The peer the chessboard section is about (`train.compare.peers.peer_name("chessboard")`).
 CHESSBOARD = "opencv-chessboard"
@@ -322,6 +324,30 @@ def real_blur_section(ctx: ReportContext, rows: list[dict]) -> list[str]:
     return lines + [""]
 
 
+def margin_section(ctx: ReportContext, rows: list[dict]) -> list[str]:
+    """Real photographs at blur 0 and 3: accuracy of every method by the camera centre's
+    distance from the nearest region boundary."""
+    real_rows = [r for r in rows if r["real"] and str(r["blur"]) in ("0", "3") and r["margin"]]
+    if not real_rows:
+        return []
+    lines = [
+        "## Real photographs by the camera's distance from a region boundary",
+        "",
+        "Accuracy on the photos that show the board, by how far the labelled camera centre "
+        "is from the nearest region boundary (x = 0, y = 0 or z = z_split in the board's "
+        "frame). Near a boundary a class asks for the view direction to a few degrees.",
+        "",
+    ]
+    body, labels = [], []
+    for r in sorted(real_rows, key=lambda r: (r["size"], str(r["blur"]))):
+        for method, bands in r["margin"].items():
+            if bands:
+                labels = [f"{band_label(b)} % (n)" for b in bands]
+                cells = [f"{pct_cell(b['accuracy'])} ({b['count']})" for b in bands]
+                body.append([f"{r['size'][0]}x{r['size'][1]}", str(r["blur"]), method, *cells])
+    return lines + table(["size", "blur", "method", *labels], body) + [""]
+
+
 def detection_section(detections: dict[str, dict[str, dict[str, dict]]]) -> list[str]:
     """Whole image vs sliding windows vs object proposals, per model and image set."""
     lines = ["## Detection variants: whole image, sliding windows, object proposals", ""]
@@ -379,6 +405,7 @@ def comparison_markdown(
         + chessboard_section(ctx, rows)
         + peers_section(ctx, rows)
         + real_blur_section(ctx, rows)
+        + margin_section(ctx, rows)
         + detection_section(detections)
         + links_section(ctx, details)
     )

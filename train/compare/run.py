@@ -125,12 +125,15 @@ def measure_dataset(
     desc = describe(folder, data.images)
     key = f"{desc['object']}/{folder.name}"
     row = {"name": key, **desc, "n": len(data.labels), "acc": {}, "ms": {}, "info": {}}
+    row["margin"] = {}
     measured: dict[str, dict] = {}
     for name, (_, predict, size, card) in models.items():
         if tuple(size) != desc["size"] or not same_object(card, folder):
             continue
         with tqdm(total=len(data.labels), desc=f"{name} on {folder.name}") as bar:
-            measured[name] = evaluate_predictor(predict, data.images, data.labels, bar.update)
+            measured[name] = evaluate_predictor(
+                predict, data.images, data.labels, bar.update, data.boundary_margin_cm()
+            )
     for kind in config.peer_kinds():
         out = run_peer_on(data, kind, config.split, config.tune, config.limit, verbose=True)
         if out is not None:
@@ -138,6 +141,7 @@ def measure_dataset(
     for name, m in measured.items():
         results.setdefault(name, {})[key] = m
         row["acc"][name], row["ms"][name] = m["accuracy"], m["ms_per_image"]
+        row["margin"][name] = m.get("by_margin")
     row["reference"] = (
         _reference(data, key, cache, results) if "chessboard" in config.peer_kinds() else None
     )

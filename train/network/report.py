@@ -122,15 +122,18 @@ def _regions_line(metrics: dict) -> list[str]:
     ]
 
 
+def band_label(band: dict) -> str:
+    """'2-5 cm' or '>= 10 cm' for a `by_margin` band."""
+    if band["hi_cm"] is None:
+        return f">= {band['lo_cm']:g} cm"
+    return f"{band['lo_cm']:g}-{band['hi_cm']:g} cm"
+
+
 def margin_line(bands: list[dict] | None) -> str:
     """`by_margin` bands as one sentence ('' without them)."""
     if not bands:
         return ""
-    parts = [
-        (f"{b['lo_cm']:g}-{b['hi_cm']:g} cm" if b["hi_cm"] is not None else f">= {b['lo_cm']:g} cm")
-        + f": {pct_cell(b['accuracy'])} % of {b['count']}"
-        for b in bands
-    ]
+    parts = [f"{band_label(b)}: {pct_cell(b['accuracy'])} % of {b['count']}" for b in bands]
     return (
         "Right class by the camera centre's distance from the nearest region boundary: "
         + ", ".join(parts)

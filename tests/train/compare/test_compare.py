@@ -14,6 +14,7 @@ from train.cli import app
 from train.compare.detection import detection_variants
 from train.compare.sets import encode_png
 from train.dataset import load_dataset
+from train.markdown import pct_cell
 from train.network.evaluate import evaluate_predictor, onnx_predictor
 from train.real.realset import build_real_dataset
 
@@ -85,6 +86,18 @@ def test_report_has_the_chessboard_peer_rows(report, real_sets):
     assert "stored photos, no blur (chessboard-stereo photos" in section
     assert f"At {w}x{h}, real (chessboard-stereo): the network (`default`) is ahead at" in section
     assert "detector / CNN time" in section and "The detector took" in section
+
+
+def test_report_breaks_the_real_photos_down_by_the_cameras_margin(report):
+    text = report.read_text()
+    metrics = json.loads((report.with_suffix("") / "metrics.json").read_text())["results"]
+    section = text.split("## Real photographs by the camera's distance")[1].split("\n## ")[0]
+    assert "| 0-2 cm % (n) | 2-5 cm % (n) | 5-10 cm % (n) | >= 10 cm % (n) |" in section
+    for name in ("default", "opencv-chessboard"):
+        bands = next(iter(metrics[name].values()))["by_margin"]
+        assert sum(b["count"] for b in bands) == 6  # every test photo shows the board
+        cells = " | ".join(f"{pct_cell(b['accuracy'])} ({b['count']})" for b in bands)
+        assert f"| {name} | {cells} |" in section
 
 
 def test_detection_variants_are_reported(report):
