@@ -141,7 +141,8 @@ def check_summary(check: dict[str, Any]) -> str:
     """One paragraph: how often the independent labeller agrees on the class, and which
     photos it read (the stored ones, or the full-resolution originals where found)."""
     return (
-        f"`train.real.crosscheck` (classic corner detector, IPPE PnP, corner-square colours) "
+        "`train.real.crosscheck` (classic corner detector, IPPE PnP refined by OpenCV's "
+        "Levenberg-Marquardt, corner-square colours) "
         f"found the board in {check['found']} of {check['count']} labelled photos; the class "
         f"agrees on {pct(check['agreement'])} of them ({check['agree']} / {check['found']}); "
         f"median camera-centre difference {check['median_diff_cm']:.2f} cm."

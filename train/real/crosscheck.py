@@ -5,7 +5,9 @@ labeller, and differs in every step that decides the class:
 
 * corners: OpenCV's classic `cv2.findChessboardCorners` + `cornerSubPix` (not the
   sector-based detector);
-* pose: `cv2.solvePnP` with IPPE on the distorted points (not undistortion + normalised DLT);
+* pose: `cv2.solvePnP` with IPPE on the distorted points, refined by OpenCV's
+  Levenberg-Marquardt (`cv2.solvePnPRefineLM`) to the least reprojection error, as any
+  maximum-likelihood pose is (not undistortion + normalised DLT + this project's refinement);
 * half turn: the colour of the four corner squares of the 10 x 7 board (the two on the -X
   side are black), sampled outside the inner-corner grid (not the parity of the inner squares).
 
@@ -81,7 +83,10 @@ def independent_centre(
     for sx, sy in ((1, 1), (-1, -1), (1, -1), (-1, 1)):
         obj = np.column_stack([grid * [sx, sy], np.zeros(len(grid))])
         ok, rvec, tvec = cv2.solvePnP(obj, raw, K, dist, flags=cv2.SOLVEPNP_IPPE)
-        if ok and (-cv2.Rodrigues(rvec)[0].T @ tvec)[2, 0] > 0:
+        if not ok:
+            continue
+        rvec, tvec = cv2.solvePnPRefineLM(obj, raw, K, dist, rvec, tvec)
+        if (-cv2.Rodrigues(rvec)[0].T @ tvec)[2, 0] > 0:
             front.append((rvec, tvec))
     if not front:
         return None
