@@ -180,7 +180,7 @@ def verdict(group: list[dict], model: str, peer: str, models: Sequence[str]) -> 
     ]
     if level:
         parts.append(f"they are level at blur {', '.join(level)}")
-    ratios = time_ratios(mine, peer, models)
+    ratios = time_ratios(mine, peer, [model])
     timing = (
         f" The detector took {min(ratios):.0f}-{max(ratios):.0f}x the network's time per image."
         if ratios
@@ -228,25 +228,26 @@ def chessboard_section(ctx: ReportContext, rows: list[dict]) -> list[str]:
         groups.setdefault((r["kind"], r["size"]), []).append(r)
     for (kind, size), group in groups.items():
         models = [m for m in ctx.models if any(m in r["acc"] for r in group)]
+        best = _best_model(group, models)
+        timed = [best] if best is not None else models  # the network the verdict names
         header = ["blur", "n", *(f"{m} %" for m in models), f"{CHESSBOARD} %"]
-        header += ["CNN ms", f"{CHESSBOARD} ms", "detector / CNN time"]
+        header += [f"{best or 'CNN'} ms", f"{CHESSBOARD} ms", "detector / CNN time"]
         body = []
         for r in group:
-            ratio = time_ratio(r, CHESSBOARD, models)
+            ratio = time_ratio(r, CHESSBOARD, timed)
             body.append(
                 [
                     str(r["blur"]),
                     str(r["n"]),
                     *(pct_cell(r["acc"].get(m)) for m in models),
                     pct_cell(r["acc"][CHESSBOARD]),
-                    _ms(cnn_ms(r, models)),
+                    _ms(cnn_ms(r, timed)),
                     _ms(r["ms"][CHESSBOARD], 1),
                     "-" if ratio is None else f"{ratio:.0f}x",
                 ]
             )
         body += _reference_rows(group, CHESSBOARD, len(models))
         lines += [f"### {kind}, {size[0]}x{size[1]}", "", *table(header, body), ""]
-        best = _best_model(group, models)
         if best is not None:
             lines += [verdict(group, best, CHESSBOARD, models), ""]
     return lines
