@@ -202,12 +202,18 @@ def scale_label(label: Label, scale: float, size: tuple[int, int]) -> Label:
     return replace(label, camera=label.camera.scaled(size), corners=corners)
 
 
+def stored_size(size: tuple[int, int]) -> tuple[int, int]:
+    """The size (W, H) a photo of `size` is stored at: longer side at most STORE_MAX_SIDE,
+    sides rounded."""
+    scale = min(1.0, STORE_MAX_SIDE / max(size))
+    return (round(size[0] * scale), round(size[1] * scale)) if scale < 1.0 else tuple(size)
+
+
 def store_image(rgb: np.ndarray, path: Path) -> tuple[np.ndarray, float]:
     """Write `rgb` with its longer side at most STORE_MAX_SIDE (JPEG); (stored RGB, scale)."""
-    scale = min(1.0, STORE_MAX_SIDE / max(rgb.shape[:2]))
-    small = rgb
-    if scale < 1.0:
-        wh = (round(rgb.shape[1] * scale), round(rgb.shape[0] * scale))
+    wh = stored_size((rgb.shape[1], rgb.shape[0]))
+    small, scale = rgb, 1.0
+    if wh != (rgb.shape[1], rgb.shape[0]):
         small = cv2.resize(rgb, wh, interpolation=cv2.INTER_AREA)
         scale = wh[0] / rgb.shape[1]
     bgr = cv2.cvtColor(small, cv2.COLOR_RGB2BGR)

@@ -17,7 +17,7 @@ The stored photos are downscaled (longer side at most 640 px) while the labels w
 full resolution. Given `originals` (a folder laid out like the staged sources,
 `<originals>/<source>/images/<original>`, the file named by the `original` column of
 labels.csv), the check reads each photo's full-resolution original instead, with the stored
-intrinsics scaled back to the original's size (`intrinsics_for_size`). A photo whose original
+intrinsics scaled back to the original's size (`Camera.scaled`). A photo whose original
 is missing, or is not of a size the stored photo could have been made from, is read as
 stored; the row says which (`read`: "original" or "stored"; `fallback`: why, or None).
 """
@@ -32,8 +32,9 @@ import cv2
 import numpy as np
 
 from train.geometry import pose_class
+from train.real.calibration import Camera
 from train.real.corners import ChessboardPattern
-from train.real.corpus import STORE_MAX_SIDE
+from train.real.corpus import stored_size
 
 
 def _classic_corners(grey: np.ndarray, pattern: ChessboardPattern) -> np.ndarray | None:
@@ -105,44 +106,28 @@ def original_path(originals: Path, source: str, original: str) -> Path:
     return originals / source / "images" / original
 
 
-def stored_size(size: tuple[int, int]) -> tuple[int, int]:
-    """The size (W, H) a photo of `size` is stored at (longer side at most STORE_MAX_SIDE,
-    sides rounded, as `train.real.corpus.store_image` does)."""
-    scale = min(1.0, STORE_MAX_SIDE / max(size))
-    return (round(size[0] * scale), round(size[1] * scale)) if scale < 1.0 else tuple(size)
-
-
-def intrinsics_for_size(K: np.ndarray, size: tuple[int, int], new: tuple[int, int]) -> np.ndarray:
-    """K (3, 3) of a photo of `size` (W, H) for the same photo resized to `new` (W, H).
-
-    Per axis s = new / size, with pixel centres at integers (u' + 0.5 = (u + 0.5) * s), the
-    convention the corpus used to scale the full-resolution labels down, so that scaling
-    the stored K back to the original's size inverts it. Distortion does not depend on it.
-    """
-    sx, sy = new[0] / size[0], new[1] / size[1]
-    out = np.array(K, dtype=np.float64)
-    out[0, 0], out[0, 1], out[1, 1] = out[0, 0] * sx, out[0, 1] * sx, out[1, 1] * sy
-    out[0, 2] = (out[0, 2] + 0.5) * sx - 0.5
-    out[1, 2] = (out[1, 2] + 0.5) * sy - 0.5
-    return out
-
-
 def _photo(
     folder: Path, row: dict[str, str], K: np.ndarray, originals: Path | None
 ) -> tuple[np.ndarray | None, np.ndarray, str, str | None]:
-    """(grey image, its K, "original" | "stored", why the original was not used or None)."""
-    stored = cv2.imread(str(folder / row["file"]), cv2.IMREAD_GRAYSCALE)
+    """(grey image, its K, "original" | "stored", why the original was not used or None).
+
+    An original's K is the stored K scaled back to its size (`Camera.scaled`, the convention
+    the corpus scaled the full-resolution labels down with, so that this inverts it)."""
+
+    def stored(why: str | None) -> tuple[np.ndarray | None, np.ndarray, str, str | None]:
+        return cv2.imread(str(folder / row["file"]), cv2.IMREAD_GRAYSCALE), K, "stored", why
+
     if originals is None:
-        return stored, K, "stored", None
+        return stored(None)
     path = original_path(originals, folder.name, row.get("original") or "")
     grey = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE) if path.is_file() else None
     if grey is None:
-        return stored, K, "stored", "original not found"
+        return stored("original not found")
     size = (grey.shape[1], grey.shape[0])
     small = (int(row["width"]), int(row["height"]))
     if stored_size(size) != small:
-        return stored, K, "stored", "original of another size than the stored photo's"
-    return grey, intrinsics_for_size(K, small, size), "original", None
+        return stored("original of another size than the stored photo's")
+    return grey, Camera(K, np.zeros(5), small).scaled(size).K, "original", None
 
 
 def crosscheck_folder(

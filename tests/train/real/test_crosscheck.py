@@ -15,7 +15,8 @@ from train import ASSETS_DIR
 from train.cli import app
 from train.profile import load_profile
 from train.real.calibration import Camera
-from train.real.crosscheck import crosscheck_folder, intrinsics_for_size, stored_size
+from train.real.corpus import stored_size
+from train.real.crosscheck import crosscheck_folder
 from train.real.label import chessboard_pattern
 
 SOURCE = ASSETS_DIR / "real" / "corpus" / "boards" / "opencv__opencv__left"
@@ -59,9 +60,10 @@ def test_intrinsics_scaled_back_invert_the_corpus_downscaling():
     assert small == (640, 360) and stored_size((1544, 1032)) == (640, 428)
     assert stored_size((640, 480)) == (640, 480)
     stored = Camera(K, np.zeros(5), full).scaled(small).K  # as the corpus stored the label
-    assert intrinsics_for_size(stored, small, full) == pytest.approx(K, abs=1e-9)
+    back = Camera(stored, np.zeros(5), small).scaled(full).K
+    assert back == pytest.approx(K, abs=1e-9)
     # Pixel centres at integers: pixel 0 of the small image covers pixels 0 and 1 (centre 0.5).
-    centre = intrinsics_for_size(np.diag([1.0, 1.0, 1.0]), (2, 2), (4, 4))
+    centre = Camera(np.diag([1.0, 1.0, 1.0]), np.zeros(5), (2, 2)).scaled((4, 4)).K
     assert centre[0, 2] == pytest.approx(0.5) and centre[0, 0] == 2.0
 
 
