@@ -10,6 +10,9 @@ and the class follows from them as the SPEC labels define it:
     corners   U-Net: encoder 160x120 -> 10x7 (ReLU + batch norm + max pooling), decoder back
               to 40x30 (or, `stride` 2, to 80x60 with the stem's features); 4 heat maps
               [N, 4, 30, 40] (or [N, 4, 60, 80]), soft-argmax -> corners [N, 4, 2] px
+    align     the corners moved to sub-pixel accuracy by aligning the checker pattern to the
+              image (`train.network.align`: Gauss-Newton, no weights; not in training, where
+              the class loss does not depend on them)
     pose      homography of the board rectangle onto the corners (closed form), pose with a
               pinhole camera (principal point at the image centre, the focal length that makes
               the board's axes orthogonal, clamped to the profile's range), camera centre
@@ -25,7 +28,7 @@ and the class follows from them as the SPEC labels define it:
 The heat-map channels are trained on the corners up to a half turn: of the two orders, the
 target is the one whose corner 0 is the upper end of the 0-2 diagonal (`fit._corner_loss`);
 parity is not learned. Input: float32 [N, 3, 120, 160], RGB in [0, 1]. Output of `forward`:
-log-probabilities [N, 9] (`corners` gives the corners).
+log-probabilities [N, 9] (`corners` gives the aligned corners).
 """
 
 from __future__ import annotations
@@ -37,6 +40,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from train.geometry import intrinsics
+from train.network.align import CheckerAlign, square_homography
 from train.network.convnet import _conv
 from train.network.model import NormalisedNet
 
@@ -88,6 +92,7 @@ class KeypointNet(NormalisedNet):
         # stride 2: one more decoder step, on the stem's 80x60 features
         self.up0 = _conv(32 + 16, 16) if stride == 2 else None
         self.heat = nn.Conv2d(16 if stride == 2 else 32, 4, 1)
+        self.align = CheckerAlign(size, SQUARES)  # no weights: geometry only
         self.presence = nn.Sequential(
             nn.Flatten(), nn.Linear(2 * 128, 64), nn.ReLU(), nn.Linear(64, 1)
         )
@@ -155,30 +160,12 @@ class KeypointNet(NormalisedNet):
         return torch.stack([u, v], 2)
 
     def corners(self, x: torch.Tensor) -> torch.Tensor:
-        """RGB [N, 3, H, W] in [0, 1] -> the four corners [N, 4, 2] px, in the order
-        (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y) or its half turn, corner 0 above corner 2."""
-        return self._soft_argmax(self._encode((x - self.mean) / self.std)[0])
+        """RGB [N, 3, H, W] in [0, 1] -> the four corners [N, 4, 2] px, aligned to the image,
+        in the order (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y) or its half turn."""
+        q = self._soft_argmax(self._encode((x - self.mean) / self.std)[0])
+        return self.align(x, q)[0]
 
     # -- geometry ------------------------------------------------------------------------------
-    def homography(self, q: torch.Tensor) -> torch.Tensor:
-        """Corners [N, 4, 2] px -> [N, 3, 3] homography of the unit square (0,0), (1,0), (1,1),
-        (0,1) onto them (Heckbert's closed form: exports to ONNX, no solver)."""
-        x0, x1, x2, x3 = q[:, 0, 0], q[:, 1, 0], q[:, 2, 0], q[:, 3, 0]
-        y0, y1, y2, y3 = q[:, 0, 1], q[:, 1, 1], q[:, 2, 1], q[:, 3, 1]
-        dx1, dx2, dx3 = x1 - x2, x3 - x2, x0 - x1 + x2 - x3
-        dy1, dy2, dy3 = y1 - y2, y3 - y2, y0 - y1 + y2 - y3
-        den = dx1 * dy2 - dx2 * dy1
-        den = torch.where(den.abs() < 1e-6, torch.full_like(den, 1e-6), den)
-        g = (dx3 * dy2 - dx2 * dy3) / den
-        h = (dx1 * dy3 - dx3 * dy1) / den
-        one = torch.ones_like(g)
-        rows = [
-            torch.stack([x1 - x0 + g * x1, x3 - x0 + h * x3, x0], 1),
-            torch.stack([y1 - y0 + g * y1, y3 - y0 + h * y3, y0], 1),
-            torch.stack([g, h, one], 1),
-        ]
-        return torch.stack(rows, 1)
-
     def focal_length(self, Hc: torch.Tensor) -> torch.Tensor:
         """Focal length [N] px for centred object-plane homographies Hc [N, 3, 3]: the prior, or
         the least-squares one that makes the images of the board's x and y axes orthogonal and
@@ -251,14 +238,14 @@ class KeypointNet(NormalisedNet):
     def _classes_if_present(self, x: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
         """RGB [N, 3, H, W] in [0, 1] and its corners [N, 4, 2] px -> P(class 1..8 | object
         present) [N, 8]: homography, parity, camera centre."""
-        H = self.homography(q)
+        H = square_homography(q)
         order_ok = torch.sigmoid(self.parity_gain * self.parity(x, H))
         return self.class_probabilities(self.camera_centre(H), order_ok)
 
     def logits(self, x: torch.Tensor) -> torch.Tensor:
         """RGB [N, 3, H, W] in [0, 1] -> log-probabilities [N, 9] (softmax gives them back)."""
         heat, presence = self._encode((x - self.mean) / self.std)
-        pk = self._classes_if_present(x, self._soft_argmax(heat))
+        pk = self._classes_if_present(x, self.align(x, self._soft_argmax(heat))[0])
         present = torch.sigmoid(presence)[:, None]
         return torch.log(torch.cat([1 - present, present * pk], 1).clamp_min(1e-7))
 

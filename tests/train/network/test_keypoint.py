@@ -13,6 +13,7 @@ from torch import nn
 from train.geometry import look_at, pose_class, project_points, translation
 from train.network.export import onnx_bytes
 from train.network.fit import FitConfig, _grown, fit, load_network
+from train.network.align import CheckerAlign, solve_spd, square_homography
 from train.network.keypoint import KeypointNet
 from train.network.model import arch_of, build_network
 from train.profile import load_profile
@@ -55,14 +56,14 @@ def _input(image: np.ndarray) -> torch.Tensor:
 def test_camera_centre_from_the_corners(centre, roll):
     net = KeypointNet()
     q = torch.from_numpy(_view(net, centre, roll)).float()[None]
-    H = net.homography(q)
+    H = square_homography(q)
     unit = torch.tensor([[0.0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]])
     mapped = torch.einsum("ij,kj->ki", H[0], unit)
     assert torch.allclose(mapped[:, :2] / mapped[:, 2:], q[0], atol=1e-3)
     c = net.camera_centre(H)[0].double().numpy()
     assert np.abs(c - centre).max() < 0.05
     # the half-turned order is the same board seen from (-cx, -cy, cz)
-    c_turned = net.camera_centre(net.homography(torch.roll(q, 2, 1)))[0].double().numpy()
+    c_turned = net.camera_centre(square_homography(torch.roll(q, 2, 1)))[0].double().numpy()
     assert np.abs(c_turned - np.array([-centre[0], -centre[1], centre[2]])).max() < 0.05
 
 
@@ -71,10 +72,10 @@ def test_self_calibration_recovers_the_focal_length():
     f_true = 0.72 * float(net.focal) / 0.6
     centre = (18.0, -14.0, 40.0)  # a tilted view: the focal length is observable
     q = torch.from_numpy(_view(net, centre, 40.0, f_true)).float()[None]
-    c = net.camera_centre(net.homography(q))[0].double().numpy()
+    c = net.camera_centre(square_homography(q))[0].double().numpy()
     assert np.abs(c - centre).max() < 0.3
     net.self_calibrate.fill_(0.0)  # the fixed prior (0.6) puts the camera closer
-    c_prior = net.camera_centre(net.homography(q))[0].double().numpy()
+    c_prior = net.camera_centre(square_homography(q))[0].double().numpy()
     assert c_prior[2] < centre[2] - 3.0
 
 
@@ -83,10 +84,10 @@ def test_parity_tells_the_half_turn():
     corners = _view(net, (12.0, 8.0, 45.0), 100.0)
     x = _input(_board_image(corners))
     q = torch.from_numpy(corners).float()[None]
-    assert float(net.parity(x, net.homography(q))) > 0.8
-    assert float(net.parity(x, net.homography(torch.roll(q, 2, 1)))) < -0.8
+    assert float(net.parity(x, square_homography(q))) > 0.8
+    assert float(net.parity(x, square_homography(torch.roll(q, 2, 1)))) < -0.8
     flat = torch.full_like(x, 0.5)  # no board: no parity evidence either way
-    assert abs(float(net.parity(flat, net.homography(q)))) < 0.05
+    assert abs(float(net.parity(flat, square_homography(q)))) < 0.05
 
 
 def test_class_probabilities_follow_the_centre_and_the_parity():
@@ -180,3 +181,37 @@ def test_fit_grows_a_stride_2_network_from_a_keypoint_checkpoint(tmp_path):
     assert arch_of(grown) == "keypoint-s2" and checkpoint["arch"] == "keypoint-s2"
     assert checkpoint["parent"]["checkpoint"] == str(init)
     assert grown.heat.weight.shape == (4, 16, 1, 1)
+
+
+def test_solve_spd_matches_a_linear_solver():
+    g = torch.Generator().manual_seed(0)
+    J = torch.randn(6, 8, 200, generator=g) * torch.tensor([1, 1, 3, 3, 0.3, 0.3, 1, 1.0])[:, None]
+    A, b = J @ J.transpose(1, 2), torch.randn(6, 8, generator=g)
+    want = torch.linalg.solve(A.double(), b.double())
+    assert ((solve_spd(A, b).double() - want).norm(dim=1) / want.norm(dim=1)).max() < 1e-4
+
+
+@pytest.mark.parametrize("blur", [0.0, 1.5])
+def test_alignment_moves_the_corners_onto_the_board(blur):
+    net = KeypointNet()
+    corners = _view(net, (12.0, -8.0, 45.0), 35.0)
+    image = _board_image(corners)
+    if blur:
+        image = cv2.GaussianBlur(image, (0, 0), blur)
+    x = _input(image)
+    off = torch.tensor([[1.8, -1.2], [-1.5, -1.6], [-1.0, 1.9], [1.7, 1.1]])
+    q = torch.from_numpy(corners).float()[None] + off
+    align = CheckerAlign((160, 120))
+    got, corr = align(x, q)
+    assert (got[0] - torch.from_numpy(corners).float()).norm(dim=1).max() < 0.4
+    assert float(corr) > 0.7
+    # the half-turned order aligns too, and its correlation tells the half turn
+    got_turned, corr_turned = align(x, torch.roll(q, 2, 1))
+    assert torch.allclose(got_turned, torch.roll(got, 2, 1), atol=0.05)
+    assert float(corr_turned) < -0.7
+
+
+def test_alignment_gives_back_the_corners_without_a_board():
+    q = torch.tensor([[[40.0, 30.0], [120.0, 32.0], [118.0, 90.0], [42.0, 88.0]]])
+    got, corr = CheckerAlign((160, 120))(torch.full((1, 3, 120, 160), 0.5), q)
+    assert torch.equal(got, q) and abs(float(corr)) < 1e-3
