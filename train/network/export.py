@@ -24,10 +24,11 @@ OPSET = 17
 ARCHITECTURES = {
     "spec": "spec: the SPEC section 8 network (tanh, L2 pooling), batch norm folded away",
     "convnet": "convnet: train/network/convnet.py (ReLU, batch norm, max pooling, 3x4 head)",
-    "keypoint": "keypoint: train/network/keypoint.py (U-Net corner heat maps, class from the "
-    "corners' pose with a prior camera and the squares' colour parity)",
+    "keypoint": "keypoint: train/network/keypoint.py (U-Net corner heat maps, corners aligned "
+    "to the checker pattern, class from the corners' pose with a prior camera and the squares' "
+    "colour parity)",
     "keypoint-s2": "keypoint-s2: train/network/keypoint.py with corner heat maps at 80x60 "
-    "(stride 2)",
+    "(stride 2), corners aligned to the checker pattern (train/network/align.py)",
 }
 INPUT_NAME = "image"
 OUTPUT_NAME = "probabilities"

@@ -20,7 +20,8 @@ and the class follows from them as the SPEC labels define it:
     parity    the image sampled at the 70 square centres through the homography, correlated
               with the checker pattern: its sign says whether the corner order is the true one
               or a half turn (which maps c to (-cx, -cy, cz))
-    presence  a logit from the pooled encoder: object in view or not (class 0)
+    presence  a logit from the pooled encoder: object in view or not (class 0), or'ed with the
+              correlation of the image with the checker pattern at the aligned corners
     classes   P(cx >= 0), P(cy >= 0), P(cz < z_split) as normal CDFs of c with a spread that
               grows with the distance, mixed over the two half-turn readings by the parity
               confidence, times P(present); class 0 gets 1 - P(present)
@@ -47,6 +48,10 @@ from train.network.model import NormalisedNet
 SIZE = (160, 120)
 STRIDES = (4, 2)  # input pixels per heat-map pixel: 40x30 maps, or 80x60 ("keypoint-s2")
 SQUARES = (10, 7)  # squares of the board along its width (x) and height (y)
+# |corr(image, checker)| at the aligned corners above which the board is taken as present
+# whatever the presence logit says: real photos without a board stay under 0.16 (the
+# corpus's train and val sources), with one mostly over 0.6
+PATTERN_CORR, PATTERN_SLOPE = 0.4, 20.0
 
 
 def _block(cin: int, cout: int) -> nn.Sequential:
@@ -245,8 +250,11 @@ class KeypointNet(NormalisedNet):
     def logits(self, x: torch.Tensor) -> torch.Tensor:
         """RGB [N, 3, H, W] in [0, 1] -> log-probabilities [N, 9] (softmax gives them back)."""
         heat, presence = self._encode((x - self.mean) / self.std)
-        pk = self._classes_if_present(x, self.align(x, self._soft_argmax(heat))[0])
-        present = torch.sigmoid(presence)[:, None]
+        q, corr = self.align(x, self._soft_argmax(heat))
+        pk = self._classes_if_present(x, q)
+        # the checker pattern found at the corners is evidence of the board on its own
+        pattern = torch.sigmoid(PATTERN_SLOPE * (corr.abs() - PATTERN_CORR))
+        present = (1 - (1 - torch.sigmoid(presence)) * (1 - pattern))[:, None]
         return torch.log(torch.cat([1 - present, present * pk], 1).clamp_min(1e-7))
 
     def forward(self, x: torch.Tensor) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:

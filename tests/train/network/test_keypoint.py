@@ -215,3 +215,17 @@ def test_alignment_gives_back_the_corners_without_a_board():
     q = torch.tensor([[[40.0, 30.0], [120.0, 32.0], [118.0, 90.0], [42.0, 88.0]]])
     got, corr = CheckerAlign((160, 120))(torch.full((1, 3, 120, 160), 0.5), q)
     assert torch.equal(got, q) and abs(float(corr)) < 1e-3
+
+
+def test_the_aligned_checker_pattern_is_evidence_of_the_board():
+    net = KeypointNet()
+    corners = _view(net, (-10.0, 6.0, 50.0), -60.0)
+    net.heat = _FixedHeat(corners)
+    with torch.no_grad():  # a presence head that always says "not in view"
+        net.presence[-1].weight.zero_()
+        net.presence[-1].bias.fill_(-20.0)
+    net.eval()
+    with torch.no_grad():
+        board = net(_input(_board_image(corners))).exp()[0]
+        flat = net(torch.full((1, 3, 120, 160), 0.5)).exp()[0]
+    assert float(board[0]) < 0.05 and float(flat[0]) > 0.99
