@@ -11,9 +11,9 @@ import torch
 from torch import nn
 
 from train.geometry import look_at, pose_class, project_points, translation
+from train.network.align import CheckerAlign, solve_spd, square_homography
 from train.network.export import onnx_bytes
 from train.network.fit import FitConfig, _grown, fit, load_network
-from train.network.align import CheckerAlign, solve_spd, square_homography
 from train.network.keypoint import KeypointNet
 from train.network.model import arch_of, build_network
 from train.profile import load_profile
