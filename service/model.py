@@ -1,7 +1,10 @@
 """The ONNX pose network in onnxruntime, with its model card.
 
-Contract (written by `train/export.py`): input `image` float32 [N, 3, H, W], RGB in [0, 1];
-output `probabilities` float32 [N, 9] (softmax); metadata_props `model_card` = card JSON.
+Contract (written by `train/network/export.py`): input `image` float32 [N, 3, H, W], RGB in
+[0, 1]; output `probabilities` float32 [N, 9] (softmax), optionally `corners` float32
+[N, 4, 2] (the object's corners in input pixels, order (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y));
+metadata_props `model_card` = card JSON. A graph with one output takes it as the
+probabilities whatever its name.
 """
 
 from __future__ import annotations
@@ -15,6 +18,8 @@ import numpy as np
 import onnxruntime as ort
 
 from service.regions import NUM_CLASSES
+
+PROBABILITIES, CORNERS = "probabilities", "corners"
 
 
 class ModelLoadError(RuntimeError):
@@ -47,6 +52,8 @@ class PoseModel:
     input_size: tuple[int, int]  # (W, H) pixels
     card: dict[str, Any]
     path: Path
+    output_name: str  # the probabilities
+    corners_name: str | None = None  # the optional corners output
 
     @property
     def name(self) -> str:
@@ -75,17 +82,51 @@ class PoseModel:
             or not all(isinstance(d, int) and d > 0 for d in shape[2:])
         ):
             raise ModelLoadError(f"{path}: expected one input [N, 3, H, W], got {shape}")
-        if len(outputs) != 1 or outputs[0].shape[-1] != NUM_CLASSES:
-            raise ModelLoadError(f"{path}: expected one output [N, {NUM_CLASSES}]")
+        by_name = {o.name: o for o in outputs}
+        probs_out = outputs[0] if len(outputs) == 1 else by_name.get(PROBABILITIES)
+        corners_out = by_name.get(CORNERS) if len(outputs) > 1 else None
+        if (
+            probs_out is None
+            or len(outputs) > 1 + (corners_out is not None)
+            or probs_out.shape[-1] != NUM_CLASSES
+        ):
+            raise ModelLoadError(
+                f"{path}: expected one output [N, {NUM_CLASSES}], or {PROBABILITIES!r} "
+                f"[N, {NUM_CLASSES}] and {CORNERS!r} [N, 4, 2]; got {sorted(by_name)}"
+            )
+        if corners_out is not None and list(corners_out.shape[1:]) != [4, 2]:
+            raise ModelLoadError(f"{path}: output {CORNERS!r} must be [N, 4, 2]")
         size = (int(shape[3]), int(shape[2]))
         card = _read_card(session, path)
         if "input" in card and tuple(card["input"]) != size:
             raise ModelLoadError(f"{path}: card says input {card['input']}, graph says {size}")
-        return cls(session, inputs[0].name, size, card, path)
+        return cls(
+            session,
+            inputs[0].name,
+            size,
+            card,
+            path,
+            probs_out.name,
+            None if corners_out is None else corners_out.name,
+        )
 
     def predict(self, batch: np.ndarray) -> np.ndarray:
         """float32 [N, 3, H, W] in [0, 1] -> probabilities float64 [N, 9], rows summing to 1."""
-        (raw,) = self.session.run(None, {self.input_name: batch})
-        probs: np.ndarray = np.asarray(raw, dtype=np.float64)
-        normalised: np.ndarray = probs / probs.sum(axis=1, keepdims=True)
-        return normalised
+        (raw,) = self.session.run([self.output_name], {self.input_name: batch})
+        return _normalised(raw)
+
+    def predict_with_corners(self, batch: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """As `predict`, and the corners float64 [N, 4, 2] in input pixels (None when the
+        model has no corners output)."""
+        if self.corners_name is None:
+            return self.predict(batch), None
+        raw, corners = self.session.run(
+            [self.output_name, self.corners_name], {self.input_name: batch}
+        )
+        return _normalised(raw), np.asarray(corners, dtype=np.float64)
+
+
+def _normalised(raw: Any) -> np.ndarray:
+    probs: np.ndarray = np.asarray(raw, dtype=np.float64)
+    normalised: np.ndarray = probs / probs.sum(axis=1, keepdims=True)
+    return normalised

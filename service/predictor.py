@@ -57,6 +57,15 @@ def _result(
     )
 
 
+def _image_corners(
+    corners: np.ndarray, size: tuple[int, int], image_size: tuple[int, int]
+) -> list[list[float]]:
+    """Corners [4, 2] in pixels of the network input (W, H) = `size` -> [[x, y] x 4] in pixels
+    of the (EXIF-oriented) image of `image_size` (pixel centres at integers)."""
+    scale = np.array(image_size, dtype=np.float64) / np.array(size, dtype=np.float64)
+    return [[float(v) for v in xy] for xy in (corners + 0.5) * scale - 0.5]
+
+
 class Predictor:
     """Decode, preprocess and classify images with one model, in whole or sliding mode."""
 
@@ -99,17 +108,23 @@ class Predictor:
         return self._whole(images)
 
     def _whole(self, images: Sequence[ImageInput]) -> Prediction:
-        size, inputs, prep = self.model.input_size, [], []
+        size, inputs, prep, sizes = self.model.input_size, [], [], []
         for i, image in enumerate(images):
             t0 = time.perf_counter()
-            inputs.append(to_network_input(self._load(i, image, size).rgb, size))
+            decoded = self._load(i, image, size)
+            inputs.append(to_network_input(decoded.rgb, size))
+            sizes.append((decoded.width, decoded.height))
             prep.append(time.perf_counter() - t0)
-        probs, infer_s = self._infer(np.stack(inputs))
+        t0 = time.perf_counter()
+        probs, corners = self.model.predict_with_corners(np.stack(inputs))
+        infer_s = time.perf_counter() - t0
         share = infer_s / len(images)
-        results = [
-            _result(image[0], int(p.argmax()), p, t + share)
-            for image, p, t in zip(images, probs, prep, strict=True)
-        ]
+        results = []
+        for i, (image, p, t) in enumerate(zip(images, probs, prep, strict=True)):
+            result = _result(image[0], int(p.argmax()), p, t + share)
+            if corners is not None and result.class_id != 0:
+                result.corners = _image_corners(corners[i], size, sizes[i])
+            results.append(result)
         return Prediction(results, infer_s)
 
     def _detect(

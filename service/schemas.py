@@ -48,6 +48,14 @@ class ImageResult(BaseModel):
     detections: list[Detection] | None = Field(
         default=None, description="Sliding mode: all windows kept by NMS, best first."
     )
+    corners: list[list[float]] | None = Field(
+        default=None,
+        description="Whole mode, models with a corners output (the keypoint networks), object "
+        "in view: the object's four corners [x, y] in pixels of the uploaded image (after "
+        "EXIF orientation, pixel centres at integers), in the order (-X,-Y), (+X,-Y), "
+        "(+X,+Y), (-X,+Y) of the object frame; with the camera's intrinsics they give the "
+        "full pose (e.g. cv2.solvePnP). Else null.",
+    )
     elapsed_ms: float = Field(
         description="Decoding and preprocessing this image plus its share of the batched "
         "network call (milliseconds)."

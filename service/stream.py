@@ -237,7 +237,8 @@ class Smoother:
         self._state: np.ndarray | None = None
 
     def apply(self, result: ImageResult) -> ImageResult:
-        """`result` with smoothed probabilities, class, confidence and region."""
+        """`result` with smoothed probabilities, class, confidence and region (no corners
+        when the smoothed class is 0)."""
         if self.factor == 0.0:
             return result
         probs = np.asarray(result.probabilities, dtype=np.float64)
@@ -251,6 +252,7 @@ class Smoother:
                 "region": RegionOut(**region_of_class(class_id)),
                 "probabilities": probs.tolist(),
                 "confidence": float(probs[class_id]),
+                "corners": result.corners if class_id != 0 else None,
             }
         )
 

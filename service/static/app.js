@@ -151,6 +151,23 @@ function drawView(canvas, source, width, height, result) {
     strokeBox(ctx, det.box, scale, "rgba(255, 200, 0, 0.9)", 1.5, [6, 4]);
   }
   if (result.box) strokeBox(ctx, result.box, scale, "#e5383b", 3, []);
+  if (result.corners) strokeCorners(ctx, result.corners, scale);
+}
+
+// The object's outline from its four corners; a dot on corner 0, the (-X,-Y) one.
+function strokeCorners(ctx, corners, scale) {
+  ctx.save();
+  ctx.strokeStyle = "#2ec4b6";
+  ctx.fillStyle = "#2ec4b6";
+  ctx.lineWidth = 2;
+  ctx.beginPath();
+  corners.forEach(([x, y], i) => (i ? ctx.lineTo : ctx.moveTo).call(ctx, x * scale, y * scale));
+  ctx.closePath();
+  ctx.stroke();
+  ctx.beginPath();
+  ctx.arc(corners[0][0] * scale, corners[0][1] * scale, 4, 0, 2 * Math.PI);
+  ctx.fill();
+  ctx.restore();
 }
 
 function strokeBox(ctx, box, scale, colour, width, dash) {

@@ -198,6 +198,25 @@ def test_the_page_answers_a_dropped_photo_like_the_api(
     assert_only_local(browser, server)
 
 
+def test_the_page_outlines_the_board_from_its_corners(browser: WebDriver, server: Server) -> None:
+    browser.get(server.url + "/")
+    wait_for(browser, "#model-card:not([hidden])")
+    Select(browser.find_element(By.ID, "mode")).select_by_value("whole")
+    drop_file(browser, PHOTO.read_bytes(), PHOTO.name, "image/jpeg")
+    result = wait_for(browser, ".result[data-state='done']")
+    outline = browser.execute_script(  # pixels of the outline's colour (#2ec4b6) on the view
+        """const c = arguments[0].querySelector("canvas.view");
+        const d = c.getContext("2d").getImageData(0, 0, c.width, c.height).data;
+        let n = 0;
+        for (let i = 0; i < d.length; i += 4) {
+          if (Math.abs(d[i] - 46) + Math.abs(d[i + 1] - 196) + Math.abs(d[i + 2] - 182) < 30) n++;
+        }
+        return n;""",
+        result,
+    )
+    assert outline > 200, outline
+
+
 def test_the_page_says_in_plain_words_what_went_wrong(browser: WebDriver, server: Server) -> None:
     browser.get(server.url + "/")
     wait_for(browser, "#model-card:not([hidden])")

@@ -92,6 +92,18 @@ def test_smoothing_lags_and_off_is_identity() -> None:
         Smoother(1.0)
 
 
+def test_smoothing_to_class_0_drops_the_corners() -> None:
+    board, empty = [0.0] * 9, [0.0] * 9
+    board[2], empty[0] = 1.0, 1.0
+    corners = [[1.0, 2.0], [3.0, 2.0], [3.0, 4.0], [1.0, 4.0]]
+    smooth = Smoother(0.75)
+    assert smooth.apply(_result(board).model_copy(update={"corners": corners})).corners == corners
+    # the frames' own answers say class 0 (with corners, to see them dropped)
+    lagging = [smooth.apply(_result(empty).model_copy(update={"corners": corners})) for _ in "abc"]
+    assert [r.class_id for r in lagging] == [2, 2, 0]  # board at 0.75, 0.56, 0.42
+    assert lagging[1].corners == corners and lagging[2].corners is None
+
+
 @pytest.mark.parametrize(
     ("query", "message"),
     [

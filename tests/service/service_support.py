@@ -75,6 +75,11 @@ def check_answer(
         assert result["confidence"] == pytest.approx(max(probs))
         assert result["region"] == dict(region_of_class(result["class_id"]))
         assert result["elapsed_ms"] > 0
+        corners = result.get("corners")
+        if mode != "whole" or result["class_id"] == 0:
+            assert corners is None
+        elif corners is not None:
+            assert len(corners) == 4 and all(len(c) == 2 for c in corners)
         box = result["box"]
         if mode == "whole" or result["class_id"] == 0:
             assert box is None

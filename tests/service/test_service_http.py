@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 from image_bytes import png_claiming, with_exif_orientation
-from service_support import CARD, JPEG, PHOTO, REAL, AppFactory, check_answer, encode
+from service_support import CARD, JPEG, PHOTO, REAL, ROOT, AppFactory, check_answer, encode
 
 from service.deps import get_predictor
 from service.model import PoseModel
@@ -44,6 +44,31 @@ IMAGES: dict[str, tuple[bytes, str, tuple[int, int]]] = {
 
 
 # --- happy paths -----------------------------------------------------------------------------
+
+
+def _board_photo() -> tuple[bytes, np.ndarray]:
+    """A 640x480 PNG of the profile's board warped onto known corners over grey, and the
+    corners [4, 2] in the order (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y) (the texture's bottom left
+    square is the (-X,-Y) one)."""
+    texture = cv2.imread(str(ROOT / "train/assets/profiles/chessboard/texture.png"))
+    th, tw = texture.shape[:2]
+    corners = np.float32([[190, 335], [470, 350], [455, 130], [205, 115]])
+    src = np.float32([[0, th], [tw, th], [tw, 0], [0, 0]])
+    H = cv2.getPerspectiveTransform(src, corners)
+    image = cv2.warpPerspective(texture, H, (640, 480), borderValue=(128, 128, 128))
+    return encode(".png", image), corners
+
+
+def test_whole_mode_gives_the_corners_in_image_pixels(client: TestClient) -> None:
+    data, corners = _board_photo()
+    png = {"content-type": "image/png"}
+    result = client.post("/v1/predict", content=data, headers=png).json()["results"][0]
+    assert result["class_id"] != 0
+    assert np.abs(np.array(result["corners"]) - corners).max() < 6.0  # 1.5 px at 160x120
+    sliding = client.post("/v1/predict", params={"mode": "sliding"}, content=data, headers=png)
+    assert sliding.json()["results"][0]["corners"] is None  # whole mode only
+    spec = client.post("/v1/models/chessboard-noC-160x120/predict", content=data, headers=png)
+    assert spec.status_code == 200 and spec.json()["results"][0]["corners"] is None
 
 
 @pytest.mark.parametrize("mode", ["whole", "sliding", "proposals"])

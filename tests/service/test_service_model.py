@@ -54,7 +54,7 @@ def test_wrong_output_rejected(tmp_path: Path) -> None:
     graph = onnx.helper.make_graph([node], "g", [inp], [out])
     path = tmp_path / "bad.onnx"
     onnx.save(onnx.helper.make_model(graph, opset_imports=[onnx.helper.make_opsetid("", 17)]), path)
-    with pytest.raises(ModelLoadError, match="expected one output"):
+    with pytest.raises(ModelLoadError, match="expected one output \\[N, 9\\]"):
         PoseModel.load(path)
 
 
@@ -64,3 +64,53 @@ def test_missing_and_garbage_files(tmp_path: Path) -> None:
     (tmp_path / "junk.onnx").write_bytes(b"not onnx")
     with pytest.raises(ModelLoadError, match="not a loadable ONNX"):
         PoseModel.load(tmp_path / "junk.onnx")
+
+
+def _two_output_model(tmp_path: Path, corners_shape: list) -> Path:
+    """An 80x60 graph: probabilities [N, 9] (a constant softmax) and a `corners` output."""
+    h = onnx.helper
+    inp = h.make_tensor_value_info("image", onnx.TensorProto.FLOAT, ["N", 3, 60, 80])
+    outs = [
+        h.make_tensor_value_info("probabilities", onnx.TensorProto.FLOAT, ["N", 9]),
+        h.make_tensor_value_info("corners", onnx.TensorProto.FLOAT, corners_shape),
+    ]
+    w9 = onnx.numpy_helper.from_array(np.ones((3, 9), np.float32), "w9")
+    w8 = onnx.numpy_helper.from_array(np.ones((3, 8), np.float32), "w8")
+    shape = onnx.numpy_helper.from_array(np.array(corners_shape[1:], np.int64), "shape")
+    nodes = [
+        h.make_node("GlobalAveragePool", ["image"], ["pooled"]),
+        h.make_node("Flatten", ["pooled"], ["flat"]),
+        h.make_node("MatMul", ["flat", "w9"], ["logits"]),
+        h.make_node("Softmax", ["logits"], ["probabilities"]),
+        h.make_node("MatMul", ["flat", "w8"], ["c8"]),
+        h.make_node("Shape", ["image"], ["n"], end=1),
+        h.make_node("Concat", ["n", "shape"], ["full"], axis=0),
+        h.make_node("Reshape", ["c8", "full"], ["corners"]),
+    ]
+    graph = h.make_graph(nodes, "g", [inp], outs, [w9, w8, shape])
+    path = tmp_path / "two.onnx"
+    onnx.save(h.make_model(graph, opset_imports=[h.make_opsetid("", 17)]), path)
+    path.with_suffix(".json").write_text(json.dumps({"name": "two", "input": [80, 60]}))
+    return path
+
+
+def test_a_corners_output_is_read_beside_the_probabilities(tmp_path: Path) -> None:
+    model = PoseModel.load(_two_output_model(tmp_path, ["N", 4, 2]))
+    assert model.corners_name == "corners"
+    batch = np.random.default_rng(1).random((2, 3, 60, 80), dtype=np.float32)
+    probs, corners = model.predict_with_corners(batch)
+    assert probs.shape == (2, 9) and np.allclose(probs.sum(axis=1), 1)
+    assert corners is not None and corners.shape == (2, 4, 2)
+    assert np.allclose(model.predict(batch), probs)
+
+
+def test_a_corners_output_of_the_wrong_shape_is_refused(tmp_path: Path) -> None:
+    with pytest.raises(ModelLoadError, match="'corners' must be \\[N, 4, 2\\]"):
+        PoseModel.load(_two_output_model(tmp_path, ["N", 2, 4]))
+
+
+def test_models_without_corners_answer_none() -> None:
+    model = PoseModel.load(DEFAULT_MODEL.with_name("chessboard-noC-160x120.onnx"))
+    assert model.corners_name is None
+    probs, corners = model.predict_with_corners(np.zeros((1, 3, 120, 160), np.float32))
+    assert probs.shape == (1, 9) and corners is None

@@ -1,7 +1,9 @@
 """Export a training checkpoint to ONNX with its model card (SPEC section 8, DESIGN "flow").
 
 The graph takes `image` float32 [N, 3, H, W], RGB in [0, 1] (dynamic N; the normalisation is
-inside) and returns `probabilities` float32 [N, 9] (softmax). The model card (JSON) is stored
+inside) and returns `probabilities` float32 [N, 9] (softmax); the keypoint networks also return
+`corners` float32 [N, 4, 2], the object's image corners in pixels of the input, in the order
+(-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y) of the object frame. The model card (JSON) is stored
 in the ONNX `metadata_props` under `model_card` and written next to it as `<name>.json`.
 """
 
@@ -32,16 +34,19 @@ ARCHITECTURES = {
 }
 INPUT_NAME = "image"
 OUTPUT_NAME = "probabilities"
+CORNERS_NAME = "corners"  # keypoint networks: float32 [N, 4, 2] px of the input image
 
 
 def onnx_bytes(net: Any) -> bytes:
-    """Serialise a PoseNet (eval mode) to ONNX bytes: softmax output, dynamic batch."""
+    """Serialise a pose network (eval mode) to ONNX bytes, dynamic batch: output
+    `probabilities` (softmax), and `corners` for the keypoint networks."""
     import torch
 
     from train.network.model import Probabilities
 
     w, h = net.size
     wrapper = Probabilities(net).eval()
+    outputs = [OUTPUT_NAME, CORNERS_NAME] if hasattr(net, "answer") else [OUTPUT_NAME]
     buf = io.BytesIO()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
@@ -51,8 +56,8 @@ def onnx_bytes(net: Any) -> bytes:
             buf,
             dynamo=False,
             input_names=[INPUT_NAME],
-            output_names=[OUTPUT_NAME],
-            dynamic_axes={INPUT_NAME: {0: "N"}, OUTPUT_NAME: {0: "N"}},
+            output_names=outputs,
+            dynamic_axes={name: {0: "N"} for name in [INPUT_NAME, *outputs]},
             opset_version=OPSET,
         )
     return buf.getvalue()
@@ -136,7 +141,13 @@ def build_card(
         "architecture": ARCHITECTURES[checkpoint.get("arch", "spec")],
         "input": list(checkpoint["size"]),
         "input_format": "image: float32 [N, 3, H, W], RGB, values in [0, 1] (resize with area)",
-        "output": "probabilities: float32 [N, 9] (softmax), index = class id",
+        "output": "probabilities: float32 [N, 9] (softmax), index = class id"
+        + (
+            "; corners: float32 [N, 4, 2], the object's corners (u, v) in input pixels, "
+            "order (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y)"
+            if checkpoint.get("arch", "spec").startswith("keypoint")
+            else ""
+        ),
         "classes": [
             {"id": k, "label": region_of_class(k)["label"], "description": descriptions[k]}
             for k in range(NUM_CLASSES)

@@ -29,7 +29,8 @@ and the class follows from them as the SPEC labels define it:
 The heat-map channels are trained on the corners up to a half turn: of the two orders, the
 target is the one whose corner 0 is the upper end of the 0-2 diagonal (`fit._corner_loss`);
 parity is not learned. Input: float32 [N, 3, 120, 160], RGB in [0, 1]. Output of `forward`:
-log-probabilities [N, 9] (`corners` gives the aligned corners).
+log-probabilities [N, 9]; `answer` also gives the aligned corners in the object's order (the
+exported graph's second output, `corners`).
 """
 
 from __future__ import annotations
@@ -164,12 +165,6 @@ class KeypointNet(NormalisedNet):
         v = (p.sum(3) * self.grid_v).sum(2)
         return torch.stack([u, v], 2)
 
-    def corners(self, x: torch.Tensor) -> torch.Tensor:
-        """RGB [N, 3, H, W] in [0, 1] -> the four corners [N, 4, 2] px, aligned to the image,
-        in the order (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y) or its half turn."""
-        q = self._soft_argmax(self._encode((x - self.mean) / self.std)[0])
-        return self.align(x, q)[0]
-
     # -- geometry ------------------------------------------------------------------------------
     def focal_length(self, Hc: torch.Tensor) -> torch.Tensor:
         """Focal length [N] px for centred object-plane homographies Hc [N, 3, 3]: the prior, or
@@ -240,22 +235,37 @@ class KeypointNet(NormalisedNet):
         )
         return torch.cat([near[:, None] * q, (1 - near[:, None]) * q], 1)
 
-    def _classes_if_present(self, x: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
+    def _classes_if_present(
+        self, x: torch.Tensor, q: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """RGB [N, 3, H, W] in [0, 1] and its corners [N, 4, 2] px -> P(class 1..8 | object
-        present) [N, 8]: homography, parity, camera centre."""
+        present) [N, 8] (homography, parity, camera centre) and the parity [N]."""
         H = square_homography(q)
-        order_ok = torch.sigmoid(self.parity_gain * self.parity(x, H))
-        return self.class_probabilities(self.camera_centre(H), order_ok)
+        parity = self.parity(x, H)
+        order_ok = torch.sigmoid(self.parity_gain * parity)
+        return self.class_probabilities(self.camera_centre(H), order_ok), parity
 
-    def logits(self, x: torch.Tensor) -> torch.Tensor:
-        """RGB [N, 3, H, W] in [0, 1] -> log-probabilities [N, 9] (softmax gives them back)."""
+    def answer(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """RGB [N, 3, H, W] in [0, 1] -> log-probabilities [N, 9] (softmax gives them back)
+        and the aligned corners [N, 4, 2] px of the input image, in the object's order
+        (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y) as the parity reads it (meaningless where the
+        object is not in view)."""
         heat, presence = self._encode((x - self.mean) / self.std)
         q, corr = self.align(x, self._soft_argmax(heat))
-        pk = self._classes_if_present(x, q)
+        pk, parity = self._classes_if_present(x, q)
         # the checker pattern found at the corners is evidence of the board on its own
         pattern = torch.sigmoid(PATTERN_SLOPE * (corr.abs() - PATTERN_CORR))
         present = (1 - (1 - torch.sigmoid(presence)) * (1 - pattern))[:, None]
-        return torch.log(torch.cat([1 - present, present * pk], 1).clamp_min(1e-7))
+        log_p = torch.log(torch.cat([1 - present, present * pk], 1).clamp_min(1e-7))
+        return log_p, torch.where(parity[:, None, None] >= 0, q, torch.roll(q, 2, 1))
+
+    def logits(self, x: torch.Tensor) -> torch.Tensor:
+        """RGB [N, 3, H, W] in [0, 1] -> log-probabilities [N, 9] (softmax gives them back)."""
+        return self.answer(x)[0]
+
+    def corners(self, x: torch.Tensor) -> torch.Tensor:
+        """RGB [N, 3, H, W] in [0, 1] -> the corners [N, 4, 2] px of `answer`."""
+        return self.answer(x)[1]
 
     def forward(self, x: torch.Tensor) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
         """RGB [N, 3, H, W] in [0, 1] -> log-probabilities [N, 9]; in training mode also the
@@ -266,7 +276,7 @@ class KeypointNet(NormalisedNet):
         q = self._soft_argmax(heat)
         # the class loss trains the presence logit only; the corners learn from their own loss
         with torch.no_grad():
-            pk = self._classes_if_present(x, q)
+            pk = self._classes_if_present(x, q)[0]
         log_present = F.logsigmoid(presence)[:, None]
         log_absent = F.logsigmoid(-presence)[:, None]
         log_p = torch.cat([log_absent, log_present + torch.log(pk.clamp_min(1e-7))], 1)

@@ -243,14 +243,19 @@ def export_form(net: NormalisedNet) -> NormalisedNet:
 
 
 class Probabilities(nn.Module):
-    """Wrap a pose network so it outputs probabilities [N, 9] (softmax): the exported graph."""
+    """Wrap a pose network so it outputs probabilities [N, 9] (softmax) and, for a network
+    with an `answer` (the keypoint network), its corners [N, 4, 2] px: the exported graph."""
 
     def __init__(self, net: NormalisedNet) -> None:
         super().__init__()
         self.net = net
 
-    def forward(self, image: torch.Tensor) -> torch.Tensor:
-        return F.softmax(self.net.logits(image), dim=1)
+    def forward(self, image: torch.Tensor) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
+        answer = getattr(self.net, "answer", None)
+        if answer is None:
+            return F.softmax(self.net.logits(image), dim=1)
+        log_p, corners = answer(image)
+        return F.softmax(log_p, dim=1), corners
 
 
 def channel_stats(images_u8: torch.Tensor, chunk: int = 512) -> tuple[torch.Tensor, torch.Tensor]:

@@ -60,6 +60,11 @@ class Prediction(_Answer):
     detections: list[Detection] | None = Field(
         None, description="sliding mode: every window kept, best first; whole mode: None"
     )
+    corners: list[tuple[float, float]] | None = Field(
+        None,
+        description="whole mode, models with corners, object in view: the object's four "
+        "corners (x, y) in image pixels, order (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y); else None",
+    )
     elapsed_ms: float = Field(ge=0.0, description="time the service spent on this image")
 
     @property

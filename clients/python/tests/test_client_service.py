@@ -43,6 +43,7 @@ def check_prediction(p: Prediction, filename: str | None) -> None:
     assert p.probabilities[p.class_id] == max(p.probabilities)
     assert p.confidence == pytest.approx(p.probabilities[p.class_id], abs=1e-6)
     assert p.elapsed_ms >= 0.0
+    assert p.corners is None or (p.present and len(p.corners) == 4)
 
 
 def check_card(card: ModelCard) -> None:
@@ -74,6 +75,7 @@ def test_sync_client_every_method(service_url, photos):
         one = client.predict(photos[0])
         check_prediction(one, photos[0].name)
         assert one.box is None
+        assert one.corners is not None  # the default model reports the board's corners
         many = client.predict_many(photos)
     assert [p.filename for p in many] == [p.name for p in photos]
     for p in many:
@@ -106,6 +108,7 @@ def test_sliding_mode_returns_a_box_inside_the_image(service_url, photos):
         predictions = client.predict_many(photos[:2], mode="sliding")
     for p in predictions:
         check_prediction(p, p.filename)
+        assert p.corners is None  # whole mode only
         if p.present:
             assert p.box is not None
             assert p.box.x >= 0 and p.box.y >= 0 and p.box.w > 0 and p.box.h > 0

@@ -126,11 +126,13 @@ def test_the_exported_graph_decodes_like_torch(stride):
     x = _input(_board_image(corners)).repeat(3, 1, 1, 1).numpy()
     with torch.no_grad():
         want = net(torch.from_numpy(x)).exp().numpy()
-        q = net.corners(torch.from_numpy(x))[0].numpy()
-    assert np.abs(q - corners).max() < 0.5  # soft-argmax of the peaks
+        q = net.corners(torch.from_numpy(x)).numpy()
+    assert np.abs(q[0] - corners).max() < 0.5  # the peaks, aligned
     session = ort.InferenceSession(onnx_bytes(net), providers=["CPUExecutionProvider"])
-    got = session.run(None, {"image": x})[0]
+    assert [o.name for o in session.get_outputs()] == ["probabilities", "corners"]
+    got, got_corners = session.run(None, {"image": x})
     assert np.abs(got - want).max() < 1e-4
+    assert got_corners.shape == (3, 4, 2) and np.abs(got_corners - q).max() < 1e-3
     assert got.shape == (3, 9) and np.allclose(got.sum(1), 1.0, atol=1e-5)
     present = got[0, 1:] / got[0, 1:].sum()
     assert int(present.argmax()) + 1 == 4  # near, x+, y-
@@ -215,6 +217,16 @@ def test_alignment_gives_back_the_corners_without_a_board():
     q = torch.tensor([[[40.0, 30.0], [120.0, 32.0], [118.0, 90.0], [42.0, 88.0]]])
     got, corr = CheckerAlign((160, 120))(torch.full((1, 3, 120, 160), 0.5), q)
     assert torch.equal(got, q) and abs(float(corr)) < 1e-3
+
+
+def test_the_corners_come_in_the_object_order_whatever_the_heat_maps_say():
+    net = KeypointNet()
+    corners = _view(net, (8.0, 11.0, 55.0), 150.0)
+    net.heat = _FixedHeat(np.roll(corners, 2, 0))  # the heat maps' half turn
+    net.eval()
+    with torch.no_grad():
+        got = net.corners(_input(_board_image(corners)))[0].numpy()
+    assert np.abs(got - corners).max() < 0.5
 
 
 def test_the_aligned_checker_pattern_is_evidence_of_the_board():
