@@ -83,8 +83,9 @@ def load_split(paths: list[Path], split: str) -> tuple[Split, list[dict[str, Any
         labels.append(data.labels)
         blurs.append(np.full(len(data.labels), int(data.manifest.get("blur", 0))))
         corners.append(_corners(data.rows))
+        # the manifest's own "count" is the whole set's: this split's count comes last
         infos.append(
-            {"path": str(path), "split": split, "count": len(data.labels), **data.manifest}
+            {"path": str(path), **data.manifest, "split": split, "count": len(data.labels)}
         )
     sizes = {im.shape[1:3] for im in images if len(im)}
     if len(sizes) > 1:

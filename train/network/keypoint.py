@@ -15,8 +15,8 @@ and the class follows from them as the SPEC labels define it:
               the class loss does not depend on them)
     pose      homography of the board rectangle onto the corners (closed form), pose with a
               pinhole camera (principal point at the image centre, the focal length that makes
-              the board's axes orthogonal, clamped to the profile's range), camera centre
-              c [N, 3] cm in the object frame
+              the board's axes orthogonal, drawn to a prior where the view says little),
+              camera centre c [N, 3] cm in the object frame
     parity    the image sampled at the 70 square centres through the homography, correlated
               with the checker pattern: its sign says whether the corner order is the true one
               or a half turn (which maps c to (-cx, -cy, cz))
@@ -47,6 +47,10 @@ from train.network.convnet import _conv
 from train.network.model import NormalisedNet
 
 SIZE = (160, 120)
+# The focal length (`KeypointNet.focal_length`): Zhang's constraints with a prior. The prior
+# and the bounds are x the SPEC camera's focal length, the weight in the units of the
+# normalised constraints; chosen on the corpus's val sources (class accuracy; docs/training.md).
+FOCAL_PRIOR, FOCAL_PRIOR_WEIGHT, FOCAL_BOUNDS = 0.8, 0.01, (0.4, 1.2)
 STRIDES = (4, 2)  # input pixels per heat-map pixel: 40x30 maps, or 80x60 ("keypoint-s2")
 SQUARES = (10, 7)  # squares of the board along its width (x) and height (y)
 # |corr(image, checker)| at the aligned corners above which the board is taken as present
@@ -72,8 +76,7 @@ class KeypointNet(NormalisedNet):
         size: tuple[int, int] = SIZE,
         board_cm: tuple[float, float] = (25.0, 17.5),
         z_split_cm: float = 60.0,
-        focal_scale: float = 0.6,
-        focal_range: tuple[float, float] = (0.45, 0.8),
+        focal_scale: float = FOCAL_PRIOR,
         self_calibrate: bool = True,
         stride: int = 4,
     ) -> None:
@@ -109,13 +112,14 @@ class KeypointNet(NormalisedNet):
             "px_to_unit", torch.tensor([2.0 / size[0], 2.0 / size[1]]), persistent=False
         )
         # the prior camera: principal point at the image centre, focal length (px) of the SPEC
-        # camera times `focal_scale`, or (self_calibrate = 1) the one that makes the board's
-        # axes orthogonal, kept within `focal_range` x the SPEC camera's
+        # camera times `focal_scale`, or (self_calibrate = 1) the estimate of `focal_length`
         spec_f = float(intrinsics(size)[0, 0])
-        lo, hi = focal_range
+        lo, hi = FOCAL_BOUNDS
         self.register_buffer("principal", torch.tensor([(size[0] - 1) / 2, (size[1] - 1) / 2]))
-        self.register_buffer("focal", torch.tensor(spec_f * focal_scale))
-        self.register_buffer("focal_bounds", torch.tensor([spec_f * lo, spec_f * hi]))
+        self.register_buffer("focal", torch.tensor(spec_f * focal_scale), persistent=False)
+        self.register_buffer(
+            "focal_bounds", torch.tensor([spec_f * lo, spec_f * hi]), persistent=False
+        )
         self.register_buffer("self_calibrate", torch.tensor(float(self_calibrate)))
         bw, bh = board_cm
         # object (X, Y) -> unit square (s, t), the inverse of X = -bw/2 + bw s, Y = -bh/2 + bh t
@@ -167,18 +171,34 @@ class KeypointNet(NormalisedNet):
 
     # -- geometry ------------------------------------------------------------------------------
     def focal_length(self, Hc: torch.Tensor) -> torch.Tensor:
-        """Focal length [N] px for centred object-plane homographies Hc [N, 3, 3]: the prior, or
-        the least-squares one that makes the images of the board's x and y axes orthogonal and
-        of equal length (Zhang's constraints, square pixels), clamped to `focal_bounds`."""
-        h1, h2 = Hc[:, :, 0], Hc[:, :, 1]
+        """Focal length [N] px for centred object-plane homographies Hc [N, 3, 3]: the prior
+        `focal`, or (self_calibrate) the one that best makes the images of the board's x and
+        y axes orthogonal and of equal length (Zhang's constraints, square pixels), with the
+        prior as one more constraint of weight `FOCAL_PRIOR_WEIGHT`, within `focal_bounds`.
+
+        Unknown z = (f0 / f)^2 with f0 the prior; in pixel units of f0, with Hc scaled to unit
+        norm of its first two columns, the constraints are a_i z + b_i = 0 (i = 1, 2) and the
+        prior z = 1: z = (kappa - sum a_i b_i) / (kappa + sum a_i^2). A near-frontal view has
+        a_i ~ 0 and keeps the prior; an oblique one decides."""
+        f0 = self.focal
+        Hn = torch.cat([Hc[:, :2, :] / f0, Hc[:, 2:, :]], 1)
+        Hn = Hn / Hn[:, :, :2].flatten(1).norm(dim=1).clamp_min(1e-12)[:, None, None]
+        h1, h2 = Hn[:, :, 0], Hn[:, :, 1]
         a1 = h1[:, 0] * h2[:, 0] + h1[:, 1] * h2[:, 1]
         b1 = h1[:, 2] * h2[:, 2]
         a2 = h1[:, 0] ** 2 + h1[:, 1] ** 2 - h2[:, 0] ** 2 - h2[:, 1] ** 2
         b2 = h1[:, 2] ** 2 - h2[:, 2] ** 2
-        inv_f2 = -(a1 * b1 + a2 * b2) / (a1 * a1 + a2 * a2 + 1e-12)
-        lo, hi = self.focal_bounds[0], self.focal_bounds[1]
-        f = torch.where(inv_f2 > 0, inv_f2.clamp_min(1e-12).rsqrt(), hi).clamp(lo, hi)
-        return torch.where(self.self_calibrate > 0.5, f, self.focal.expand_as(f))
+        kappa = FOCAL_PRIOR_WEIGHT
+        z = (kappa - (a1 * b1 + a2 * b2)) / (kappa + a1 * a1 + a2 * a2)
+        f = (f0 * z.clamp_min(1e-6).rsqrt()).clamp(self.focal_bounds[0], self.focal_bounds[1])
+        return torch.where(self.self_calibrate > 0.5, f, f0.expand_as(f))
+
+    def _load_from_state_dict(self, state_dict: dict, prefix: str, *args, **kwargs) -> None:  # type: ignore[no-untyped-def]
+        # checkpoints before 3.3.0 stored the focal-length prior and bounds (then from the
+        # renders' focal range): the camera model is the code's, not the checkpoint's
+        state_dict.pop(prefix + "focal", None)
+        state_dict.pop(prefix + "focal_bounds", None)
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
     def camera_centre(self, H_unit: torch.Tensor) -> torch.Tensor:
         """Unit-square homography [N, 3, 3] -> camera centre [N, 3] cm in the object frame

@@ -15,7 +15,6 @@ the neighbouring convolution / linear layers, giving exactly the SPEC network ab
 
 from __future__ import annotations
 
-import math
 from typing import Any, get_args
 
 import torch
@@ -192,7 +191,7 @@ def build_network(
     arch: str, size: tuple[int, int], batch_norm: bool = True, profile: dict[str, Any] | None = None
 ) -> NormalisedNet:
     """A fresh network of architecture `arch` for input `size` (W, H); `profile` (a data set
-    manifest's profile: width_cm, height_cm, z_split_cm, focal_scale range) sets the geometry
+    manifest's profile: width_cm, height_cm, z_split_cm) sets the geometry
     of the keypoint network (default: the chessboard's)."""
     if arch == "spec":
         return PoseNet(size, batch_norm=batch_norm)
@@ -213,14 +212,8 @@ def build_network(
                 f"profile {profile.get('name', '?')!r} is {w_cm:g} x {h_cm:g} cm "
                 "(use convnet or spec)"
             )
-        lo, hi = profile.get("focal_scale", [1.0, 1.0])
         return KeypointNet(
-            size,
-            board_cm=(w_cm, h_cm),
-            z_split_cm=float(profile["z_split_cm"]),
-            focal_scale=math.sqrt(float(lo) * float(hi)),
-            focal_range=(float(lo), float(hi)),
-            stride=stride,
+            size, board_cm=(w_cm, h_cm), z_split_cm=float(profile["z_split_cm"]), stride=stride
         )
     raise ValueError(f"unknown architecture {arch!r}; known: {', '.join(ARCHS)}")
 

@@ -10,7 +10,7 @@ import pytest
 import torch
 from torch import nn
 
-from train.geometry import look_at, pose_class, project_points, translation
+from train.geometry import intrinsics, look_at, pose_class, project_points, translation
 from train.network.align import CheckerAlign, solve_spd, square_homography
 from train.network.export import onnx_bytes
 from train.network.fit import FitConfig, _grown, fit, load_network
@@ -28,8 +28,9 @@ def _view(
     net: KeypointNet, centre: tuple[float, float, float], roll_deg: float, focal: float = 0.0
 ) -> np.ndarray:
     """Corners (4, 2) px of the board seen from `centre` (cm) by a camera of focal length
-    `focal` px (default: the net's prior) with the principal point at the image centre."""
-    f = focal or float(net.focal)
+    `focal` px (default: 0.6 x the SPEC camera's) with the principal point at the image
+    centre."""
+    f = focal or 0.6 * float(intrinsics(net.size)[0, 0])
     (u0, v0) = net.principal.tolist()
     A = np.array([[f, 0, u0], [0, f, v0], [0, 0, 1.0]])
     R = look_at(np.array(centre), np.zeros(3), np.radians(roll_deg))
@@ -55,7 +56,8 @@ def _input(image: np.ndarray) -> torch.Tensor:
 )
 def test_camera_centre_from_the_corners(centre, roll):
     net = KeypointNet()
-    q = torch.from_numpy(_view(net, centre, roll)).float()[None]
+    net.self_calibrate.fill_(0.0)  # the prior camera, which the view is taken with
+    q = torch.from_numpy(_view(net, centre, roll, float(net.focal))).float()[None]
     H = square_homography(q)
     unit = torch.tensor([[0.0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]])
     mapped = torch.einsum("ij,kj->ki", H[0], unit)
@@ -67,16 +69,30 @@ def test_camera_centre_from_the_corners(centre, roll):
     assert np.abs(c_turned - np.array([-centre[0], -centre[1], centre[2]])).max() < 0.05
 
 
-def test_self_calibration_recovers_the_focal_length():
+def _focal_estimate(net: KeypointNet, q: torch.Tensor) -> float:
+    H = square_homography(q) @ net.to_unit
+    w = H[:, 2:3, :]
+    return float(
+        net.focal_length(torch.cat([H[:, :2, :] - net.principal[None, :, None] * w, w], 1))[0]
+    )
+
+
+def test_self_calibration_moves_the_focal_length_to_what_a_tilted_view_shows():
     net = KeypointNet(focal_scale=0.6)
-    f_true = 0.72 * float(net.focal) / 0.6
-    centre = (18.0, -14.0, 40.0)  # a tilted view: the focal length is observable
-    q = torch.from_numpy(_view(net, centre, 40.0, f_true)).float()[None]
-    c = net.camera_centre(square_homography(q))[0].double().numpy()
-    assert np.abs(c - centre).max() < 0.3
-    net.self_calibrate.fill_(0.0)  # the fixed prior (0.6) puts the camera closer
-    c_prior = net.camera_centre(square_homography(q))[0].double().numpy()
-    assert c_prior[2] < centre[2] - 3.0
+    f0 = float(net.focal)
+    f_true = 0.72 * f0 / 0.6
+    q = torch.from_numpy(_view(net, (30.0, -25.0, 40.0), 40.0, f_true)).float()[None]
+    assert f0 + 0.5 * (f_true - f0) < _focal_estimate(net, q) < f_true
+    net.self_calibrate.fill_(0.0)
+    assert _focal_estimate(net, q) == pytest.approx(f0)
+
+
+def test_a_near_frontal_view_keeps_the_prior_focal_length():
+    net = KeypointNet(focal_scale=0.6)
+    f0 = float(net.focal)
+    for f_true in (0.5 * f0 / 0.6, 0.9 * f0 / 0.6):  # the view says little about either
+        q = torch.from_numpy(_view(net, (1.0, -0.5, 50.0), 30.0, f_true)).float()[None]
+        assert abs(_focal_estimate(net, q) - f0) < 0.1 * f0
 
 
 def test_parity_tells_the_half_turn():
@@ -241,3 +257,11 @@ def test_the_aligned_checker_pattern_is_evidence_of_the_board():
         board = net(_input(_board_image(corners))).exp()[0]
         flat = net(torch.full((1, 3, 120, 160), 0.5)).exp()[0]
     assert float(board[0]) < 0.05 and float(flat[0]) > 0.99
+
+
+def test_checkpoints_with_the_old_focal_bounds_still_load():
+    net = KeypointNet()
+    state = net.state_dict()
+    assert "focal_bounds" not in state  # derived from FOCAL_BOUNDS, not stored
+    state["focal_bounds"] = torch.tensor([1.0, 2.0])  # as checkpoints before 3.3.0 have it
+    KeypointNet().load_state_dict(state)
