@@ -180,3 +180,23 @@ def test_a_grid_inside_a_bigger_board_is_recognised():
     bigger, _ = _board_image(extended=True)
     assert not pattern_continues(whole, label, pattern)
     assert pattern_continues(bigger, label, pattern)
+
+
+def test_the_shipped_corpus_keeps_its_test_cameras_apart():
+    """Every source has a split; the test split has >= 4 board sources and >= 120 board
+    photos, from repositories that no train or val source comes from."""
+    from train.real.realset import corpus_sources, read_splits
+
+    corpus = ASSETS_DIR / "real" / "corpus"
+    splits = read_splits(corpus / "splits.toml")
+    repos: dict[str, set[str]] = {"train": set(), "val": set(), "test": set()}
+    test_sources = test_photos = 0
+    for folder in corpus_sources(corpus):
+        manifest = json.loads((folder / "manifest.json").read_text())
+        split = splits[folder.name]
+        repos[split].add(manifest["source"]["repo"].lower())
+        if split == "test" and folder.parent.name == "boards":
+            test_sources += 1
+            test_photos += int(manifest["count"])
+    assert test_sources >= 4 and test_photos >= 120
+    assert not repos["test"] & (repos["train"] | repos["val"])
