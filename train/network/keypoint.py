@@ -36,6 +36,7 @@ exported graph's second output, `corners`).
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import torch
 import torch.nn.functional as F
@@ -193,7 +194,9 @@ class KeypointNet(NormalisedNet):
         f = (f0 * z.clamp_min(1e-6).rsqrt()).clamp(self.focal_bounds[0], self.focal_bounds[1])
         return torch.where(self.self_calibrate > 0.5, f, f0.expand_as(f))
 
-    def _load_from_state_dict(self, state_dict: dict, prefix: str, *args, **kwargs) -> None:  # type: ignore[no-untyped-def]
+    def _load_from_state_dict(
+        self, state_dict: dict[str, Any], prefix: str, *args: Any, **kwargs: Any
+    ) -> None:
         # checkpoints before 3.3.0 stored the focal-length prior and bounds (then from the
         # renders' focal range): the camera model is the code's, not the checkpoint's
         state_dict.pop(prefix + "focal", None)
