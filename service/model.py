@@ -19,7 +19,7 @@ import onnxruntime as ort
 
 from service.regions import NUM_CLASSES
 
-PROBABILITIES, CORNERS = "probabilities", "corners"
+PROBABILITIES, CORNERS = "probabilities", "corners"  # output names (train/network/export.py)
 
 
 class ModelLoadError(RuntimeError):

@@ -86,10 +86,11 @@ class Predictor:
             name = f"image {index + 1}" + (f" ({image[0]})" if image[0] else "")
             raise type(exc)(f"{name}: {exc}") from None
 
-    def _infer(self, batch: np.ndarray) -> tuple[np.ndarray, float]:
+    def _infer(self, batch: np.ndarray) -> tuple[np.ndarray, np.ndarray | None, float]:
+        """Batch -> probabilities [N, 9], corners [N, 4, 2] (None without), seconds."""
         t0 = time.perf_counter()
-        probs = self.model.predict(batch)
-        return probs, time.perf_counter() - t0
+        probs, corners = self.model.predict_with_corners(batch)
+        return probs, corners, time.perf_counter() - t0
 
     def _proposals(self, image: np.ndarray) -> np.ndarray:
         """Object-proposal boxes (SPEC 9, objectness) of the network's aspect in `image`."""
@@ -115,9 +116,7 @@ class Predictor:
             inputs.append(to_network_input(decoded.rgb, size))
             sizes.append((decoded.width, decoded.height))
             prep.append(time.perf_counter() - t0)
-        t0 = time.perf_counter()
-        probs, corners = self.model.predict_with_corners(np.stack(inputs))
-        infer_s = time.perf_counter() - t0
+        probs, corners, infer_s = self._infer(np.stack(inputs))
         share = infer_s / len(images)
         results = []
         for i, (image, p, t) in enumerate(zip(images, probs, prep, strict=True)):
@@ -143,7 +142,7 @@ class Predictor:
             batches.append(window_batch(work, boxes, size))
             staged.append((boxes, scale, (decoded.width, decoded.height)))
             prep.append(time.perf_counter() - t0)
-        probs, infer_s = self._infer(np.concatenate(batches))
+        probs, _, infer_s = self._infer(np.concatenate(batches))
         total, start, results = len(probs), 0, []
         for image, (boxes, scale, full), t in zip(images, staged, prep, strict=True):
             answer = best_window(boxes, probs[start : start + len(boxes)], cfg.sliding_nms_iou)

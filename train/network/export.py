@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from service.model import CORNERS, PROBABILITIES
 from service.regions import NUM_CLASSES, class_descriptions, region_of_class
 from train import REPO_ROOT
 
@@ -33,8 +34,6 @@ ARCHITECTURES = {
     "(stride 2), corners aligned to the checker pattern (train/network/align.py)",
 }
 INPUT_NAME = "image"
-OUTPUT_NAME = "probabilities"
-CORNERS_NAME = "corners"  # keypoint networks: float32 [N, 4, 2] px of the input image
 
 
 def onnx_bytes(net: Any) -> bytes:
@@ -46,7 +45,7 @@ def onnx_bytes(net: Any) -> bytes:
 
     w, h = net.size
     wrapper = Probabilities(net).eval()
-    outputs = [OUTPUT_NAME, CORNERS_NAME] if hasattr(net, "answer") else [OUTPUT_NAME]
+    outputs = [PROBABILITIES, CORNERS] if hasattr(net, "answer") else [PROBABILITIES]
     buf = io.BytesIO()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
