@@ -1,10 +1,12 @@
 """The ONNX pose network in onnxruntime, with its model card.
 
 Contract (written by `train/network/export.py`): input `image` float32 [N, 3, H, W], RGB in
-[0, 1]; output `probabilities` float32 [N, 9] (softmax), optionally `corners` float32
-[N, 4, 2] (the object's corners in input pixels, order (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y));
-metadata_props `model_card` = card JSON. A graph with one output takes it as the
-probabilities whatever its name.
+[0, 1]; optionally `pixel_aspect` float32 [N], an input with a default of 1 (an overridable
+initializer): the height over the width of an input pixel in the scene
+(`service.preprocess.pixel_aspect`); output `probabilities` float32 [N, 9] (softmax),
+optionally `corners` float32 [N, 4, 2] (the object's corners in input pixels, order
+(-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y)); metadata_props `model_card` = card JSON. A graph with
+one output takes it as the probabilities whatever its name.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ import onnxruntime as ort
 from service.regions import NUM_CLASSES
 
 PROBABILITIES, CORNERS = "probabilities", "corners"  # output names (train/network/export.py)
+PIXEL_ASPECT = "pixel_aspect"  # the optional input (an overridable initializer)
 
 
 class ModelLoadError(RuntimeError):
@@ -54,6 +57,7 @@ class PoseModel:
     path: Path
     output_name: str  # the probabilities
     corners_name: str | None = None  # the optional corners output
+    takes_aspect: bool = False  # whether the graph has the `pixel_aspect` input
 
     @property
     def name(self) -> str:
@@ -69,6 +73,9 @@ class PoseModel:
         options.inter_op_num_threads = inter_op_threads
         # Idle worker threads sleep instead of spinning: the CPU is shared with the web server.
         options.add_session_config_entry("session.intra_op.allow_spinning", "0")
+        # errors only: onnxruntime warns at load about every overridable initializer, and
+        # `pixel_aspect` is one on purpose
+        options.log_severity_level = 3
         try:
             session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
         except Exception as exc:  # onnxruntime raises its own Fail/InvalidGraph/... types
@@ -108,20 +115,33 @@ class PoseModel:
             path,
             probs_out.name,
             None if corners_out is None else corners_out.name,
+            any(i.name == PIXEL_ASPECT for i in session.get_overridable_initializers()),
         )
 
-    def predict(self, batch: np.ndarray) -> np.ndarray:
-        """float32 [N, 3, H, W] in [0, 1] -> probabilities float64 [N, 9], rows summing to 1."""
-        (raw,) = self.session.run([self.output_name], {self.input_name: batch})
+    def _feeds(self, batch: np.ndarray, pixel_aspect: np.ndarray | None) -> dict[str, Any]:
+        feeds: dict[str, Any] = {self.input_name: batch}
+        if pixel_aspect is not None and self.takes_aspect:
+            aspect = np.asarray(pixel_aspect, dtype=np.float32).reshape(-1)
+            if aspect.shape != (len(batch),):
+                raise ValueError(f"pixel_aspect: {aspect.size} values for {len(batch)} images")
+            feeds[PIXEL_ASPECT] = aspect
+        return feeds
+
+    def predict(self, batch: np.ndarray, pixel_aspect: np.ndarray | None = None) -> np.ndarray:
+        """float32 [N, 3, H, W] in [0, 1] (and the pixel aspect [N] of each image, used by
+        models that take it; None: 1) -> probabilities float64 [N, 9], rows summing to 1."""
+        (raw,) = self.session.run([self.output_name], self._feeds(batch, pixel_aspect))
         return _normalised(raw)
 
-    def predict_with_corners(self, batch: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    def predict_with_corners(
+        self, batch: np.ndarray, pixel_aspect: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray | None]:
         """As `predict`, and the corners float64 [N, 4, 2] in input pixels (None when the
         model has no corners output)."""
         if self.corners_name is None:
-            return self.predict(batch), None
+            return self.predict(batch, pixel_aspect), None
         raw, corners = self.session.run(
-            [self.output_name, self.corners_name], {self.input_name: batch}
+            [self.output_name, self.corners_name], self._feeds(batch, pixel_aspect)
         )
         return _normalised(raw), np.asarray(corners, dtype=np.float64)
 

@@ -13,7 +13,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from service.model import PoseModel
-from service.preprocess import DecodedImage, ImageDecodeError, load_image, to_network_input
+from service.preprocess import (
+    DecodedImage,
+    ImageDecodeError,
+    NetworkFrame,
+    load_image,
+    to_network_input,
+)
 from service.proposals import propose_boxes
 from service.regions import region_of_class
 from service.schemas import Box, Detection, ImageResult, Mode, RegionOut
@@ -57,15 +63,6 @@ def _result(
     )
 
 
-def _image_corners(
-    corners: np.ndarray, size: tuple[int, int], image_size: tuple[int, int]
-) -> list[list[float]]:
-    """Corners [4, 2] in pixels of the network input (W, H) = `size` -> [[x, y] x 4] in pixels
-    of the (EXIF-oriented) image of `image_size` (pixel centres at integers)."""
-    scale = np.array(image_size, dtype=np.float64) / np.array(size, dtype=np.float64)
-    return [[float(v) for v in xy] for xy in (corners + 0.5) * scale - 0.5]
-
-
 class Predictor:
     """Decode, preprocess and classify images with one model, in whole or sliding mode."""
 
@@ -86,10 +83,13 @@ class Predictor:
             name = f"image {index + 1}" + (f" ({image[0]})" if image[0] else "")
             raise type(exc)(f"{name}: {exc}") from None
 
-    def _infer(self, batch: np.ndarray) -> tuple[np.ndarray, np.ndarray | None, float]:
-        """Batch -> probabilities [N, 9], corners [N, 4, 2] (None without), seconds."""
+    def _infer(
+        self, batch: np.ndarray, aspect: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray | None, float]:
+        """Batch (and its pixel aspect [N]; None: 1) -> probabilities [N, 9], corners
+        [N, 4, 2] (None without), seconds."""
         t0 = time.perf_counter()
-        probs, corners = self.model.predict_with_corners(batch)
+        probs, corners = self.model.predict_with_corners(batch, aspect)
         return probs, corners, time.perf_counter() - t0
 
     def _proposals(self, image: np.ndarray) -> np.ndarray:
@@ -109,20 +109,21 @@ class Predictor:
         return self._whole(images)
 
     def _whole(self, images: Sequence[ImageInput]) -> Prediction:
-        size, inputs, prep, sizes = self.model.input_size, [], [], []
+        size, inputs, prep, frames = self.model.input_size, [], [], []
         for i, image in enumerate(images):
             t0 = time.perf_counter()
             decoded = self._load(i, image, size)
             inputs.append(to_network_input(decoded.rgb, size))
-            sizes.append((decoded.width, decoded.height))
+            frames.append(NetworkFrame((decoded.width, decoded.height), size))
             prep.append(time.perf_counter() - t0)
-        probs, corners, infer_s = self._infer(np.stack(inputs))
+        aspect = np.array([f.pixel_aspect for f in frames], dtype=np.float32)
+        probs, corners, infer_s = self._infer(np.stack(inputs), aspect)
         share = infer_s / len(images)
         results = []
         for i, (image, p, t) in enumerate(zip(images, probs, prep, strict=True)):
             result = _result(image[0], int(p.argmax()), p, t + share)
             if corners is not None and result.class_id != 0:
-                result.corners = _image_corners(corners[i], size, sizes[i])
+                result.corners = frames[i].to_image(corners[i]).tolist()
             results.append(result)
         return Prediction(results, infer_s)
 

@@ -200,7 +200,60 @@ def resize_rgb(rgb: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     return cv2.resize(rgb, (w, h), interpolation=interp)
 
 
+@dataclass(frozen=True)
+class NetworkFrame:
+    """How an image of `image_size` = (W0, H0) pixels becomes a network input of `size` =
+    (W, H): a portrait image (H0 > W0) is first turned a quarter clockwise (a camera roll of
+    -90 degrees, which leaves the camera centre, hence the pose class, unchanged), then
+    resized to `size`, its aspect ratio not kept."""
+
+    image_size: tuple[int, int]
+    size: tuple[int, int]
+
+    @property
+    def turned(self) -> bool:
+        """Whether the image is turned to landscape first."""
+        return self.image_size[1] > self.image_size[0]
+
+    @property
+    def upright_size(self) -> tuple[int, int]:
+        """(W, H) of the image once turned to landscape."""
+        w, h = self.image_size
+        return (h, w) if self.turned else (w, h)
+
+    @property
+    def pixel_aspect(self) -> float:
+        """Height over width (fy / fx) of an input pixel in the scene: 1 for a 4:3 photo at
+        160x120, 4/3 for a 16:9 one (the keypoint networks' `pixel_aspect` input)."""
+        (w0, h0), (w, h) = self.upright_size, self.size
+        return (h / h0) / (w / w0)
+
+    def _scale(self) -> np.ndarray:
+        return np.asarray(self.size, np.float64) / np.asarray(self.upright_size, np.float64)
+
+    def to_network(self, uv: np.ndarray) -> np.ndarray:
+        """Image pixels [..., 2] (pixel centres at integers) -> network input pixels."""
+        uv = np.asarray(uv, dtype=np.float64)
+        if self.turned:  # (u, v) -> (H0 - 1 - v, u)
+            uv = np.stack([self.image_size[1] - 1 - uv[..., 1], uv[..., 0]], -1)
+        return (uv + 0.5) * self._scale() - 0.5
+
+    def to_image(self, uv: np.ndarray) -> np.ndarray:
+        """Network input pixels [..., 2] -> image pixels (the inverse of `to_network`)."""
+        up = (np.asarray(uv, dtype=np.float64) + 0.5) / self._scale() - 0.5
+        if self.turned:  # (u', v') -> (v', H0 - 1 - u')
+            up = np.stack([up[..., 1], self.image_size[1] - 1 - up[..., 0]], -1)
+        return up
+
+    def input_of(self, rgb: np.ndarray) -> np.ndarray:
+        """RGB uint8 [H0, W0, 3] (of `image_size`, or proportional to it) -> RGB uint8
+        [H, W, 3], turned and resized."""
+        upright = cv2.rotate(rgb, cv2.ROTATE_90_CLOCKWISE) if self.turned else rgb
+        return resize_rgb(upright, self.size)
+
+
 def to_network_input(rgb: np.ndarray, size: tuple[int, int]) -> np.ndarray:
-    """RGB uint8 [H0, W0, 3] -> float32 [3, H, W] in [0, 1] for a network of input `size` (W, H)."""
-    small = resize_rgb(rgb, size)
+    """RGB uint8 [H0, W0, 3] -> float32 [3, H, W] in [0, 1] for a network of input `size` (W, H)
+    (`NetworkFrame`: a portrait image is turned to landscape first)."""
+    small = NetworkFrame((rgb.shape[1], rgb.shape[0]), size).input_of(rgb)
     return np.ascontiguousarray(small.transpose(2, 0, 1), dtype=np.float32) / np.float32(255.0)

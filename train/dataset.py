@@ -79,6 +79,12 @@ class LoadedDataset:
         """One labels.csv column of these images."""
         return [row[name] for row in self.rows]
 
+    def pixel_aspect(self) -> np.ndarray:
+        """float32 [N]: height over width of each image's pixels in the scene (the
+        `pixel_aspect` column of real photos resized to the set's size,
+        `service.preprocess.pixel_aspect`); 1 where the column is absent or empty (renders)."""
+        return np.array([float(r.get("pixel_aspect") or 1.0) for r in self.rows], np.float32)
+
     def boundary_margin_cm(self) -> np.ndarray:
         """float [N]: how far (cm) each image's camera centre is from the nearest region
         boundary (the planes x = 0, y = 0, z = z_split of the object frame, SPEC section 3);

@@ -15,6 +15,7 @@ from service_support import REAL
 from service.preprocess import (
     ImageDecodeError,
     ImageTooLargeError,
+    NetworkFrame,
     decode_image,
     image_header,
     load_image,
@@ -134,6 +135,29 @@ def test_to_network_input_shape_range_and_resize() -> None:
     assert x.shape == (3, 60, 80) and x.dtype == np.float32
     assert x.min() >= 0.0 and x.max() <= 1.0
     assert resize_rgb(np.zeros((1, 1, 3), np.uint8), (80, 60)).shape == (60, 80, 3)
+
+
+@pytest.mark.parametrize(
+    ("image", "turned", "aspect"),
+    [((640, 480), False, 1.0), ((1280, 720), False, 4 / 3), ((480, 640), True, 1.0),
+     ((640, 640), False, 0.75), ((360, 640), True, 4 / 3)],
+)  # fmt: skip
+def test_network_frame_turns_portraits_and_says_the_pixel_aspect(image, turned, aspect) -> None:
+    frame = NetworkFrame(image, (160, 120))
+    assert frame.turned is turned and frame.pixel_aspect == pytest.approx(aspect)
+    w, h = image
+    uv = np.array([[0.0, 0.0], [w - 1, 0], [w - 1, h - 1], [0, h - 1], [w / 3, h / 5]])
+    assert np.allclose(frame.to_image(frame.to_network(uv)), uv)
+    rgb = np.zeros((h, w, 3), np.uint8)
+    rgb[0, 0] = 255  # the top-left pixel: top right of the input once turned clockwise
+    x = frame.input_of(rgb)
+    assert x.shape == (120, 160, 3)
+    corner = frame.to_network(np.array([0.0, 0.0]))
+    assert np.allclose(
+        corner, [159.5 - 80 / h, -0.5 + 60 / w] if turned else [-0.5 + 80 / w, -0.5 + 60 / h]
+    )
+    assert x[:2, -2:].any() if turned else x[:2, :2].any()
+    assert np.array_equal(to_network_input(rgb, (160, 120)), x.transpose(2, 0, 1) / np.float32(255))
 
 
 def _decode_cleanly(data: bytes) -> None:

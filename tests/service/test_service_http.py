@@ -71,6 +71,21 @@ def test_whole_mode_gives_the_corners_in_image_pixels(client: TestClient) -> Non
     assert spec.status_code == 200 and spec.json()["results"][0]["corners"] is None
 
 
+def test_a_portrait_photo_is_turned_to_landscape_and_its_corners_back(client: TestClient) -> None:
+    """The board photo turned a quarter counter-clockwise (a camera roll: same camera centre,
+    same class) is answered as the landscape one, with the corners in its own pixels."""
+    data, corners = _board_photo()
+    landscape = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+    portrait = encode(".png", cv2.rotate(landscape, cv2.ROTATE_90_COUNTERCLOCKWISE))
+    png = {"content-type": "image/png"}
+    want = client.post("/v1/predict", content=data, headers=png).json()["results"][0]
+    got = client.post("/v1/predict", content=portrait, headers=png).json()["results"][0]
+    assert got["class_id"] == want["class_id"] != 0
+    assert np.allclose(got["probabilities"], want["probabilities"], atol=1e-6)
+    turned = np.stack([corners[:, 1], 639 - corners[:, 0]], 1)  # (u, v) -> (v, W - 1 - u)
+    assert np.abs(np.array(got["corners"]) - turned).max() < 6.0
+
+
 @pytest.mark.parametrize("mode", ["whole", "sliding", "proposals"])
 @pytest.mark.parametrize("name", list(IMAGES))
 def test_raw_body_every_kind_of_image(client: TestClient, name: str, mode: str) -> None:

@@ -143,7 +143,12 @@ def evaluate(
                     continue
                 with tqdm(total=len(data.labels), desc=f"{names[model]} on {ds.name}") as bar:
                     metrics = evaluate_predictor(
-                        predict, data.images, data.labels, bar.update, data.boundary_margin_cm()
+                        predict,
+                        data.images,
+                        data.labels,
+                        bar.update,
+                        data.boundary_margin_cm(),
+                        data.pixel_aspect(),
                     )
                 results[names[model]][ds.name] = metrics
                 tqdm.write(f"{names[model]} on {ds.name}: {100 * metrics['accuracy']:.2f} %")

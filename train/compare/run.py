@@ -132,7 +132,12 @@ def measure_dataset(
             continue
         with tqdm(total=len(data.labels), desc=f"{name} on {folder.name}") as bar:
             measured[name] = evaluate_predictor(
-                predict, data.images, data.labels, bar.update, data.boundary_margin_cm()
+                predict,
+                data.images,
+                data.labels,
+                bar.update,
+                data.boundary_margin_cm(),
+                data.pixel_aspect(),
             )
     for kind in config.peer_kinds():
         out = run_peer_on(data, kind, config.split, config.tune, config.limit, verbose=True)

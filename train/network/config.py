@@ -52,6 +52,13 @@ class FitConfig:
     patience: int = _opt(10, "Early stop after N epochs without improvement; 0 = never.", min=0)
     seed: int = _opt(0, "Seed of weights, batch order and augmentation.")
     augment: bool = _opt(True, "On-the-fly blur, crop and photometric augmentation.")
+    squash: float = _opt(
+        0.0,
+        "Augmentation: probability that a crop is a band of 0.7-1 of the height, resized "
+        "back: what a wide photo (16:9 and wider) squashed to the input size looks like.",
+        min=0.0,
+        max=1.0,
+    )
     init: Path | None = _opt(None, "Checkpoint to start from (fine-tuning).")
     batch_norm: bool = _opt(True, "spec: train with batch norm, folded away on export.")
     threads: int = _opt(0, "Torch intra-op threads; 0 = torch default.", min=0)

@@ -17,8 +17,10 @@ import numpy as np
 from service.preprocess import to_network_input
 from service.regions import NUM_CLASSES
 
-#: A classifier: RGB uint8 images [N, H, W, 3] -> probabilities float32 [N, 9].
-Predictor = Callable[[np.ndarray], np.ndarray]
+#: A classifier: RGB uint8 images [N, H, W, 3] at the network's size and their pixel aspect
+#: [N] (`service.preprocess.pixel_aspect`: 1 unless a photo was squashed) -> probabilities
+#: float32 [N, 9].
+Predictor = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 
 def _ratio(num: float, den: float) -> float | None:
@@ -146,8 +148,8 @@ def onnx_predictor(path: Path, threads: int = 0) -> tuple[Predictor, tuple[int, 
     except ModelLoadError as exc:
         raise ValueError(str(exc)) from None
 
-    def predict(images: np.ndarray) -> np.ndarray:
-        return model.predict(network_batch(images, model.input_size))
+    def predict(images: np.ndarray, pixel_aspect: np.ndarray) -> np.ndarray:
+        return model.predict(network_batch(images, model.input_size), pixel_aspect)
 
     return predict, model.input_size, model.card
 
@@ -157,14 +159,16 @@ def checkpoint_predictor(path: Path) -> tuple[Predictor, tuple[int, int], dict]:
     import torch
 
     from train.network.fit import load_network
+    from train.network.model import log_probabilities
 
     net, checkpoint = load_network(path)
     net.eval()
 
-    def predict(images: np.ndarray) -> np.ndarray:
+    def predict(images: np.ndarray, pixel_aspect: np.ndarray) -> np.ndarray:
         with torch.no_grad():
             x = torch.from_numpy(network_batch(images, net.size))
-            return torch.exp(net(x)).numpy()
+            aspect = torch.from_numpy(np.asarray(pixel_aspect, np.float32))
+            return torch.exp(log_probabilities(net, x, aspect)).numpy()
 
     return predict, net.size, checkpoint.get("config", {})
 
@@ -181,16 +185,22 @@ def load_predictor(path: Path) -> tuple[Predictor, tuple[int, int], dict]:
 
 
 def predict_all(
-    predict: Predictor, images: np.ndarray, batch: int = 64, progress: Callable | None = None
+    predict: Predictor,
+    images: np.ndarray,
+    pixel_aspect: np.ndarray | None = None,
+    batch: int = 64,
+    progress: Callable | None = None,
 ) -> tuple[np.ndarray, float]:
-    """Run `predict` over images [N, H, W, 3] in batches -> (probabilities [N, 9], ms / image).
+    """Run `predict` over images [N, H, W, 3] and their pixel aspect [N] (None: all 1) in
+    batches -> (probabilities [N, 9], ms / image).
 
     The time covers preprocessing and inference, measured with a wall clock.
     """
+    aspect = np.ones(len(images), np.float32) if pixel_aspect is None else pixel_aspect
     out = []
     start = time.perf_counter()
     for i in range(0, len(images), batch):
-        out.append(predict(images[i : i + batch]))
+        out.append(predict(images[i : i + batch], aspect[i : i + batch]))
         if progress is not None:
             progress(min(batch, len(images) - i))
     elapsed = time.perf_counter() - start
@@ -204,8 +214,9 @@ def evaluate_predictor(
     labels: np.ndarray,
     progress: Callable | None = None,
     margin_cm: np.ndarray | None = None,
+    pixel_aspect: np.ndarray | None = None,
 ) -> dict:
     """Metrics (see `compute_metrics`) of a predictor on images [N, H, W, 3] with labels [N]
-    (and the camera centres' margins [N] cm, if given)."""
-    probs, ms = predict_all(predict, images, progress=progress)
+    (and the camera centres' margins [N] cm and the pixel aspect [N], if given)."""
+    probs, ms = predict_all(predict, images, pixel_aspect, progress=progress)
     return compute_metrics(labels, probs.argmax(axis=1), ms, margin_cm)

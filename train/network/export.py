@@ -1,9 +1,11 @@
 """Export a training checkpoint to ONNX with its model card (SPEC section 8, DESIGN "flow").
 
 The graph takes `image` float32 [N, 3, H, W], RGB in [0, 1] (dynamic N; the normalisation is
-inside) and returns `probabilities` float32 [N, 9] (softmax); the keypoint networks also return
-`corners` float32 [N, 4, 2], the object's image corners in pixels of the input, in the order
-(-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y) of the object frame. The model card (JSON) is stored
+inside) and returns `probabilities` float32 [N, 9] (softmax); the keypoint networks also take
+`pixel_aspect` float32 [N] (an input with the default [1], an overridable initializer: a
+caller that feeds only `image` gets square pixels) and return `corners` float32 [N, 4, 2],
+the object's image corners in pixels of the input, in the order (-X,-Y), (+X,-Y), (+X,+Y),
+(-X,+Y) of the object frame. The model card (JSON) is stored
 in the ONNX `metadata_props` under `model_card` and written next to it as `<name>.json`.
 """
 
@@ -18,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from service.model import CORNERS, PROBABILITIES
+from service.model import CORNERS, PIXEL_ASPECT, PROBABILITIES
 from service.regions import NUM_CLASSES, class_descriptions, region_of_class
 from train import REPO_ROOT
 
@@ -38,28 +40,40 @@ INPUT_NAME = "image"
 
 def onnx_bytes(net: Any) -> bytes:
     """Serialise a pose network (eval mode) to ONNX bytes, dynamic batch: output
-    `probabilities` (softmax), and `corners` for the keypoint networks."""
+    `probabilities` (softmax); the keypoint networks also take `pixel_aspect` (default 1)
+    and output `corners`."""
+    import onnx
     import torch
 
-    from train.network.model import Probabilities
+    from train.network.model import Probabilities, takes_pixel_aspect
 
     w, h = net.size
     wrapper = Probabilities(net).eval()
-    outputs = [PROBABILITIES, CORNERS] if hasattr(net, "answer") else [PROBABILITIES]
+    aspect = takes_pixel_aspect(net)
+    inputs = [INPUT_NAME, PIXEL_ASPECT] if aspect else [INPUT_NAME]
+    outputs = [PROBABILITIES, CORNERS] if aspect else [PROBABILITIES]
+    example = (torch.rand(2, 3, h, w), torch.ones(2)) if aspect else (torch.rand(2, 3, h, w),)
     buf = io.BytesIO()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
         torch.onnx.export(
             wrapper,
-            (torch.rand(1, 3, h, w),),
+            example,
             buf,
             dynamo=False,
-            input_names=[INPUT_NAME],
+            input_names=inputs,
             output_names=outputs,
-            dynamic_axes={name: {0: "N"} for name in [INPUT_NAME, *outputs]},
+            # the aspect's own batch dimension: its default [1] broadcasts over any N
+            dynamic_axes={name: {0: "N"} for name in [INPUT_NAME, *outputs]}
+            | ({PIXEL_ASPECT: {0: "N_aspect"}} if aspect else {}),
             opset_version=OPSET,
         )
-    return buf.getvalue()
+    if not aspect:
+        return buf.getvalue()
+    model = onnx.load_from_string(buf.getvalue())
+    default = onnx.numpy_helper.from_array(np.ones(1, np.float32), PIXEL_ASPECT)
+    model.graph.initializer.append(default)  # a graph input with a default: overridable
+    return model.SerializeToString()
 
 
 def profile_card(profile: dict[str, Any]) -> dict[str, Any]:
@@ -181,7 +195,7 @@ def accuracy_on(predict: Any, datasets: list[Path], split: str) -> dict[str, dic
         data = load_dataset(path, split=None if split == "all" else split)
         if len(data.labels) == 0:
             raise ValueError(f"{path} has no images in split {split!r}")
-        probs, ms = predict_all(predict, data.images)
+        probs, ms = predict_all(predict, data.images, data.pixel_aspect())
         predicted = probs.argmax(axis=1)
         m = compute_metrics(data.labels, predicted, ms, data.boundary_margin_cm())
         out[path.name] = {
@@ -202,6 +216,27 @@ def accuracy_on(predict: Any, datasets: list[Path], split: str) -> dict[str, dic
     return out
 
 
+def _graph_predictor(raw: bytes, size: tuple[int, int]) -> Any:
+    """A `train.network.evaluate.Predictor` on ONNX bytes (onnxruntime), the pixel aspect
+    fed when the graph takes it."""
+    import onnxruntime as ort
+
+    from train.network.evaluate import network_batch
+
+    options = ort.SessionOptions()
+    options.log_severity_level = 3  # not the warning about the overridable `pixel_aspect`
+    session = ort.InferenceSession(raw, options, providers=["CPUExecutionProvider"])
+    aspect = any(i.name == PIXEL_ASPECT for i in session.get_overridable_initializers())
+
+    def predict(images: np.ndarray, pixel_aspect: np.ndarray) -> np.ndarray:
+        feeds = {INPUT_NAME: network_batch(images, size)}
+        if aspect:
+            feeds[PIXEL_ASPECT] = np.asarray(pixel_aspect, np.float32)
+        return session.run([PROBABILITIES], feeds)[0]
+
+    return predict
+
+
 def export(
     checkpoint_path: Path,
     name: str,
@@ -215,20 +250,13 @@ def export(
 
     Accuracy on `eval_datasets` is measured with onnxruntime on the exported graph itself.
     """
-    import onnxruntime as ort
-
-    from train.network.evaluate import network_batch
     from train.network.fit import load_network
     from train.network.model import export_form
 
     trained, checkpoint = load_network(checkpoint_path)
     net = export_form(trained)
     raw = onnx_bytes(net)
-    session = ort.InferenceSession(raw, providers=["CPUExecutionProvider"])
-
-    def predict(images: np.ndarray) -> np.ndarray:
-        return session.run(None, {INPUT_NAME: network_batch(images, net.size)})[0]
-
+    predict = _graph_predictor(raw, net.size)
     accuracy = accuracy_on(predict, eval_datasets, split) if eval_datasets else {}
     card = build_card(name, checkpoint, accuracy, version, notes)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -249,9 +277,6 @@ def recard(
     """Measure a shipped ONNX model again on `eval_datasets` and write it with its card's
     accuracy replaced (training provenance unchanged) as out_dir/<name>.onnx + .json."""
     import onnx
-    import onnxruntime as ort
-
-    from train.network.evaluate import network_batch
 
     model = onnx.load(str(onnx_path))
     cards = [p.value for p in model.metadata_props if p.key == "model_card"]
@@ -259,12 +284,7 @@ def recard(
         raise ValueError(f"{onnx_path} has no model card in its metadata")
     card = json.loads(cards[0])
     raw = onnx_path.read_bytes()
-    session = ort.InferenceSession(raw, providers=["CPUExecutionProvider"])
-    size = tuple(card["input"])
-
-    def predict(images: np.ndarray) -> np.ndarray:
-        return session.run(None, {INPUT_NAME: network_batch(images, size)})[0]
-
+    predict = _graph_predictor(raw, (int(card["input"][0]), int(card["input"][1])))
     card |= {"name": name, "accuracy": accuracy_on(predict, eval_datasets, split)}
     card["date_measured"] = datetime.now(UTC).isoformat(timespec="seconds")
     if notes is not None:

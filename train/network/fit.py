@@ -36,6 +36,7 @@ from train.network.model import (
     arch_of,
     build_network,
     channel_stats,
+    log_probabilities,
 )
 
 CHECKPOINT_FORMAT = "planar-pose-checkpoint/1"
@@ -54,6 +55,7 @@ class Split:
     blur: np.ndarray  # int [N], the data set's blur level of each image
     counts: list[int]  # images per data set, in order
     corners: np.ndarray  # float32 [N, 8]: the object corners in pixels (nan where unknown)
+    pixel_aspect: np.ndarray  # float32 [N] (`LoadedDataset.pixel_aspect`)
 
     def pool(self, repeat: list[int]) -> np.ndarray:
         """Indices of one epoch: data set k's images `repeat[k]` times (default once each)."""
@@ -74,7 +76,7 @@ def load_split(paths: list[Path], split: str) -> tuple[Split, list[dict[str, Any
     """
     from train.dataset import load_dataset
 
-    images, labels, blurs, corners, infos = [], [], [], [], []
+    images, labels, blurs, corners, aspects, infos = [], [], [], [], [], []
     for path in paths:
         if not (path / "labels.csv").is_file():
             raise TrainingError(f"not a data set (no labels.csv): {path}")
@@ -83,6 +85,7 @@ def load_split(paths: list[Path], split: str) -> tuple[Split, list[dict[str, Any
         labels.append(data.labels)
         blurs.append(np.full(len(data.labels), int(data.manifest.get("blur", 0))))
         corners.append(_corners(data.rows))
+        aspects.append(data.pixel_aspect())
         # the manifest's own "count" is the whole set's: this split's count comes last
         infos.append(
             {"path": str(path), **data.manifest, "split": split, "count": len(data.labels)}
@@ -96,6 +99,7 @@ def load_split(paths: list[Path], split: str) -> tuple[Split, list[dict[str, Any
         np.concatenate(blurs),
         [len(lab) for lab in labels],
         np.concatenate(corners),
+        np.concatenate(aspects),
     )
     return out, infos
 
@@ -117,7 +121,10 @@ class Augmenter:
       sees all levels;
     * crop: with probability `p_crop`, a crop of U(0.85, 1) of the width and height at a
       random place, resized back: the camera centre (so the class) is unchanged, the image
-      is what a camera with a longer focal length and a shifted principal point sees;
+      is what a camera with a longer focal length and a shifted principal point sees; or,
+      with probability `p_squash`, a band of the full width and U(0.7, 1) of the height
+      that keeps the object's corners inside where it can: a wide photo (16:9 is a band of
+      0.75) squashed to the input size, as the service does;
     * photometric: contrast x U(0.7, 1.3), brightness + U(-25, 25), per-channel gain
       U(0.9, 1.1), grey level with probability `p_grey` (real photos may be grey), Gaussian
       noise with sigma U(0, 6) grey levels.
@@ -126,23 +133,36 @@ class Augmenter:
     """
 
     def __init__(
-        self, size: tuple[int, int], p_blur: float = 0.5, p_grey: float = 0.2, p_crop: float = 0.5
+        self,
+        size: tuple[int, int],
+        p_blur: float = 0.5,
+        p_grey: float = 0.2,
+        p_crop: float = 0.5,
+        p_squash: float = 0.0,
     ) -> None:
         self.size = size
         self.p_blur = p_blur
         self.p_grey = p_grey
         self.p_crop = p_crop
+        self.p_squash = p_squash
 
     def crop(
         self, image: np.ndarray, corners: np.ndarray, rng: np.random.Generator
     ) -> tuple[np.ndarray, np.ndarray]:
-        """A random crop of U(0.85, 1) of each side, resized back to the image size, and the
+        """A random crop (see the class doc), resized back to the image size, and the
         corners (8,) px moved with it."""
         import cv2
 
         h, w = image.shape[:2]
-        cw, ch = int(round(w * rng.uniform(0.85, 1.0))), int(round(h * rng.uniform(0.85, 1.0)))
-        x0, y0 = int(rng.integers(w - cw + 1)), int(rng.integers(h - ch + 1))
+        if rng.random() < self.p_squash:
+            cw, ch = w, int(round(h * rng.uniform(0.7, 1.0)))
+            v = corners[1::2]
+            lo, hi = (0, h - ch) if np.isnan(v).any() else (v.max() + 1 - ch, v.min())
+            lo, hi = int(np.clip(np.ceil(lo), 0, h - ch)), int(np.clip(np.floor(hi), 0, h - ch))
+            x0, y0 = 0, int(rng.integers(min(lo, hi), max(lo, hi) + 1))
+        else:
+            cw, ch = int(round(w * rng.uniform(0.85, 1.0))), int(round(h * rng.uniform(0.85, 1.0)))
+            x0, y0 = int(rng.integers(w - cw + 1)), int(rng.integers(h - ch + 1))
         out = cv2.resize(image[y0 : y0 + ch, x0 : x0 + cw], (w, h), interpolation=cv2.INTER_AREA)
         scale = np.tile([w / cw, h / ch], 4)
         return out, (corners + 0.5 - np.tile([x0, y0], 4)) * scale - 0.5
@@ -232,7 +252,8 @@ def evaluate_split(net: NormalisedNet, split: Split, batch: int = 256) -> tuple[
     loss, correct = 0.0, 0
     for i in range(0, len(split.labels), batch):
         y = torch.from_numpy(split.labels[i : i + batch])
-        out = net(to_input(split.images[i : i + batch]))
+        x = to_input(split.images[i : i + batch])
+        out = log_probabilities(net, x, torch.from_numpy(split.pixel_aspect[i : i + batch]))
         loss += F.nll_loss(out, y, reduction="sum").item()
         correct += int((out.argmax(1) == y).sum())
     n = max(len(split.labels), 1)
@@ -263,7 +284,7 @@ def fit(config: FitConfig, resume: bool = False) -> dict[str, Any]:
     net = net.to(memory_format=torch.channels_last)
     opt = _optimiser(config, net)
     sched = _schedule(config, opt)
-    augmenter = Augmenter(size) if config.augment else None
+    augmenter = Augmenter(size, p_squash=config.squash) if config.augment else None
     # The compiled module shares its parameters with `net` (used for evaluation and saving).
     step_net = torch.compile(net) if config.compile else net
 

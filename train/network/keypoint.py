@@ -13,10 +13,11 @@ and the class follows from them as the SPEC labels define it:
     align     the corners moved to sub-pixel accuracy by aligning the checker pattern to the
               image (`train.network.align`: Gauss-Newton, no weights; not in training, where
               the class loss does not depend on them)
-    pose      homography of the board rectangle onto the corners (closed form), pose with a
+    pose      homography of the board rectangle onto the corners, undistorted with a prior
+              radial distortion (closed form), pose with a
               pinhole camera (principal point at the image centre, the focal length that makes
-              the board's axes orthogonal, drawn to a prior where the view says little),
-              camera centre c [N, 3] cm in the object frame
+              the board's axes orthogonal, drawn to a prior where the view says little, pixels
+              of the given aspect), camera centre c [N, 3] cm in the object frame
     parity    the image sampled at the 70 square centres through the homography, correlated
               with the checker pattern: its sign says whether the corner order is the true one
               or a half turn (which maps c to (-cx, -cy, cz))
@@ -28,9 +29,10 @@ and the class follows from them as the SPEC labels define it:
 
 The heat-map channels are trained on the corners up to a half turn: of the two orders, the
 target is the one whose corner 0 is the upper end of the 0-2 diagonal (`fit._corner_loss`);
-parity is not learned. Input: float32 [N, 3, 120, 160], RGB in [0, 1]. Output of `forward`:
-log-probabilities [N, 9]; `answer` also gives the aligned corners in the object's order (the
-exported graph's second output, `corners`).
+parity is not learned. Input: float32 [N, 3, 120, 160], RGB in [0, 1], and optionally the
+pixel aspect [N] (`camera_centre`; 1 where not given). Output of `forward`: log-probabilities
+[N, 9]; `answer` also gives the aligned corners in the object's order (the exported graph's
+second output, `corners`).
 """
 
 from __future__ import annotations
@@ -52,6 +54,11 @@ SIZE = (160, 120)
 # and the bounds are x the SPEC camera's focal length, the weight in the units of the
 # normalised constraints; chosen on the corpus's val sources (class accuracy; docs/training.md).
 FOCAL_PRIOR, FOCAL_PRIOR_WEIGHT, FOCAL_BOUNDS = 0.8, 0.01, (0.4, 1.2)
+# The radial distortion k1 the corners are undistorted with before the pose (`undistorted`),
+# in normalised coordinates of the prior camera: the corpus's calibrated train and val
+# cameras range from -0.55 to +0.22 (median -0.29, mean -0.16), the renders draw it from
+# -0.45..0.05; chosen on the val sources (docs/training.md)
+RADIAL_PRIOR = -0.2
 STRIDES = (4, 2)  # input pixels per heat-map pixel: 40x30 maps, or 80x60 ("keypoint-s2")
 SQUARES = (10, 7)  # squares of the board along its width (x) and height (y)
 # |corr(image, checker)| at the aligned corners above which the board is taken as present
@@ -172,10 +179,11 @@ class KeypointNet(NormalisedNet):
 
     # -- geometry ------------------------------------------------------------------------------
     def focal_length(self, Hc: torch.Tensor) -> torch.Tensor:
-        """Focal length [N] px for centred object-plane homographies Hc [N, 3, 3]: the prior
-        `focal`, or (self_calibrate) the one that best makes the images of the board's x and
-        y axes orthogonal and of equal length (Zhang's constraints, square pixels), with the
-        prior as one more constraint of weight `FOCAL_PRIOR_WEIGHT`, within `focal_bounds`.
+        """Focal length [N] px for centred object-plane homographies Hc [N, 3, 3] in square
+        pixels: the prior `focal`, or (self_calibrate) the one that best makes the images of
+        the board's x and y axes orthogonal and of equal length (Zhang's constraints), with
+        the prior as one more constraint of weight `FOCAL_PRIOR_WEIGHT`, within
+        `focal_bounds`.
 
         Unknown z = (f0 / f)^2 with f0 the prior; in pixel units of f0, with Hc scaled to unit
         norm of its first two columns, the constraints are a_i z + b_i = 0 (i = 1, 2) and the
@@ -203,12 +211,32 @@ class KeypointNet(NormalisedNet):
         state_dict.pop(prefix + "focal_bounds", None)
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
-    def camera_centre(self, H_unit: torch.Tensor) -> torch.Tensor:
+    @staticmethod
+    def _to_square(pixel_aspect: torch.Tensor) -> torch.Tensor:
+        """Pixel aspect [N] -> the (u, v) scale [N, 2] to square pixels of the input's width."""
+        return torch.stack([torch.ones_like(pixel_aspect), 1 / pixel_aspect], 1)
+
+    def undistorted(self, q: torch.Tensor, pixel_aspect: torch.Tensor) -> torch.Tensor:
+        """Corners [N, 4, 2] px -> the same corners without the radial distortion
+        `RADIAL_PRIOR` of the prior camera (first-order inverse x_u = x_d / (1 + k1 r_d^2),
+        normalised coordinates of the prior focal length, square pixels)."""
+        scale = (self._to_square(pixel_aspect) / self.focal)[:, None, :]  # [N, 1, 2]
+        xd = (q - self.principal) * scale
+        r2 = (xd * xd).sum(2, keepdim=True)
+        return xd / (1 + RADIAL_PRIOR * r2) / scale + self.principal
+
+    def camera_centre(self, H_unit: torch.Tensor, pixel_aspect: torch.Tensor) -> torch.Tensor:
         """Unit-square homography [N, 3, 3] -> camera centre [N, 3] cm in the object frame
-        (M = A^-1 H = lambda [r1 r2 t], c = -R^T t), with the camera of `focal_length`."""
+        (M = A^-1 H = lambda [r1 r2 t], c = -R^T t), with the camera of `focal_length`.
+
+        `pixel_aspect` [N] is the height over the width of an input pixel in the scene (fy /
+        fx): 1 for a 4:3 photo, 0.75 W / H for a landscape W x H photo resized to 160x120
+        (16:9: 4/3; `service.preprocess.NetworkFrame`, which turns portraits to landscape).
+        The rows are brought to square pixels of the input's width first."""
         H = H_unit @ self.to_unit
         w = H[:, 2:3, :]
-        Hc = torch.cat([H[:, :2, :] - self.principal[None, :, None] * w, w], 1)
+        centred = H[:, :2, :] - self.principal[None, :, None] * w
+        Hc = torch.cat([centred * self._to_square(pixel_aspect)[:, :, None], w], 1)
         f = self.focal_length(Hc)
         M = torch.cat([Hc[:, :2, :] / f[:, None, None], w], 1)
         m1, m2, m3 = M[:, :, 0], M[:, :, 1], M[:, :, 2]
@@ -259,47 +287,56 @@ class KeypointNet(NormalisedNet):
         return torch.cat([near[:, None] * q, (1 - near[:, None]) * q], 1)
 
     def _classes_if_present(
-        self, x: torch.Tensor, q: torch.Tensor
+        self, x: torch.Tensor, q: torch.Tensor, pixel_aspect: torch.Tensor | None
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """RGB [N, 3, H, W] in [0, 1] and its corners [N, 4, 2] px -> P(class 1..8 | object
-        present) [N, 8] (homography, parity, camera centre) and the parity [N]."""
-        H = square_homography(q)
-        parity = self.parity(x, H)
+        """RGB [N, 3, H, W] in [0, 1], its corners [N, 4, 2] px and pixel aspect [N] (None:
+        square pixels) -> P(class 1..8 | object present) [N, 8] (homography, parity, camera
+        centre of the undistorted corners) and the parity [N]."""
+        parity = self.parity(x, square_homography(q))
         order_ok = torch.sigmoid(self.parity_gain * parity)
-        return self.class_probabilities(self.camera_centre(H), order_ok), parity
+        # [N] from [N] or [1] (the exported graph's default)
+        aspect = torch.ones_like(parity) * (1.0 if pixel_aspect is None else pixel_aspect)
+        H = square_homography(self.undistorted(q, aspect))
+        return self.class_probabilities(self.camera_centre(H, aspect), order_ok), parity
 
-    def answer(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """RGB [N, 3, H, W] in [0, 1] -> log-probabilities [N, 9] (softmax gives them back)
-        and the aligned corners [N, 4, 2] px of the input image, in the object's order
-        (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y) as the parity reads it (meaningless where the
-        object is not in view)."""
+    def answer(
+        self, x: torch.Tensor, pixel_aspect: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """RGB [N, 3, H, W] in [0, 1] and the pixel aspect [N] (`camera_centre`; None: 1) ->
+        log-probabilities [N, 9] (softmax gives them back) and the aligned corners [N, 4, 2]
+        px of the input image, in the object's order (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y) as
+        the parity reads it (meaningless where the object is not in view)."""
         heat, presence = self._encode((x - self.mean) / self.std)
         q, corr = self.align(x, self._soft_argmax(heat))
-        pk, parity = self._classes_if_present(x, q)
+        pk, parity = self._classes_if_present(x, q, pixel_aspect)
         # the checker pattern found at the corners is evidence of the board on its own
         pattern = torch.sigmoid(PATTERN_SLOPE * (corr.abs() - PATTERN_CORR))
         present = (1 - (1 - torch.sigmoid(presence)) * (1 - pattern))[:, None]
         log_p = torch.log(torch.cat([1 - present, present * pk], 1).clamp_min(1e-7))
         return log_p, torch.where(parity[:, None, None] >= 0, q, torch.roll(q, 2, 1))
 
-    def logits(self, x: torch.Tensor) -> torch.Tensor:
-        """RGB [N, 3, H, W] in [0, 1] -> log-probabilities [N, 9] (softmax gives them back)."""
-        return self.answer(x)[0]
+    def logits(self, x: torch.Tensor, pixel_aspect: torch.Tensor | None = None) -> torch.Tensor:
+        """RGB [N, 3, H, W] in [0, 1] (and its pixel aspect [N]) -> log-probabilities [N, 9]
+        (softmax gives them back)."""
+        return self.answer(x, pixel_aspect)[0]
 
     def corners(self, x: torch.Tensor) -> torch.Tensor:
         """RGB [N, 3, H, W] in [0, 1] -> the corners [N, 4, 2] px of `answer`."""
         return self.answer(x)[1]
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
-        """RGB [N, 3, H, W] in [0, 1] -> log-probabilities [N, 9]; in training mode also the
-        corners [N, 8] ((u, v) x 4) scaled to [-1, 1], the target `fit._corner_loss` trains."""
+    def forward(
+        self, x: torch.Tensor, pixel_aspect: torch.Tensor | None = None
+    ) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
+        """RGB [N, 3, H, W] in [0, 1] (and its pixel aspect [N]) -> log-probabilities [N, 9];
+        in training mode also the corners [N, 8] ((u, v) x 4) scaled to [-1, 1], the target
+        `fit._corner_loss` trains."""
         if not self.training:
-            return self.logits(x)
+            return self.logits(x, pixel_aspect)
         heat, presence = self._encode((x - self.mean) / self.std)
         q = self._soft_argmax(heat)
         # the class loss trains the presence logit only; the corners learn from their own loss
         with torch.no_grad():
-            pk = self._classes_if_present(x, q)[0]
+            pk = self._classes_if_present(x, q, pixel_aspect)[0]
         log_present = F.logsigmoid(presence)[:, None]
         log_absent = F.logsigmoid(-presence)[:, None]
         log_p = torch.cat([log_absent, log_present + torch.log(pk.clamp_min(1e-7))], 1)

@@ -235,19 +235,39 @@ def export_form(net: NormalisedNet) -> NormalisedNet:
     return (fold_batch_norm(net) if isinstance(net, PoseNet) else net).eval()
 
 
+def takes_pixel_aspect(net: NormalisedNet) -> bool:
+    """Whether the network reads the pixel aspect of its input (the keypoint networks, whose
+    class comes from the geometry of the board's corners)."""
+    return hasattr(net, "answer")
+
+
+def log_probabilities(
+    net: NormalisedNet, x: torch.Tensor, pixel_aspect: torch.Tensor | None = None
+) -> torch.Tensor:
+    """Eval-mode log-probabilities [N, 9] of RGB [N, 3, H, W] in [0, 1]; the pixel aspect
+    [N] (`service.preprocess.pixel_aspect`) goes to the networks that read it."""
+    if takes_pixel_aspect(net):
+        out: torch.Tensor = net(x, pixel_aspect)
+        return out
+    return net(x)
+
+
 class Probabilities(nn.Module):
     """Wrap a pose network so it outputs probabilities [N, 9] (softmax) and, for a network
-    with an `answer` (the keypoint network), its corners [N, 4, 2] px: the exported graph."""
+    with an `answer` (the keypoint network), its corners [N, 4, 2] px from the image and its
+    pixel aspect [N]: the exported graph."""
 
     def __init__(self, net: NormalisedNet) -> None:
         super().__init__()
         self.net = net
 
-    def forward(self, image: torch.Tensor) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
+    def forward(
+        self, image: torch.Tensor, pixel_aspect: torch.Tensor | None = None
+    ) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
         answer = getattr(self.net, "answer", None)
         if answer is None:
             return F.softmax(self.net.logits(image), dim=1)
-        log_p, corners = answer(image)
+        log_p, corners = answer(image, pixel_aspect)
         return F.softmax(log_p, dim=1), corners
 
 

@@ -22,7 +22,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from service.preprocess import resize_rgb
+from service.preprocess import NetworkFrame
 from train import repo_relative
 from train.dataset import CORNER_COLUMNS, LABEL_COLUMNS
 from train.geometry import pose_class
@@ -70,6 +70,12 @@ def optical_axis_target(cam: np.ndarray, rvec: np.ndarray | None) -> np.ndarray:
     return cam + (-cam[2] / axis[2]) * axis
 
 
+def turned_roll(roll_deg: float) -> float:
+    """The camera roll (degrees, [-180, 180)) of a photo turned a quarter clockwise
+    (`service.preprocess.NetworkFrame`): its content turns by -90 degrees."""
+    return (roll_deg + 90.0) % 360.0 - 180.0
+
+
 def read_rgb(path: Path) -> np.ndarray:
     """Image file -> RGB uint8 [H, W, 3] (grey images get three equal channels)."""
     bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
@@ -84,8 +90,8 @@ def build_real_dataset(
     """Write out/ (images/*.png, labels.csv, manifest.json) from `source`; return the manifest.
 
     Besides the class, labels.csv gets the target (`optical_axis_target`), the camera roll
-    (`train.profile.roll_of_pose`) and the focal length relative to the SPEC one when the
-    source gives `rvec0..2` and `fx`, `width`.
+    (`train.profile.roll_of_pose`), the focal length relative to the SPEC one when the
+    source gives `rvec0..2` and `fx`, `width`, and the pixel aspect of the resized photo.
     """
     from train.geometry import SPEC_FOCAL_160
     from train.profile import load_profile, roll_of_pose
@@ -110,7 +116,11 @@ def build_real_dataset(
         cam = np.array([float(row[k]) for k in ("cam_x", "cam_y", "cam_z")])
         rvec = np.array([float(row[f"rvec{i}"]) for i in range(3)]) if "rvec0" in row else None
         target = optical_axis_target(cam, rvec)
-        image = blur_image(resize_rgb(read_rgb(source / row["file"]), wh), blur, wh)
+        photo = read_rgb(source / row["file"])
+        frame = NetworkFrame((photo.shape[1], photo.shape[0]), wh)
+        image = blur_image(frame.input_of(photo), blur, wh)
+        roll = 0.0 if rvec is None else roll_of_pose(rotation(rvec))
+        roll = turned_roll(roll) if frame.turned else roll
         name = f"images/{Path(row['file']).stem}.png"
         cv2.imwrite(str(out / name), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
         focal = ""
@@ -124,11 +134,12 @@ def build_real_dataset(
                 **{f"target_{a}": f"{v:.4f}" for a, v in zip("xyz", target, strict=True)},
                 "blur": blur,
                 "split": assignment[moment_of(row["file"])],
-                "roll_deg": "" if rvec is None else f"{roll_of_pose(rotation(rvec)):.2f}",
+                "roll_deg": "" if rvec is None else f"{roll:.2f}",
                 "focal_scale": focal,
+                "pixel_aspect": f"{frame.pixel_aspect:.4f}",
             }
         )
-    write_labels(out / "labels.csv", labels)
+    write_labels(out / "labels.csv", labels, [*LABEL_COLUMNS, "pixel_aspect"])
     counts = {s: sum(r["split"] == s for r in labels) for s in SPLITS}
     classes = np.bincount([r["class"] for r in labels], minlength=9).tolist()
     manifest = {
@@ -150,9 +161,11 @@ def build_real_dataset(
     return manifest
 
 
-#: Columns of a corpus data set: the data set ones, the source and the camera at the set's size.
+#: Columns of a corpus data set: the data set ones, the source, the camera at the set's size
+#: and the pixel aspect of the resized photo (`service.preprocess.pixel_aspect`).
 CORPUS_SET_COLUMNS = [
     *LABEL_COLUMNS, "source", "original", "fx", "fy", "cx", "cy", "k2", "p1", "p2", "k3",
+    "pixel_aspect",
 ]  # fmt: skip
 
 
@@ -180,25 +193,23 @@ def corpus_sources(corpus: Path) -> list[Path]:
     return found
 
 
-def _rescaled(row: dict[str, str], wh: tuple[int, int]) -> dict[str, str]:
-    """Camera (fx, fy, cx, cy) and object corners of a stored photo, rescaled to the set's
-    size wh (W, H), pixel centres kept; distortion coefficients (normalised coordinates) and
-    the rest unchanged."""
-    if not row.get("fx"):
-        return {}
-    s = np.array([wh[0] / float(row["width"]), wh[1] / float(row["height"])])
-    cam = {"fx": float(row["fx"]) * s[0], "fy": float(row["fy"]) * s[1]}
-    cam |= {
-        "cx": (float(row["cx"]) + 0.5) * s[0] - 0.5,
-        "cy": (float(row["cy"]) + 0.5) * s[1] - 0.5,
-    }
-    out = {k: f"{v:.4f}" for k, v in cam.items()}
+def in_frame(row: dict[str, str], frame: NetworkFrame) -> dict[str, str]:
+    """The pixel aspect, camera (fx, fy, cx, cy), object corners and roll of a stored photo's
+    labels in the set's images (`frame`: turned to landscape if portrait, then resized, pixel
+    centres kept); k1 (normalised coordinates) and the rest unchanged."""
+    out = {"pixel_aspect": f"{frame.pixel_aspect:.4f}"}
+    if frame.turned and row.get("roll_deg"):
+        out["roll_deg"] = f"{turned_roll(float(row['roll_deg'])):.2f}"
     if row.get("corner_x0"):
-        uv = np.array([float(row[c]) for c in CORNER_COLUMNS]).reshape(4, 2)
-        out |= dict(
-            zip(CORNER_COLUMNS, (f"{v:.3f}" for v in ((uv + 0.5) * s - 0.5).ravel()), strict=True)
-        )
-    return out
+        uv = frame.to_network(np.array([float(row[c]) for c in CORNER_COLUMNS]).reshape(4, 2))
+        out |= dict(zip(CORNER_COLUMNS, (f"{v:.3f}" for v in uv.ravel()), strict=True))
+    if not row.get("fx"):
+        return out
+    f = np.array([float(row["fx"]), float(row["fy"])])
+    c = frame.to_network(np.array([float(row["cx"]), float(row["cy"])]))
+    f = (f[::-1] if frame.turned else f) * np.asarray(frame.size) / frame.upright_size
+    cam = {"fx": f[0], "fy": f[1], "cx": c[0], "cy": c[1]}
+    return out | {k: f"{v:.4f}" for k, v in cam.items()}
 
 
 def build_corpus_dataset(
@@ -208,8 +219,9 @@ def build_corpus_dataset(
 
     `corpus/splits.toml` names the split of every source: a source's photos all go to one
     split, so the test split holds cameras and scenes never used for training or selection.
-    The images are resized to the network size (the service's area resize, aspect ratio not
-    kept, as in serving) and blurred with the SPEC level.
+    The images go to the network size as in serving (`service.preprocess.NetworkFrame`:
+    portraits turned to landscape, the area resize, aspect ratio not kept: the `pixel_aspect`
+    column says by how much) and are blurred with the SPEC level.
     """
     from train.profile import load_profile
     from train.synth.blur import blur_image
@@ -228,7 +240,9 @@ def build_corpus_dataset(
         with (src / "labels.csv").open(newline="") as fh:
             rows = list(csv.DictReader(fh))
         for row in rows:
-            image = blur_image(resize_rgb(read_rgb(src / row["file"]), wh), blur, wh)
+            photo = read_rgb(src / row["file"])
+            frame = NetworkFrame((photo.shape[1], photo.shape[0]), wh)
+            image = blur_image(frame.input_of(photo), blur, wh)
             name = f"images/{src.name}__{Path(row['file']).stem}.png"
             cv2.imwrite(str(out / name), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
             label = {k: row.get(k, "") for k in LABEL_COLUMNS}
@@ -236,7 +250,7 @@ def build_corpus_dataset(
                 cam = np.array([float(row[f"cam_{a}"]) for a in "xyz"])
                 label["class"] = int(pose_class(cam, z_split))
             label |= {"file": name, "blur": blur, "split": splits[src.name], "source": src.name}
-            label |= {"original": row.get("original", "")} | _rescaled(row, wh)
+            label |= {"original": row.get("original", "")} | in_frame(row, frame)
             labels.append(label)
     with (out / "labels.csv").open("w", newline="") as fh:
         writer = csv.DictWriter(fh, fieldnames=CORPUS_SET_COLUMNS, lineterminator="\n")

@@ -322,10 +322,10 @@ def _manifest(plan: Plan) -> dict[str, Any]:
     }
 
 
-def write_labels(path: Path, rows: list[dict[str, Any]]) -> None:
-    """Write labels.csv rows (LABEL_COLUMNS) to `path`."""
+def write_labels(path: Path, rows: list[dict[str, Any]], columns: list[str] | None = None) -> None:
+    """Write labels.csv rows (`columns`, default LABEL_COLUMNS) to `path`."""
     with path.open("w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=LABEL_COLUMNS, lineterminator="\n")
+        writer = csv.DictWriter(fh, fieldnames=columns or LABEL_COLUMNS, lineterminator="\n")
         writer.writeheader()
         writer.writerows(rows)
 

@@ -91,18 +91,23 @@ def test_bad_inputs_are_refused():
 
 
 def test_predict_all_batches_and_times():
-    calls = []
+    calls, aspects = [], []
 
-    def predict(images):
+    def predict(images, pixel_aspect):
         calls.append(len(images))
+        aspects.append(pixel_aspect)
         p = np.zeros((len(images), 9), np.float32)
         p[:, 4] = 1
         return p
 
     probs, ms = predict_all(predict, np.zeros((70, 6, 8, 3), np.uint8), batch=32)
-    assert calls == [32, 32, 6]
+    assert calls == [32, 32, 6] and all((a == 1).all() for a in aspects)
     assert probs.shape == (70, 9) and (probs.argmax(1) == 4).all()
     assert ms >= 0
+    aspect = np.linspace(0.75, 1.5, 70, dtype=np.float32)
+    aspects.clear()
+    predict_all(predict, np.zeros((70, 6, 8, 3), np.uint8), aspect, batch=32)
+    assert np.array_equal(np.concatenate(aspects), aspect)
 
 
 def test_report_writes_json_markdown_and_plots(tmp_path):

@@ -111,6 +111,22 @@ def test_augmenter_keeps_shape_and_is_seeded():
     assert moved.any() and np.all(width[moved] > 60) and np.all(height[moved] > 40)
 
 
+def test_the_squash_crop_is_a_band_that_keeps_the_corners():
+    """p_squash = 1: every crop is a full-width band of 0.7-1 of the height, stretched back
+    to the height (a wide photo squashed to 4:3), with the object's corners inside it."""
+    aug = Augmenter((80, 60), p_blur=0.0, p_grey=0.0, p_crop=1.0, p_squash=1.0)
+    rng = np.random.default_rng(3)
+    ramp = np.broadcast_to(np.arange(60, dtype=np.uint8)[:, None, None] * 4, (60, 80, 3))
+    corners = np.array([20, 15, 60, 18, 58, 44, 22, 40], np.float32)
+    for _ in range(20):
+        out, moved = aug.crop(np.ascontiguousarray(ramp), corners, rng)
+        assert np.array_equal(moved[0::2], corners[0::2])  # the width is kept
+        stretch = (moved[5] - moved[3]) / (corners[5] - corners[3])
+        assert 1.0 <= stretch <= 1 / 0.7 + 1e-6
+        assert moved[1::2].min() >= -0.5 and moved[1::2].max() <= 59.5
+        assert np.ptp(out[:, 40, 0].astype(int)) > 150  # rows from the top to the bottom band
+
+
 def test_errors_are_clear(tiny_set, tmp_path):
     with pytest.raises(TrainingError, match="not a data set"):
         fit(_config(tmp_path / "missing", tmp_path / "run"))

@@ -62,11 +62,33 @@ def test_camera_centre_from_the_corners(centre, roll):
     unit = torch.tensor([[0.0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]])
     mapped = torch.einsum("ij,kj->ki", H[0], unit)
     assert torch.allclose(mapped[:, :2] / mapped[:, 2:], q[0], atol=1e-3)
-    c = net.camera_centre(H)[0].double().numpy()
+    square = torch.ones(1)
+    c = net.camera_centre(H, square)[0].double().numpy()
     assert np.abs(c - centre).max() < 0.05
     # the half-turned order is the same board seen from (-cx, -cy, cz)
-    c_turned = net.camera_centre(square_homography(torch.roll(q, 2, 1)))[0].double().numpy()
+    turned = square_homography(torch.roll(q, 2, 1))
+    c_turned = net.camera_centre(turned, square)[0].double().numpy()
     assert np.abs(c_turned - np.array([-centre[0], -centre[1], centre[2]])).max() < 0.05
+
+
+@pytest.mark.parametrize(("photo", "aspect"), [((1280, 720), 4 / 3), ((640, 640), 0.75)])
+def test_camera_centre_of_a_photo_squashed_to_the_input_size(photo, aspect):
+    """A 16:9 and a square photo resized to 160x120: the pixel aspect undoes the squash."""
+    net = KeypointNet()
+    net.self_calibrate.fill_(0.0)
+    centre = (12.0, -9.0, 55.0)
+    w, h = photo
+    f_photo = float(net.focal) * w / 160  # the prior camera, at the photo's scale
+    A = np.array([[f_photo, 0, (w - 1) / 2], [0, f_photo, (h - 1) / 2], [0, 0, 1.0]])
+    R = look_at(np.array(centre), np.zeros(3), np.radians(20.0))
+    uv = project_points(A, R, translation(R, np.array(centre)), OBJECT_CORNERS)
+    q = torch.from_numpy((uv + 0.5) * [160 / w, 120 / h] - 0.5).float()[None]
+    assert aspect == pytest.approx((120 / h) / (160 / w))
+    H = square_homography(q)
+    c = net.camera_centre(H, torch.tensor([aspect]))[0].double().numpy()
+    assert np.abs(c - centre).max() < 0.1
+    squashed = net.camera_centre(H, torch.ones(1))[0].double().numpy()
+    assert np.abs(squashed - centre).max() > 3.0
 
 
 def _focal_estimate(net: KeypointNet, q: torch.Tensor) -> float:
@@ -152,6 +174,15 @@ def test_the_exported_graph_decodes_like_torch(stride):
     assert got.shape == (3, 9) and np.allclose(got.sum(1), 1.0, atol=1e-5)
     present = got[0, 1:] / got[0, 1:].sum()
     assert int(present.argmax()) + 1 == 4  # near, x+, y-
+    # `pixel_aspect`: an input with the default 1, not a required one
+    assert [i.name for i in session.get_inputs()] == ["image"]
+    assert [i.name for i in session.get_overridable_initializers()] == ["pixel_aspect"]
+    aspect = np.array([1.0, 4 / 3, 0.8], np.float32)
+    fed = session.run(["probabilities"], {"image": x, "pixel_aspect": aspect})[0]
+    assert np.abs(fed[0] - got[0]).max() < 1e-6 and np.abs(fed[1] - got[1]).max() > 1e-3
+    with torch.no_grad():
+        want_fed = net(torch.from_numpy(x), torch.from_numpy(aspect)).exp().numpy()
+    assert np.abs(fed - want_fed).max() < 1e-4
 
 
 def test_training_mode_outputs_and_build():

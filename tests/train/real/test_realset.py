@@ -11,11 +11,19 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from service.preprocess import NetworkFrame
 from train import ASSETS_DIR
 from train.cli import app
-from train.dataset import load_dataset
-from train.geometry import pose_class
-from train.real.realset import build_real_dataset, moment_of, optical_axis_target, split_moments
+from train.dataset import CORNER_COLUMNS, load_dataset
+from train.geometry import look_at, pose_class, project_points, translation
+from train.profile import roll_of_pose
+from train.real.realset import (
+    build_real_dataset,
+    in_frame,
+    moment_of,
+    optical_axis_target,
+    split_moments,
+)
 
 SOURCE = ASSETS_DIR / "real" / "chessboard-stereo"
 runner = CliRunner()
@@ -95,3 +103,29 @@ def test_cli(tmp_path):
     assert result.exit_code == 1 and "no labels.csv" in result.output
     result = runner.invoke(app, ["realset", str(SOURCE), str(out), "--size", "3"])
     assert result.exit_code == 2 and "--size must be 1" in result.output
+
+
+def test_a_portrait_photo_labels_follow_the_turn_to_landscape() -> None:
+    """A 480x640 portrait turned to the 160x120 landscape input: its corners, camera and
+    roll are those of the same camera rolled by -90 degrees, seen at 160x120."""
+    centre, roll = np.array([10.0, -5.0, 50.0]), 30.0
+    half = np.array([12.5, 8.75])
+    board = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]]) * [*half, 0]
+
+    def view(size: tuple[int, int], f: float, roll_deg: float) -> tuple[np.ndarray, np.ndarray]:
+        A = np.array([[f, 0, (size[0] - 1) / 2], [0, f, (size[1] - 1) / 2], [0, 0, 1.0]])
+        R = look_at(centre, np.zeros(3), np.radians(roll_deg))
+        return A, project_points(A, R, translation(R, centre), board)
+
+    A, uv = view((480, 640), 500.0, roll)
+    row = {"fx": "500", "fy": "500", "cx": f"{A[0, 2]}", "cy": f"{A[1, 2]}"}
+    row |= {"roll_deg": f"{roll}", **dict(zip(CORNER_COLUMNS, map(str, uv.ravel()), strict=True))}
+    got = in_frame(row, NetworkFrame((480, 640), (160, 120)))
+    assert float(got["roll_deg"]) == pytest.approx(
+        roll_of_pose(look_at(centre, np.zeros(3), np.radians(roll))) - 90, abs=0.01
+    )
+    A2, uv2 = view((160, 120), 500.0 / 4, roll - 90)  # 640 -> 160
+    assert np.allclose([float(got[c]) for c in CORNER_COLUMNS], uv2.ravel(), atol=1e-2)
+    fx, fy, cx, cy = (float(got[k]) for k in ("fx", "fy", "cx", "cy"))
+    assert np.allclose([fx, fy, cx, cy], [A2[0, 0], A2[1, 1], A2[0, 2], A2[1, 2]], atol=1e-3)
+    assert float(got["pixel_aspect"]) == pytest.approx(1.0)
