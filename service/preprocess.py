@@ -233,14 +233,15 @@ class NetworkFrame:
 
     def to_network(self, uv: np.ndarray) -> np.ndarray:
         """Image pixels [..., 2] (pixel centres at integers) -> network input pixels."""
-        uv = np.asarray(uv, dtype=np.float64)
+        up: np.ndarray = np.asarray(uv, dtype=np.float64)
         if self.turned:  # (u, v) -> (H0 - 1 - v, u)
-            uv = np.stack([self.image_size[1] - 1 - uv[..., 1], uv[..., 0]], -1)
-        return (uv + 0.5) * self._scale() - 0.5
+            up = np.stack([self.image_size[1] - 1 - up[..., 1], up[..., 0]], -1)
+        out: np.ndarray = (up + 0.5) * self._scale() - 0.5
+        return out
 
     def to_image(self, uv: np.ndarray) -> np.ndarray:
         """Network input pixels [..., 2] -> image pixels (the inverse of `to_network`)."""
-        up = (np.asarray(uv, dtype=np.float64) + 0.5) / self._scale() - 0.5
+        up: np.ndarray = (np.asarray(uv, dtype=np.float64) + 0.5) / self._scale() - 0.5
         if self.turned:  # (u', v') -> (v', H0 - 1 - u')
             up = np.stack([up[..., 1], self.image_size[1] - 1 - up[..., 0]], -1)
         return up
