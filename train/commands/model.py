@@ -142,14 +142,7 @@ def evaluate(
                 if same_size and data.images.shape[1:3] != (size[1], size[0]):
                     continue
                 with tqdm(total=len(data.labels), desc=f"{names[model]} on {ds.name}") as bar:
-                    metrics = evaluate_predictor(
-                        predict,
-                        data.images,
-                        data.labels,
-                        bar.update,
-                        data.boundary_margin_cm(),
-                        data.pixel_aspect(),
-                    )
+                    metrics = evaluate_predictor(predict, data, bar.update)
                 results[names[model]][ds.name] = metrics
                 tqdm.write(f"{names[model]} on {ds.name}: {100 * metrics['accuracy']:.2f} %")
         sources = {names[p]: str(p) for p in models} | {d.name: str(d) for d in datasets}

@@ -131,14 +131,7 @@ def measure_dataset(
         if tuple(size) != desc["size"] or not same_object(card, folder):
             continue
         with tqdm(total=len(data.labels), desc=f"{name} on {folder.name}") as bar:
-            measured[name] = evaluate_predictor(
-                predict,
-                data.images,
-                data.labels,
-                bar.update,
-                data.boundary_margin_cm(),
-                data.pixel_aspect(),
-            )
+            measured[name] = evaluate_predictor(predict, data, bar.update)
     for kind in config.peer_kinds():
         out = run_peer_on(data, kind, config.split, config.tune, config.limit, verbose=True)
         if out is not None:

@@ -20,9 +20,11 @@ INTRO = """# Shipped models
 Every `<name>.onnx` here has its model card beside it (`<name>.json`, also inside the ONNX
 metadata as `model_card`): object profile, input size, classes, training data and recipe, and
 the accuracies measured on the exported graph. `default.onnx` is what the service answers
-with unless asked for another model. Input: `image` float32 [N, 3, H, W], RGB in [0, 1];
-output: `probabilities` float32 [N, 9] and, for the keypoint networks, `corners` float32
-[N, 4, 2] (the object's corners in input pixels, order (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y)).
+with unless asked for another model. Input: `image` float32 [N, 3, H, W], RGB in [0, 1]
+(portraits turned a quarter clockwise first) and, for the keypoint networks of 3.4.0 on,
+`pixel_aspect` float32 [N] (default 1; 4/3 for a 16:9 photo resized to the input); output:
+`probabilities` float32 [N, 9] and, for the keypoint networks, `corners` float32 [N, 4, 2]
+(the object's corners in input pixels, order (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y)).
 
 Accuracy columns are test splits: real = the corpus's test sources (cameras never used for
 training or model selection), free / noC = renders (see docs/data.md), at blur level b.

@@ -16,6 +16,7 @@ import numpy as np
 
 from service.preprocess import to_network_input
 from service.regions import NUM_CLASSES
+from train.dataset import LoadedDataset
 
 #: A classifier: RGB uint8 images [N, H, W, 3] at the network's size and their pixel aspect
 #: [N] (`service.preprocess.pixel_aspect`: 1 unless a photo was squashed) -> probabilities
@@ -209,14 +210,9 @@ def predict_all(
 
 
 def evaluate_predictor(
-    predict: Predictor,
-    images: np.ndarray,
-    labels: np.ndarray,
-    progress: Callable | None = None,
-    margin_cm: np.ndarray | None = None,
-    pixel_aspect: np.ndarray | None = None,
+    predict: Predictor, data: LoadedDataset, progress: Callable | None = None
 ) -> dict:
-    """Metrics (see `compute_metrics`) of a predictor on images [N, H, W, 3] with labels [N]
-    (and the camera centres' margins [N] cm and the pixel aspect [N], if given)."""
-    probs, ms = predict_all(predict, images, pixel_aspect, progress=progress)
-    return compute_metrics(labels, probs.argmax(axis=1), ms, margin_cm)
+    """Metrics (see `compute_metrics`) of a predictor on a loaded data set (or split): its
+    images, labels, pixel aspect and the camera centres' margins."""
+    probs, ms = predict_all(predict, data.images, data.pixel_aspect(), progress=progress)
+    return compute_metrics(data.labels, probs.argmax(axis=1), ms, data.boundary_margin_cm())

@@ -119,6 +119,7 @@ def build_card(
     profile = profile_card(checkpoint.get("profile", {}))
     z_split = float(profile.get("z_split_cm", 60.0))
     descriptions = class_descriptions(z_split)
+    keypoint = checkpoint.get("arch", "spec").startswith("keypoint")
     training: dict[str, Any] = {
         "data": _data_summary(checkpoint.get("data", [])),
         "seed": checkpoint["config"].get("seed"),
@@ -153,12 +154,19 @@ def build_card(
         "date": datetime.now(UTC).isoformat(timespec="seconds"),
         "architecture": ARCHITECTURES[checkpoint.get("arch", "spec")],
         "input": list(checkpoint["size"]),
-        "input_format": "image: float32 [N, 3, H, W], RGB, values in [0, 1] (resize with area)",
+        "input_format": "image: float32 [N, 3, H, W], RGB, values in [0, 1] (portraits turned "
+        "a quarter clockwise, resize with area)"
+        + (
+            "; pixel_aspect: float32 [N], default 1, the height over the width of an input "
+            "pixel in the scene (4/3 for a 16:9 photo resized to the input)"
+            if keypoint
+            else ""
+        ),
         "output": "probabilities: float32 [N, 9] (softmax), index = class id"
         + (
             "; corners: float32 [N, 4, 2], the object's corners (u, v) in input pixels, "
             "order (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y)"
-            if checkpoint.get("arch", "spec").startswith("keypoint")
+            if keypoint
             else ""
         ),
         "classes": [

@@ -115,7 +115,7 @@ def test_whole_mode_matches_the_evaluator(real_sets):
     """The service's whole mode on PNG bytes answers like `evaluate` on the same images."""
     data = load_dataset(real_sets[0])
     predict, _, _ = onnx_predictor(MODEL)
-    direct = evaluate_predictor(predict, data.images, data.labels)
+    direct = evaluate_predictor(predict, data)
     via_service = detection_variants(MODEL, encode_png(data.images), data.labels)["all"]["whole"]
     assert via_service["confusion"] == direct["confusion"]
     assert np.isclose(via_service["accuracy"], direct["accuracy"])
