@@ -5,12 +5,14 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import cv2
 import numpy as np
 import onnx
 import pytest
 
 from service.model import ModelLoadError, PoseModel
-from service.settings import DEFAULT_MODEL
+from service.predictor import Predictor
+from service.settings import DEFAULT_MODEL, Settings
 
 
 def test_default_model_contract() -> None:
@@ -114,3 +116,58 @@ def test_models_without_corners_answer_none() -> None:
     assert model.corners_name is None
     probs, corners = model.predict_with_corners(np.zeros((1, 3, 120, 160), np.float32))
     assert probs.shape == (1, 9) and corners is None
+
+
+def _aspect_model(tmp_path: Path) -> Path:
+    """An 80x60 graph whose class-0 logit is the `pixel_aspect` input (default [1]), the
+    other logits 0: P(class 0) = e^a / (e^a + 8)."""
+    h = onnx.helper
+    inp = h.make_tensor_value_info("image", onnx.TensorProto.FLOAT, ["N", 3, 60, 80])
+    aspect = h.make_tensor_value_info("pixel_aspect", onnx.TensorProto.FLOAT, ["A"])
+    out = h.make_tensor_value_info("probabilities", onnx.TensorProto.FLOAT, ["N", 9])
+    inits = [
+        onnx.numpy_helper.from_array(np.zeros((3, 9), np.float32), "w9"),
+        onnx.numpy_helper.from_array(np.eye(9, dtype=np.float32)[:1], "onehot"),
+        onnx.numpy_helper.from_array(np.array([1], np.int64), "axis"),
+        onnx.numpy_helper.from_array(np.ones(1, np.float32), "pixel_aspect"),  # the default
+    ]
+    nodes = [
+        h.make_node("GlobalAveragePool", ["image"], ["pooled"]),
+        h.make_node("Flatten", ["pooled"], ["flat"]),
+        h.make_node("MatMul", ["flat", "w9"], ["zero"]),
+        h.make_node("Unsqueeze", ["pixel_aspect", "axis"], ["a"]),
+        h.make_node("Mul", ["a", "onehot"], ["bump"]),
+        h.make_node("Add", ["zero", "bump"], ["logits"]),
+        h.make_node("Softmax", ["logits"], ["probabilities"]),
+    ]
+    graph = h.make_graph(nodes, "g", [inp, aspect], [out], inits)
+    path = tmp_path / "aspect.onnx"
+    onnx.save(h.make_model(graph, opset_imports=[h.make_opsetid("", 17)]), path)
+    path.with_suffix(".json").write_text(json.dumps({"name": "aspect", "input": [80, 60]}))
+    return path
+
+
+def test_the_pixel_aspect_reaches_a_model_that_takes_it(tmp_path: Path) -> None:
+    model = PoseModel.load(_aspect_model(tmp_path))
+    assert model.takes_aspect and [i.name for i in model.session.get_inputs()] == ["image"]
+
+    def p0(a: float) -> float:
+        return float(np.exp(a) / (np.exp(a) + 8))
+
+    batch = np.zeros((2, 3, 60, 80), np.float32)
+    assert np.allclose(model.predict(batch)[:, 0], p0(1.0))
+    got = model.predict(batch, np.array([4 / 3, 0.75]))[:, 0]
+    assert np.allclose(got, [p0(4 / 3), p0(0.75)])
+    with pytest.raises(ValueError, match="3 values for 2 images"):
+        model.predict(batch, np.ones(3))
+    # whole mode: the upload's shape decides (16:9 -> 4/3; a portrait is turned first)
+    predictor = Predictor(model, Settings())
+    uploads = [(None, _png(w, h)) for w, h in ((1280, 720), (640, 480), (480, 640), (360, 640))]
+    answers = [r.probabilities[0] for r in predictor.predict(uploads, "whole").results]
+    assert np.allclose(answers, [p0(4 / 3), p0(1.0), p0(1.0), p0(4 / 3)], atol=1e-6)
+
+
+def _png(w: int, h: int) -> bytes:
+    ok, buf = cv2.imencode(".png", np.full((h, w, 3), 90, np.uint8))
+    assert ok
+    return buf.tobytes()
