@@ -129,6 +129,7 @@ class KeypointNet(NormalisedNet):
             "focal_bounds", torch.tensor([spec_f * lo, spec_f * hi]), persistent=False
         )
         self.register_buffer("self_calibrate", torch.tensor(float(self_calibrate)))
+        self.register_buffer("radial_prior", torch.tensor(RADIAL_PRIOR), persistent=False)
         bw, bh = board_cm
         # object (X, Y) -> unit square (s, t), the inverse of X = -bw/2 + bw s, Y = -bh/2 + bh t
         self.register_buffer(
@@ -217,13 +218,13 @@ class KeypointNet(NormalisedNet):
         return torch.stack([torch.ones_like(pixel_aspect), 1 / pixel_aspect], 1)
 
     def undistorted(self, q: torch.Tensor, pixel_aspect: torch.Tensor) -> torch.Tensor:
-        """Corners [N, 4, 2] px -> the same corners without the radial distortion
-        `RADIAL_PRIOR` of the prior camera (first-order inverse x_u = x_d / (1 + k1 r_d^2),
+        """Corners [N, 4, 2] px -> the same corners without the radial distortion k1 =
+        `radial_prior` of the prior camera (first-order inverse x_u = x_d / (1 + k1 r_d^2),
         normalised coordinates of the prior focal length, square pixels)."""
         scale = (self._to_square(pixel_aspect) / self.focal)[:, None, :]  # [N, 1, 2]
         xd = (q - self.principal) * scale
         r2 = (xd * xd).sum(2, keepdim=True)
-        return xd / (1 + RADIAL_PRIOR * r2) / scale + self.principal
+        return xd / (1 + self.radial_prior * r2) / scale + self.principal
 
     def camera_centre(self, H_unit: torch.Tensor, pixel_aspect: torch.Tensor) -> torch.Tensor:
         """Unit-square homography [N, 3, 3] -> camera centre [N, 3] cm in the object frame

@@ -1,0 +1,232 @@
+"""Measure the keypoint network's camera-model constants on the corpus's val (and train)
+sources and write docs/camera_model.md.
+
+The geometry after the corners has no weights: the focal-length prior, the radial-distortion
+prior and the pixel aspect are choices, made on the real val sources (cameras never used for
+training or test) with the train sources as a second check. This script runs the network once
+per photo (corners, presence, parity), then only the geometry per variant:
+
+* class accuracy per split and blur level for camera models (square pixels or the input's
+  pixel aspect, radial prior k1);
+* on the labelled corners of the photos that are not 4:3: the camera centre's depth error
+  and the self-calibrated focal length against the calibrated one, with and without the
+  pixel aspect;
+* the val board photos turned to portrait, squashed to 160x120 or turned back first
+  (`service.preprocess.NetworkFrame`).
+
+Usage (after `scripts/train_default.sh`, which makes the run and the data sets):
+    .venv/bin/python scripts/camera_model_choices.py \
+        runs/default/runs/chessboard-keypoint-s2-160x120-real/best.pt runs/default/data
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import os
+import platform
+import sys
+from datetime import UTC, datetime
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from service.preprocess import NetworkFrame, to_network_input
+from train import REPO_ROOT
+from train.dataset import LoadedDataset, load_dataset
+from train.geometry import pose_class
+from train.markdown import table
+from train.network import keypoint
+from train.network.align import square_homography
+from train.network.fit import _corners, load_network, to_input
+from train.network.keypoint import KeypointNet
+from train.real.realset import read_rgb, read_splits
+
+RADIAL = (0.0, -0.1, -0.2, -0.25, -0.3, -0.4)
+CORPUS = REPO_ROOT / "train/assets/real/corpus"
+
+
+class Cached:
+    """The network's part of the answer on one data set split: aligned corners [N, 4, 2],
+    P(present) [N], P(corner order is the true one) [N], pixel aspect [N], labels [N]."""
+
+    def __init__(self, net: KeypointNet, data: LoadedDataset) -> None:
+        x = to_input(data.images)
+        parts = []
+        with torch.no_grad():
+            for i in range(0, len(x), 128):
+                xb = x[i : i + 128]
+                heat, presence = net._encode((xb - net.mean) / net.std)
+                q, corr = net.align(xb, net._soft_argmax(heat))
+                pattern = torch.sigmoid(
+                    keypoint.PATTERN_SLOPE * (corr.abs() - keypoint.PATTERN_CORR)
+                )
+                present = 1 - (1 - torch.sigmoid(presence)) * (1 - pattern)
+                order_ok = torch.sigmoid(net.parity_gain * net.parity(xb, square_homography(q)))
+                parts.append((q, present, order_ok))
+        self.q, self.present, self.order_ok = (torch.cat(p) for p in zip(*parts, strict=True))
+        self.aspect = torch.from_numpy(data.pixel_aspect())
+        self.labels = data.labels
+
+    def accuracy(self, net: KeypointNet, use_aspect: bool, k1: float) -> float:
+        """Class accuracy (%) with the camera model (pixel aspect or square pixels, k1)."""
+        net.radial_prior.fill_(k1)
+        aspect = self.aspect if use_aspect else torch.ones_like(self.aspect)
+        with torch.no_grad():
+            H = square_homography(net.undistorted(self.q, aspect))
+            pk = net.class_probabilities(net.camera_centre(H, aspect), self.order_ok)
+        pr = self.present[:, None]
+        predicted = torch.cat([1 - pr, pr * pk], 1).argmax(1).numpy()
+        return 100.0 * float(np.mean(predicted == self.labels))
+
+
+def accuracy_table(net: KeypointNet, data_dir: Path) -> list[list[str]]:
+    cache = {
+        (split, b): Cached(net, load_dataset(data_dir / f"real-s2-b{b}", split=split))
+        for split in ("val", "train")
+        for b in range(4)
+    }
+    rows = []
+    for use_aspect in (False, True):
+        for k1 in RADIAL:
+            cells = [("pixel aspect" if use_aspect else "square pixels") + f", k1 = {k1:g}"]
+            for split in ("val", "train"):
+                accs = [cache[(split, b)].accuracy(net, use_aspect, k1) for b in range(4)]
+                cells.append(" / ".join(f"{a:.1f}" for a in accs) + f" (mean {np.mean(accs):.1f})")
+            rows.append(cells)
+    net.radial_prior.fill_(keypoint.RADIAL_PRIOR)
+    return rows
+
+
+def labelled_corner_table(net: KeypointNet, data_dir: Path) -> list[list[str]]:
+    """Per camera that is not 4:3 (train and val): the camera centre from the labelled
+    corners, square pixels against the pixel aspect."""
+    rows = []
+    for split in ("train", "val"):
+        data = load_dataset(data_dir / "real-s2-b0", split=split)
+        board = data.labels > 0
+        q = torch.from_numpy(_corners(data.rows)[board].reshape(-1, 4, 2))
+        truth = np.array(
+            [
+                [float(r[f"cam_{a}"]) for a in "xyz"]
+                for r, k in zip(data.rows, board, strict=True)
+                if k
+            ]
+        )
+        fx = np.array([float(r["fx"]) for r, k in zip(data.rows, board, strict=True) if k])
+        aspect = torch.from_numpy(data.pixel_aspect()[board])
+        sources = np.array(data.column("source"))[board]
+        H = square_homography(net.undistorted(q, aspect))
+        found = {}
+        for use in (False, True):
+            a = aspect if use else torch.ones_like(aspect)
+            with torch.no_grad():
+                Hc = _centred(net, H, a)
+                found[use] = (net.camera_centre(H, a).numpy(), net.focal_length(Hc).numpy())
+        for source in sorted(set(sources[np.abs(aspect.numpy() - 1) > 0.01])):
+            m = sources == source
+            cells = [f"{source} ({split})", f"{float(aspect[m].mean()):.2f}"]
+            for use in (False, True):
+                centre, focal = found[use]
+                cells.append(
+                    f"{np.median(np.abs(centre[m, 2] - truth[m, 2])):.1f} cm, "
+                    f"{np.median(focal[m] / fx[m]):.2f} x"
+                )
+            rows.append(cells)
+    return rows
+
+
+def _centred(net: KeypointNet, H_unit: torch.Tensor, aspect: torch.Tensor) -> torch.Tensor:
+    """The centred square-pixel homography `KeypointNet.camera_centre` gives its focal length."""
+    H = H_unit @ net.to_unit
+    w = H[:, 2:3, :]
+    centred = H[:, :2, :] - net.principal[None, :, None] * w
+    return torch.cat([centred * net._to_square(aspect)[:, :, None], w], 1)
+
+
+def portrait_table(net: KeypointNet) -> list[list[str]]:
+    """The val 4:3 board photos turned to portrait, squashed to 160x120 or turned back."""
+    splits = read_splits(CORPUS / "splits.toml")
+    photos, labels = [], []
+    for source in sorted((CORPUS / "boards").iterdir()):
+        if splits.get(source.name) != "val":
+            continue
+        with (source / "labels.csv").open(newline="") as fh:
+            for row in csv.DictReader(fh):
+                rgb = read_rgb(source / row["file"])
+                if abs(rgb.shape[1] * 3 - rgb.shape[0] * 4) > 8 or not row.get("cam_z"):
+                    continue
+                photos.append(cv2.rotate(rgb, cv2.ROTATE_90_COUNTERCLOCKWISE))
+                labels.append(pose_class(np.array([float(row[f"cam_{a}"]) for a in "xyz"]), 60.0))
+    y = np.array(labels)
+    size = (160, 120)
+    squashed = np.stack([cv2.resize(p, size, interpolation=cv2.INTER_AREA) for p in photos])
+    turned = np.stack([to_network_input(p, size) for p in photos])
+    frames = [NetworkFrame((p.shape[1], p.shape[0]), size) for p in photos]
+    squash_aspect = torch.tensor([(size[1] / p.shape[0]) / (size[0] / p.shape[1]) for p in photos])
+    variants = {
+        "squashed, square pixels": (to_input(squashed), None),
+        "squashed, its pixel aspect (0.56)": (to_input(squashed), squash_aspect),
+        "turned to landscape (the service)": (
+            torch.from_numpy(turned),
+            torch.tensor([f.pixel_aspect for f in frames]),
+        ),
+    }
+    rows = []
+    for name, (x, aspect) in variants.items():
+        with torch.no_grad():
+            predicted = net.logits(x, aspect).argmax(1).numpy()
+        rows.append([name, str(len(y)), f"{100 * np.mean(predicted == y):.1f}"])
+    return rows
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("checkpoint", type=Path, help="a keypoint-s2 training checkpoint (best.pt)")
+    parser.add_argument("data", type=Path, help="the folder of the real-s2-b0..3 data sets")
+    parser.add_argument("--out", type=Path, default=REPO_ROOT / "docs/camera_model.md")
+    args = parser.parse_args()
+    for path in (args.checkpoint, *(args.data / f"real-s2-b{b}" for b in range(4))):
+        if not path.exists():
+            sys.exit(f"error: not found: {path} (run scripts/train_default.sh first)")
+    net, _ = load_network(args.checkpoint)
+    if not isinstance(net, KeypointNet):
+        sys.exit(f"error: {args.checkpoint} is not a keypoint network")
+    net.eval()
+    stamp = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
+    cpu = platform.processor() or platform.machine()
+    lines = [
+        "# The keypoint network's camera model, measured on the real val and train sources",
+        "",
+        f"Written {stamp} on {platform.node()} ({cpu}, {os.cpu_count()} CPUs) by "
+        f"`python scripts/camera_model_choices.py {args.checkpoint} {args.data}`; do not edit "
+        "by hand. The constants are in `train/network/keypoint.py` (`FOCAL_PRIOR`, "
+        f"`RADIAL_PRIOR` = {keypoint.RADIAL_PRIOR:g}) and `service/preprocess.py` "
+        "(`NetworkFrame`); docs/training.md says why.",
+        "",
+        "## Class accuracy (%) at blur 0 / 1 / 2 / 3",
+        "",
+        *table(["camera model", "val sources", "train sources"], accuracy_table(net, args.data)),
+        "",
+        "## The labelled corners of the cameras that are not 4:3 (blur 0)",
+        "",
+        "Median |camera z - truth| and median self-calibrated focal length / calibrated fx.",
+        "",
+        *table(
+            ["camera (split)", "pixel aspect", "square pixels", "pixel aspect"],
+            labelled_corner_table(net, args.data),
+        ),
+        "",
+        "## Portraits: the val 4:3 board photos turned a quarter counter-clockwise",
+        "",
+        *table(["input", "photos", "accuracy (%)"], portrait_table(net)),
+        "",
+    ]
+    args.out.write_text("\n".join(lines))
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
