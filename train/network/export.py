@@ -5,8 +5,8 @@ inside) and returns `probabilities` float32 [N, 9] (softmax); the keypoint netwo
 `pixel_aspect` float32 [N] (an input with the default [1], an overridable initializer: a
 caller that feeds only `image` gets square pixels) and return `corners` float32 [N, 4, 2],
 the object's image corners in pixels of the input, in the order (-X,-Y), (+X,-Y), (+X,+Y),
-(-X,+Y) of the object frame. The model card (JSON) is stored
-in the ONNX `metadata_props` under `model_card` and written next to it as `<name>.json`.
+(-X,+Y) of the object frame. The model card (JSON) is stored in the ONNX `metadata_props`
+under `model_card` and written next to it as `<name>.json`.
 """
 
 from __future__ import annotations

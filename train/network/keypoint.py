@@ -13,11 +13,11 @@ and the class follows from them as the SPEC labels define it:
     align     the corners moved to sub-pixel accuracy by aligning the checker pattern to the
               image (`train.network.align`: Gauss-Newton, no weights; not in training, where
               the class loss does not depend on them)
-    pose      homography of the board rectangle onto the corners, undistorted with a prior
-              radial distortion (closed form), pose with a
-              pinhole camera (principal point at the image centre, the focal length that makes
-              the board's axes orthogonal, drawn to a prior where the view says little, pixels
-              of the given aspect), camera centre c [N, 3] cm in the object frame
+    pose      homography of the board rectangle onto the corners undistorted with a prior
+              radial distortion (closed form), pose with a pinhole camera (principal point
+              at the image centre, pixels of the given aspect, the focal length that makes
+              the board's axes orthogonal, drawn to a prior where the view says little),
+              camera centre c [N, 3] cm in the object frame
     parity    the image sampled at the 70 square centres through the homography, correlated
               with the checker pattern: its sign says whether the corner order is the true one
               or a half turn (which maps c to (-cx, -cy, cz))
@@ -57,7 +57,7 @@ FOCAL_PRIOR, FOCAL_PRIOR_WEIGHT, FOCAL_BOUNDS = 0.8, 0.01, (0.4, 1.2)
 # The radial distortion k1 the corners are undistorted with before the pose (`undistorted`),
 # in normalised coordinates of the prior camera: the corpus's calibrated train and val
 # cameras range from -0.55 to +0.22 (median -0.29, mean -0.16), the renders draw it from
-# -0.45..0.05; chosen on the val sources (docs/training.md)
+# -0.45..0.05; chosen on the val sources (docs/camera_model.md)
 RADIAL_PRIOR = -0.2
 STRIDES = (4, 2)  # input pixels per heat-map pixel: 40x30 maps, or 80x60 ("keypoint-s2")
 SQUARES = (10, 7)  # squares of the board along its width (x) and height (y)
