@@ -82,7 +82,8 @@ class LoadedDataset:
     def pixel_aspect(self) -> np.ndarray:
         """float32 [N]: height over width of each image's pixels in the scene (the
         `pixel_aspect` column of real photos resized to the set's size,
-        `service.preprocess.NetworkFrame.pixel_aspect`); 1 where the column is absent or empty (renders)."""
+        `service.preprocess.NetworkFrame.pixel_aspect`); 1 where the column is absent or
+        empty (renders)."""
         return np.array([float(r.get("pixel_aspect") or 1.0) for r in self.rows], np.float32)
 
     def boundary_margin_cm(self) -> np.ndarray:

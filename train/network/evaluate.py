@@ -19,8 +19,8 @@ from service.regions import NUM_CLASSES
 from train.dataset import LoadedDataset
 
 #: A classifier: RGB uint8 images [N, H, W, 3] at the network's size and their pixel aspect
-#: [N] (`service.preprocess.NetworkFrame.pixel_aspect`: 1 unless a photo was squashed) -> probabilities
-#: float32 [N, 9].
+#: [N] (`service.preprocess.NetworkFrame.pixel_aspect`: 1 unless a photo was squashed) ->
+#: probabilities float32 [N, 9].
 Predictor = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 

@@ -245,7 +245,8 @@ def log_probabilities(
     net: NormalisedNet, x: torch.Tensor, pixel_aspect: torch.Tensor | None = None
 ) -> torch.Tensor:
     """Eval-mode log-probabilities [N, 9] of RGB [N, 3, H, W] in [0, 1]; the pixel aspect
-    [N] (`service.preprocess.NetworkFrame.pixel_aspect`) goes to the networks that read it."""
+    [N] (`service.preprocess.NetworkFrame.pixel_aspect`) goes to the networks that read
+    it."""
     if takes_pixel_aspect(net):
         out: torch.Tensor = net(x, pixel_aspect)
         return out

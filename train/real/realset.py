@@ -162,7 +162,7 @@ def build_real_dataset(
 
 
 #: Columns of a corpus data set: the data set ones, the source, the camera at the set's size
-#: and the pixel aspect of the resized photo (`service.preprocess.NetworkFrame.pixel_aspect`).
+#: and the pixel aspect of the resized photo (`service.preprocess.NetworkFrame`).
 CORPUS_SET_COLUMNS = [
     *LABEL_COLUMNS, "source", "original", "fx", "fy", "cx", "cy", "k2", "p1", "p2", "k3",
     "pixel_aspect",
