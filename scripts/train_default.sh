@@ -8,8 +8,9 @@
 #      renders of the SPEC-network models, and the real corpus as data sets (split by source);
 #   2. the default model: the keypoint network on renders + real train sources (two stages),
 #      its stride-2 form (keypoint-s2) grown from it, then keypoint-s2 fine-tuned on the real
-#      train sources of the corpus split of 2026-12-02 (keypoint-s2-real), best epochs on the
-#      real val sources; exported with its corners aligned to the image (the default); the
+#      train sources of the corpus split of 2026-12-02 with the squash crop (keypoint-s2-real),
+#      best epochs on the real val sources; exported with its corners aligned to the image and
+#      the camera model of docs/camera_model.md (the default; that page is written too); the
 #      defaults of 3.2.0 and 3.1.0 are measured again; WEIGHTS_NOTE, if set, is added to the
 #      default's card notes;
 #   3. with CONVNET=1 also the convnet (stage 1 on renders, stage 2 on renders + real train
@@ -24,7 +25,7 @@ PP=${PP:-.venv/bin/planar-pose}
 D=runs/default/data   # the recipes name their data and run folders under runs/default
 R=runs/default/runs
 N_EVAL=${N_EVAL:-1000}  # images per synthetic evaluation set; its 20 % test split is evaluated
-VERSION=${VERSION:-3.3.0}
+VERSION=${VERSION:-3.4.0}
 mkdir -p "$D" "$R"
 
 make_set() {  # OUT VARIANT SIZE BLUR COUNT SEED [PROFILE]
@@ -119,4 +120,5 @@ $PP evaluate "${MODELS[@]}" \
 $PP compare $(printf -- "--models %s " "${MODELS[@]}") --peer chessboard --split test \
     $(printf -- "--datasets %s " "$D"/real-s{1,2}-b{0,1,2,3}) --out docs/comparison.md
 $PP catalog models
-echo "done: models/default.onnx; results in docs/results.md, docs/comparison.md, models/README.md"
+.venv/bin/python scripts/camera_model_choices.py "$R/chessboard-keypoint-s2-160x120-real/best.pt" "$D"
+echo "done: models/default.onnx; results in docs/results.md, docs/comparison.md, models/README.md, docs/camera_model.md"
