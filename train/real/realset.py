@@ -124,8 +124,10 @@ def build_real_dataset(
         name = f"images/{Path(row['file']).stem}.png"
         cv2.imwrite(str(out / name), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
         focal = ""
-        if row.get("fx") and row.get("width"):
-            focal = f"{float(row['fx']) / float(row['width']) * 160 / SPEC_FOCAL_160[0]:.4f}"
+        turned = frame.turned and row.get("fy") and row.get("height")
+        if row.get("fx") and row.get("width"):  # along the landscape width
+            f, w = (row["fy"], row["height"]) if turned else (row["fx"], row["width"])
+            focal = f"{float(f) / float(w) * 160 / SPEC_FOCAL_160[0]:.4f}"
         labels.append(
             {
                 "file": name,
