@@ -52,13 +52,6 @@ class FitConfig:
     patience: int = _opt(10, "Early stop after N epochs without improvement; 0 = never.", min=0)
     seed: int = _opt(0, "Seed of weights, batch order and augmentation.")
     augment: bool = _opt(True, "On-the-fly blur, crop and photometric augmentation.")
-    zoom_out: float = _opt(
-        0.0,
-        "Augmentation: probability that an image is shrunk to 0.5-0.9 of its size, its edges "
-        "replicated around it (smaller, far-looking objects).",
-        min=0.0,
-        max=1.0,
-    )
     squash: float = _opt(
         0.0,
         "Augmentation: probability that a crop is a band of 0.7-1 of the height, resized "

@@ -125,9 +125,6 @@ class Augmenter:
       with probability `p_squash`, a band of the full width and U(0.7, 1) of the height
       that keeps the object's corners inside where it can: a wide photo (16:9 is a band of
       0.75) squashed to the input size, as the service does;
-    * zoom out: with probability `p_zoom_out`, the image shrunk to U(0.5, 0.9) of its size
-      at a random place, its edges replicated around it: the same camera centre seen with
-      a wider lens, so smaller (far-looking) objects;
     * photometric: contrast x U(0.7, 1.3), brightness + U(-25, 25), per-channel gain
       U(0.9, 1.1), grey level with probability `p_grey` (real photos may be grey), Gaussian
       noise with sigma U(0, 6) grey levels.
@@ -142,14 +139,12 @@ class Augmenter:
         p_grey: float = 0.2,
         p_crop: float = 0.5,
         p_squash: float = 0.0,
-        p_zoom_out: float = 0.0,
     ) -> None:
         self.size = size
         self.p_blur = p_blur
         self.p_grey = p_grey
         self.p_crop = p_crop
         self.p_squash = p_squash
-        self.p_zoom_out = p_zoom_out
 
     def crop(
         self, image: np.ndarray, corners: np.ndarray, rng: np.random.Generator
@@ -173,22 +168,6 @@ class Augmenter:
         scale = np.tile([w / cw, h / ch], 4)
         return out, (corners + 0.5 - np.tile([x0, y0], 4)) * scale - 0.5
 
-    def zoom_out(
-        self, image: np.ndarray, corners: np.ndarray, rng: np.random.Generator
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """The image shrunk to U(0.5, 0.9) of its size at a random place, the rest its
-        replicated edges, and the corners (8,) px moved with it."""
-        import cv2
-
-        h, w = image.shape[:2]
-        s = rng.uniform(0.5, 0.9)
-        sw, sh = int(round(w * s)), int(round(h * s))
-        x0, y0 = int(rng.integers(w - sw + 1)), int(rng.integers(h - sh + 1))
-        small = cv2.resize(image, (sw, sh), interpolation=cv2.INTER_AREA)
-        out = cv2.copyMakeBorder(small, y0, h - sh - y0, x0, w - sw - x0, cv2.BORDER_REPLICATE)
-        scale = np.tile([sw / w, sh / h], 4)
-        return out, (corners + 0.5) * scale - 0.5 + np.tile([x0, y0], 4)
-
     def __call__(
         self,
         images: np.ndarray,
@@ -204,9 +183,6 @@ class Augmenter:
         corners = np.full((n, 8), np.nan, np.float32) if corners is None else corners.copy()
         for i in np.flatnonzero(rng.random(n) < self.p_crop):
             out[i], corners[i] = self.crop(out[i], corners[i], rng)
-        if self.p_zoom_out > 0:  # as p_squash: no draw when off
-            for i in np.flatnonzero(rng.random(n) < self.p_zoom_out):
-                out[i], corners[i] = self.zoom_out(out[i], corners[i], rng)
         levels = np.where(
             (blur == 0) & (rng.random(n) < self.p_blur), rng.integers(1, 4, size=n), 0
         )
@@ -309,11 +285,7 @@ def fit(config: FitConfig, resume: bool = False) -> dict[str, Any]:
     net = net.to(memory_format=torch.channels_last)
     opt = _optimiser(config, net)
     sched = _schedule(config, opt)
-    augmenter = (
-        Augmenter(size, p_squash=config.squash, p_zoom_out=config.zoom_out)
-        if config.augment
-        else None
-    )
+    augmenter = Augmenter(size, p_squash=config.squash) if config.augment else None
     # The compiled module shares its parameters with `net` (used for evaluation and saving).
     step_net = torch.compile(net) if config.compile else net
 

@@ -127,22 +127,6 @@ def test_the_squash_crop_is_a_band_that_keeps_the_corners():
         assert np.ptp(out[:, 40, 0].astype(int)) > 150  # rows from the top to the bottom band
 
 
-def test_the_zoom_out_shrinks_the_image_and_its_corners():
-    aug = Augmenter((80, 60), p_blur=0.0, p_grey=0.0, p_crop=0.0, p_zoom_out=1.0)
-    rng = np.random.default_rng(4)
-    image = np.zeros((60, 80, 3), np.uint8)
-    corners = np.array([20, 15, 60, 15, 60, 45, 20, 45], np.float32)
-    image[15:46, 20:61] = 255  # a white box with these corners
-    for _ in range(10):
-        out, moved = aug.zoom_out(image, corners, rng)
-        assert out.shape == image.shape
-        scale = (moved[2] - moved[0]) / (corners[2] - corners[0])
-        assert 0.5 - 0.02 < scale < 0.9 + 0.02
-        assert np.isclose((moved[5] - moved[1]) / (corners[5] - corners[1]), scale, atol=0.05)
-        u, v = int(round((moved[0] + moved[4]) / 2)), int(round((moved[1] + moved[5]) / 2))
-        assert out[v, u].min() > 200  # the box's middle is still white
-
-
 def test_errors_are_clear(tiny_set, tmp_path):
     with pytest.raises(TrainingError, match="not a data set"):
         fit(_config(tmp_path / "missing", tmp_path / "run"))
