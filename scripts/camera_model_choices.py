@@ -49,24 +49,14 @@ CORPUS = REPO_ROOT / "train/assets/real/corpus"
 
 
 class Cached:
-    """The network's part of the answer on one data set split: aligned corners [N, 4, 2],
-    P(present) [N], P(corner order is the true one) [N], pixel aspect [N], labels [N]."""
+    """The network's part of the answer on one data set split (`KeypointNet.observe`):
+    aligned corners [N, 4, 2], their parity [N], P(present) [N]; pixel aspect [N], labels [N]."""
 
     def __init__(self, net: KeypointNet, data: LoadedDataset) -> None:
         x = to_input(data.images)
-        parts = []
         with torch.no_grad():
-            for i in range(0, len(x), 128):
-                xb = x[i : i + 128]
-                heat, presence = net._encode((xb - net.mean) / net.std)
-                q, corr = net.align(xb, net._soft_argmax(heat))
-                pattern = torch.sigmoid(
-                    keypoint.PATTERN_SLOPE * (corr.abs() - keypoint.PATTERN_CORR)
-                )
-                present = 1 - (1 - torch.sigmoid(presence)) * (1 - pattern)
-                order_ok = torch.sigmoid(net.parity_gain * net.parity(xb, square_homography(q)))
-                parts.append((q, present, order_ok))
-        self.q, self.present, self.order_ok = (torch.cat(p) for p in zip(*parts, strict=True))
+            parts = [net.observe(x[i : i + 128]) for i in range(0, len(x), 128)]
+        self.q, self.parity, self.present = (torch.cat(p) for p in zip(*parts, strict=True))
         self.aspect = torch.from_numpy(data.pixel_aspect())
         self.labels = data.labels
 
@@ -75,8 +65,7 @@ class Cached:
         net.radial_prior.fill_(k1)
         aspect = self.aspect if use_aspect else torch.ones_like(self.aspect)
         with torch.no_grad():
-            H = square_homography(net.undistorted(self.q, aspect))
-            pk = net.class_probabilities(net.camera_centre(H, aspect), self.order_ok)
+            pk = net.pose_classes(self.q, self.parity, aspect)
         pr = self.present[:, None]
         predicted = torch.cat([1 - pr, pr * pk], 1).argmax(1).numpy()
         return 100.0 * float(np.mean(predicted == self.labels))
@@ -123,8 +112,8 @@ def labelled_corner_table(net: KeypointNet, data_dir: Path) -> list[list[str]]:
         for use in (False, True):
             a = aspect if use else torch.ones_like(aspect)
             with torch.no_grad():
-                Hc = _centred(net, H, a)
-                found[use] = (net.camera_centre(H, a).numpy(), net.focal_length(Hc).numpy())
+                focal = net.focal_length(net.centred_homography(H, a))
+                found[use] = (net.camera_centre(H, a).numpy(), focal.numpy())
         for source in sorted(set(sources[np.abs(aspect.numpy() - 1) > 0.01])):
             m = sources == source
             cells = [f"{source} ({split})", f"{float(aspect[m].mean()):.2f}"]
@@ -136,14 +125,6 @@ def labelled_corner_table(net: KeypointNet, data_dir: Path) -> list[list[str]]:
                 )
             rows.append(cells)
     return rows
-
-
-def _centred(net: KeypointNet, H_unit: torch.Tensor, aspect: torch.Tensor) -> torch.Tensor:
-    """The centred square-pixel homography `KeypointNet.camera_centre` gives its focal length."""
-    H = H_unit @ net.to_unit
-    w = H[:, 2:3, :]
-    centred = H[:, :2, :] - net.principal[None, :, None] * w
-    return torch.cat([centred * net._to_square(aspect)[:, :, None], w], 1)
 
 
 def portrait_table(net: KeypointNet) -> list[list[str]]:

@@ -226,6 +226,15 @@ class KeypointNet(NormalisedNet):
         r2 = (xd * xd).sum(2, keepdim=True)
         return xd / (1 + self.radial_prior * r2) / scale + self.principal
 
+    def centred_homography(self, H_unit: torch.Tensor, pixel_aspect: torch.Tensor) -> torch.Tensor:
+        """Unit-square homography [N, 3, 3] and pixel aspect [N] -> the object-plane (cm)
+        homography [N, 3, 3] about the principal point, in square pixels of the input's
+        width: what `focal_length` and `camera_centre` work on."""
+        H = H_unit @ self.to_unit
+        w = H[:, 2:3, :]
+        centred = H[:, :2, :] - self.principal[None, :, None] * w
+        return torch.cat([centred * self._to_square(pixel_aspect)[:, :, None], w], 1)
+
     def camera_centre(self, H_unit: torch.Tensor, pixel_aspect: torch.Tensor) -> torch.Tensor:
         """Unit-square homography [N, 3, 3] -> camera centre [N, 3] cm in the object frame
         (M = A^-1 H = lambda [r1 r2 t], c = -R^T t), with the camera of `focal_length`.
@@ -234,12 +243,9 @@ class KeypointNet(NormalisedNet):
         fx): 1 for a 4:3 photo, 0.75 W / H for a landscape W x H photo resized to 160x120
         (16:9: 4/3; `service.preprocess.NetworkFrame`, which turns portraits to landscape).
         The rows are brought to square pixels of the input's width first."""
-        H = H_unit @ self.to_unit
-        w = H[:, 2:3, :]
-        centred = H[:, :2, :] - self.principal[None, :, None] * w
-        Hc = torch.cat([centred * self._to_square(pixel_aspect)[:, :, None], w], 1)
+        Hc = self.centred_homography(H_unit, pixel_aspect)
         f = self.focal_length(Hc)
-        M = torch.cat([Hc[:, :2, :] / f[:, None, None], w], 1)
+        M = torch.cat([Hc[:, :2, :] / f[:, None, None], Hc[:, 2:, :]], 1)
         m1, m2, m3 = M[:, :, 0], M[:, :, 1], M[:, :, 2]
         lam = 2.0 / (m1.norm(dim=1) + m2.norm(dim=1) + 1e-9)
         lam = torch.where(m3[:, 2] < 0, -lam, lam)
@@ -287,18 +293,35 @@ class KeypointNet(NormalisedNet):
         )
         return torch.cat([near[:, None] * q, (1 - near[:, None]) * q], 1)
 
-    def _classes_if_present(
-        self, x: torch.Tensor, q: torch.Tensor, pixel_aspect: torch.Tensor | None
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        """RGB [N, 3, H, W] in [0, 1], its corners [N, 4, 2] px and pixel aspect [N] (None:
-        square pixels) -> P(class 1..8 | object present) [N, 8] (homography, parity, camera
-        centre of the undistorted corners) and the parity [N]."""
-        parity = self.parity(x, square_homography(q))
+    def pose_classes(
+        self, q: torch.Tensor, parity: torch.Tensor, pixel_aspect: torch.Tensor | None
+    ) -> torch.Tensor:
+        """Corners [N, 4, 2] px, their parity [N] and the pixel aspect [N] (None: square
+        pixels) -> P(class 1..8 | object present) [N, 8] (camera centre of the undistorted
+        corners, mixed over the two half-turn readings)."""
         order_ok = torch.sigmoid(self.parity_gain * parity)
         # [N] from [N] or [1] (the exported graph's default)
         aspect = torch.ones_like(parity) * (1.0 if pixel_aspect is None else pixel_aspect)
         H = square_homography(self.undistorted(q, aspect))
-        return self.class_probabilities(self.camera_centre(H, aspect), order_ok), parity
+        return self.class_probabilities(self.camera_centre(H, aspect), order_ok)
+
+    def _classes_if_present(
+        self, x: torch.Tensor, q: torch.Tensor, pixel_aspect: torch.Tensor | None
+    ) -> torch.Tensor:
+        """RGB [N, 3, H, W] in [0, 1], its corners [N, 4, 2] px and pixel aspect [N] ->
+        P(class 1..8 | object present) [N, 8] (`pose_classes` with the corners' parity)."""
+        return self.pose_classes(q, self.parity(x, square_homography(q)), pixel_aspect)
+
+    def observe(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """RGB [N, 3, H, W] in [0, 1] -> what the image says before the camera model: the
+        aligned corners [N, 4, 2] px, their parity [N] and P(object present) [N] (the
+        presence logit or'ed with the checker pattern found at the corners)."""
+        heat, presence = self._encode((x - self.mean) / self.std)
+        q, corr = self.align(x, self._soft_argmax(heat))
+        parity = self.parity(x, square_homography(q))
+        # the checker pattern found at the corners is evidence of the board on its own
+        pattern = torch.sigmoid(PATTERN_SLOPE * (corr.abs() - PATTERN_CORR))
+        return q, parity, 1 - (1 - torch.sigmoid(presence)) * (1 - pattern)
 
     def answer(
         self, x: torch.Tensor, pixel_aspect: torch.Tensor | None = None
@@ -307,12 +330,9 @@ class KeypointNet(NormalisedNet):
         log-probabilities [N, 9] (softmax gives them back) and the aligned corners [N, 4, 2]
         px of the input image, in the object's order (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y) as
         the parity reads it (meaningless where the object is not in view)."""
-        heat, presence = self._encode((x - self.mean) / self.std)
-        q, corr = self.align(x, self._soft_argmax(heat))
-        pk, parity = self._classes_if_present(x, q, pixel_aspect)
-        # the checker pattern found at the corners is evidence of the board on its own
-        pattern = torch.sigmoid(PATTERN_SLOPE * (corr.abs() - PATTERN_CORR))
-        present = (1 - (1 - torch.sigmoid(presence)) * (1 - pattern))[:, None]
+        q, parity, p_present = self.observe(x)
+        pk = self.pose_classes(q, parity, pixel_aspect)
+        present = p_present[:, None]
         log_p = torch.log(torch.cat([1 - present, present * pk], 1).clamp_min(1e-7))
         return log_p, torch.where(parity[:, None, None] >= 0, q, torch.roll(q, 2, 1))
 
@@ -337,7 +357,7 @@ class KeypointNet(NormalisedNet):
         q = self._soft_argmax(heat)
         # the class loss trains the presence logit only; the corners learn from their own loss
         with torch.no_grad():
-            pk = self._classes_if_present(x, q, pixel_aspect)[0]
+            pk = self._classes_if_present(x, q, pixel_aspect)
         log_present = F.logsigmoid(presence)[:, None]
         log_absent = F.logsigmoid(-presence)[:, None]
         log_p = torch.cat([log_absent, log_present + torch.log(pk.clamp_min(1e-7))], 1)

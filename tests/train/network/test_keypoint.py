@@ -92,11 +92,7 @@ def test_camera_centre_of_a_photo_squashed_to_the_input_size(photo, aspect):
 
 
 def _focal_estimate(net: KeypointNet, q: torch.Tensor) -> float:
-    H = square_homography(q) @ net.to_unit
-    w = H[:, 2:3, :]
-    return float(
-        net.focal_length(torch.cat([H[:, :2, :] - net.principal[None, :, None] * w, w], 1))[0]
-    )
+    return float(net.focal_length(net.centred_homography(square_homography(q), torch.ones(1)))[0])
 
 
 def test_self_calibration_moves_the_focal_length_to_what_a_tilted_view_shows():
