@@ -59,7 +59,9 @@ class FitConfig:
         min=0.0,
         max=1.0,
     )
-    init: Path | None = _opt(None, "Checkpoint to start from (fine-tuning).")
+    init: Path | None = _opt(
+        None, "Checkpoint to start from (fine-tuning), or a shipped keypoint model's .onnx."
+    )
     batch_norm: bool = _opt(True, "spec: train with batch norm, folded away on export.")
     threads: int = _opt(0, "Torch intra-op threads; 0 = torch default.", min=0)
     compile: bool = _opt(False, "torch.compile the training step.")

@@ -9,8 +9,8 @@ sets), stops early when it stops improving and writes into `config.out`:
 * `best.pt`   the weights of the best validation epoch (what `export` takes);
 * `log.jsonl` one JSON line per epoch (loss, accuracy, learning rate, time).
 
-With `init`, the weights (and the input normalisation) come from a checkpoint: fine-tuning,
-e.g. on a real data set. A run is deterministic on CPU for a seed: batches and augmentation
+With `init`, the weights (and the input normalisation) come from a checkpoint, or from a
+shipped keypoint model's ONNX graph: fine-tuning, e.g. on a real data set. A run is deterministic on CPU for a seed: batches and augmentation
 draw from generators seeded by (seed, epoch), so a resumed run ends where an uninterrupted
 one does.
 """
@@ -38,6 +38,7 @@ from train.network.model import (
     channel_stats,
     log_probabilities,
 )
+from train.network.onnx_weights import OnnxWeightsError, keypoint_from_onnx, recalibrate_batch_norm
 
 CHECKPOINT_FORMAT = "planar-pose-checkpoint/1"
 
@@ -348,13 +349,23 @@ def _initial_network(
     config: FitConfig, train: Split, size: tuple[int, int], profile: dict[str, Any] | None
 ) -> tuple[NormalisedNet, dict[str, Any] | None]:
     """The network to train and the parent checkpoint (fine-tuning keeps the parent's
-    architecture, weights and normalisation), or a new `config.arch` network for the first
-    data set's object `profile` (manifest), normalised to the training images (parent None)."""
+    architecture, weights and normalisation; an ONNX `init` is read back by
+    `train.network.onnx_weights`, its batch norms set from up to 1024 training images), or
+    a new `config.arch` network for the first data set's object `profile` (manifest),
+    normalised to the training images (parent None)."""
     if config.init is not None:
-        net, parent = load_network(config.init)
+        if config.init.suffix == ".onnx":
+            try:
+                net, parent = keypoint_from_onnx(config.init)
+            except OnnxWeightsError as exc:
+                raise TrainingError(f"--init {exc}") from None
+            sample = np.random.default_rng(config.seed).permutation(len(train.labels))[:1024]
+            recalibrate_batch_norm(net, to_input(train.images[np.sort(sample)]))
+        else:
+            net, parent = load_network(config.init)
         if net.size != size:
             raise TrainingError(
-                f"--init checkpoint {config.init} takes {net.size[0]}x{net.size[1]} "
+                f"--init {config.init} takes {net.size[0]}x{net.size[1]} "
                 f"images but the data sets are {size[0]}x{size[1]}"
             )
         if config.arch == "keypoint-s2" and arch_of(net) == "keypoint":

@@ -178,7 +178,8 @@ def test_the_exported_graph_decodes_like_torch(stride):
     assert np.abs(fed[0] - got[0]).max() < 1e-6 and np.abs(fed[1] - got[1]).max() > 1e-3
     with torch.no_grad():
         want_fed = net(torch.from_numpy(x), torch.from_numpy(aspect)).exp().numpy()
-    assert np.abs(fed - want_fed).max() < 1e-4
+    # float32 rounding of two runtimes: 1.03e-4 seen on one machine; the aspect's effect is > 1e-3
+    assert np.abs(fed - want_fed).max() < 3e-4
 
 
 def test_training_mode_outputs_and_build():

@@ -1,0 +1,71 @@
+"""A shipped keypoint model read back from its ONNX graph: fine-tuning without its
+checkpoint."""
+
+from __future__ import annotations
+
+import numpy as np
+import onnxruntime as ort
+import pytest
+import torch
+from torch import nn
+
+from train import REPO_ROOT
+from train.network.fit import FitConfig, TrainingError, fit, load_network
+from train.network.onnx_weights import OnnxWeightsError, keypoint_from_onnx, recalibrate_batch_norm
+from train.profile import load_profile
+from train.synth.generate import DatasetSpec, make_dataset
+
+DEFAULT = REPO_ROOT / "models" / "default.onnx"
+
+
+def _graph_probabilities(x: torch.Tensor) -> np.ndarray:
+    session = ort.InferenceSession(str(DEFAULT), providers=["CPUExecutionProvider"])
+    return session.run(["probabilities"], {"image": x.numpy()})[0]
+
+
+def test_the_read_back_network_answers_like_the_graph_before_and_after_recalibration():
+    x = torch.rand(6, 3, 120, 160, generator=torch.Generator().manual_seed(0))
+    want = _graph_probabilities(x)
+    net, parent = keypoint_from_onnx(DEFAULT)
+    assert net.stride == 2 and parent["onnx"] == str(DEFAULT) and parent["data"]
+    net.eval()
+    with torch.no_grad():
+        assert np.abs(net.logits(x).exp().numpy() - want).max() < 1e-3
+    recalibrate_batch_norm(net, x)
+    with torch.no_grad():
+        assert np.abs(net.logits(x).exp().numpy() - want).max() < 1e-3
+    # the convolutions' outputs now have unit variance on x, the batch norms their statistics
+    norm = net.get_submodule("down2.1.1")
+    assert isinstance(norm, nn.BatchNorm2d)
+    assert torch.allclose(norm.running_var, torch.ones_like(norm.running_var), atol=1e-3)
+    assert norm.running_mean.abs().max() > 0.01
+
+
+def test_fine_tuning_from_the_graph_at_learning_rate_0_keeps_its_answers(tmp_path):
+    data = tmp_path / "tiny160"
+    make_dataset(data, DatasetSpec("free", 2, 0, 27, 4, load_profile("chessboard")))
+    config = FitConfig(
+        datasets=[data], out=tmp_path / "ft", init=DEFAULT, epochs=1, batch_size=8, lr=0.0,
+        optimizer="adam", weight_decay=0.0, progress=False, threads=1,
+    )  # fmt: skip
+    fit(config)
+    tuned, checkpoint = load_network(tmp_path / "ft" / "last.pt")
+    assert checkpoint["parent"]["checkpoint"] == str(DEFAULT)
+    x = torch.rand(4, 3, 120, 160, generator=torch.Generator().manual_seed(1))
+    tuned.eval()
+    with torch.no_grad():  # only the running statistics moved (one epoch, momentum 0.1)
+        assert np.abs(tuned.logits(x).exp().numpy() - _graph_probabilities(x)).max() < 0.05
+
+
+def test_what_is_not_a_keypoint_graph_is_refused(tmp_path):
+    with pytest.raises(OnnxWeightsError, match="not a planar-pose keypoint network"):
+        keypoint_from_onnx(REPO_ROOT / "models" / "chessboard-noC-80x60.onnx")
+    junk = tmp_path / "junk.onnx"
+    junk.write_bytes(b"not a model")
+    with pytest.raises(OnnxWeightsError, match="not a readable ONNX model"):
+        keypoint_from_onnx(junk)
+    with pytest.raises(OnnxWeightsError, match="ONNX model not found"):
+        keypoint_from_onnx(tmp_path / "missing.onnx")
+    config = FitConfig(datasets=[tmp_path], out=tmp_path / "run", init=junk, progress=False)
+    with pytest.raises(TrainingError):
+        fit(config)
