@@ -12,9 +12,14 @@ per photo (corners, presence, parity), then only the geometry per variant:
   and the self-calibrated focal length against the calibrated one, with and without the
   pixel aspect;
 * the val board photos turned to portrait, squashed to 160x120 or turned back first
-  (`service.preprocess.NetworkFrame`).
+  (`service.preprocess.NetworkFrame`);
+* the focal-length prior and its weight;
+* what limits the answer: the network's corners or the labelled ones, each with the
+  self-calibrated camera or with the photo's calibrated one (focal length, principal point,
+  k1, pixel aspect from labels.csv), presence from the network.
 
-Usage (after `scripts/train_default.sh`, which makes the run and the data sets):
+Usage (after `scripts/train_default.sh`, which makes the run and the data sets; a shipped
+model's ONNX graph works too, e.g. models/default.onnx with `planar-pose corpus sets`):
     .venv/bin/python scripts/camera_model_choices.py \
         runs/default/runs/chessboard-keypoint-s2-160x120-real/best.pt runs/default/data
 """
@@ -42,9 +47,13 @@ from train.network import keypoint
 from train.network.align import square_homography
 from train.network.fit import _corners, load_network, to_input
 from train.network.keypoint import KeypointNet
+from train.network.onnx_weights import keypoint_from_onnx
 from train.real.realset import read_rgb, read_splits
 
 RADIAL = (0.0, -0.1, -0.2, -0.25, -0.3, -0.4)
+DEFAULT_PRIOR_WEIGHT, RADIAL_PRIOR = keypoint.FOCAL_PRIOR_WEIGHT, keypoint.RADIAL_PRIOR
+FOCAL_PRIORS = (0.6, 0.65, 0.7, 0.75, 0.8)  # x the SPEC camera's focal length
+PRIOR_WEIGHTS = (0.003, 0.01, 0.1)
 CORPUS = REPO_ROOT / "train/assets/real/corpus"
 
 
@@ -66,17 +75,66 @@ class Cached:
         aspect = self.aspect if use_aspect else torch.ones_like(self.aspect)
         with torch.no_grad():
             pk = net.pose_classes(self.q, self.parity, aspect)
+        return self._percent(pk)
+
+    def _percent(self, pk: torch.Tensor) -> float:
+        """Class accuracy (%) of P(class 1..8 | present) [N, 8] with the network's presence."""
         pr = self.present[:, None]
         predicted = torch.cat([1 - pr, pr * pk], 1).argmax(1).numpy()
         return 100.0 * float(np.mean(predicted == self.labels))
 
+    def accuracy_from(
+        self, net: KeypointNet, rows: list[dict[str, str]], labelled: bool, calibrated: bool
+    ) -> float:
+        """Class accuracy (%) from the network's corners or (`labelled`) the labelled ones
+        in the object's order, with the code's self-calibrated camera or (`calibrated`) each
+        photo's calibrated one (labels.csv: fx, fy, cx, cy, k1 in network pixels; the
+        self-calibrated one where a row has none)."""
+        corners = torch.from_numpy(_corners(rows).reshape(-1, 4, 2))
+        pk = torch.zeros(len(rows), 8)
+        code = _camera(net)
+        for i, row in enumerate(rows):
+            q, parity = self.q[i : i + 1], self.parity[i : i + 1]
+            if labelled and bool(torch.isfinite(corners[i]).all()):
+                q, parity = corners[i : i + 1], torch.ones(1)
+            aspect = self.aspect[i : i + 1]
+            if calibrated and row.get("fx"):
+                fx, fy = float(row["fx"]), float(row["fy"])
+                net.self_calibrate.fill_(0.0)
+                net.focal.fill_(fx)
+                net.principal.copy_(torch.tensor([float(row["cx"]), float(row["cy"])]))
+                net.radial_prior.fill_(float(row.get("k1") or 0.0))
+                aspect = torch.tensor([fy / fx])
+            with torch.no_grad():
+                pk[i] = net.pose_classes(q, parity, aspect)[0]
+            _set_camera(net, code)
+        return self._percent(pk)
 
-def accuracy_table(net: KeypointNet, data_dir: Path) -> list[list[str]]:
-    cache = {
+
+CAMERA_BUFFERS = ("focal", "principal", "self_calibrate", "radial_prior")
+
+
+def _camera(net: KeypointNet) -> dict[str, torch.Tensor]:
+    """A copy of `net`'s camera-model buffers, for `_set_camera` to put back."""
+    return {name: getattr(net, name).clone() for name in CAMERA_BUFFERS}
+
+
+def _set_camera(net: KeypointNet, camera: dict[str, torch.Tensor]) -> None:
+    for name, value in camera.items():
+        getattr(net, name).copy_(value)
+
+
+def _caches(net: KeypointNet, data_dir: Path) -> dict[tuple[str, int], Cached]:
+    """The network's answers on the val and train splits of real-s2-b0..3, by (split, blur)."""
+    return {
         (split, b): Cached(net, load_dataset(data_dir / f"real-s2-b{b}", split=split))
         for split in ("val", "train")
         for b in range(4)
     }
+
+
+def accuracy_table(net: KeypointNet, data_dir: Path) -> list[list[str]]:
+    cache = _caches(net, data_dir)
     rows = []
     for use_aspect in (False, True):
         for k1 in RADIAL:
@@ -86,6 +144,55 @@ def accuracy_table(net: KeypointNet, data_dir: Path) -> list[list[str]]:
                 cells.append(" / ".join(f"{a:.1f}" for a in accs) + f" (mean {np.mean(accs):.1f})")
             rows.append(cells)
     net.radial_prior.fill_(keypoint.RADIAL_PRIOR)
+    return rows
+
+
+def focal_prior_table(net: KeypointNet, data_dir: Path) -> list[list[str]]:
+    """Class accuracy per focal-length prior and prior weight (pixel aspect, k1 of the code)."""
+    cache, code = _caches(net, data_dir), _camera(net)
+    spec_f = float(net.focal) / keypoint.FOCAL_PRIOR
+    rows = []
+    for prior in FOCAL_PRIORS:
+        for weight in PRIOR_WEIGHTS:
+            net.focal.fill_(spec_f * prior)
+            keypoint.FOCAL_PRIOR_WEIGHT = weight  # read by `focal_length` at each call
+            cells = [f"{prior:g} x SPEC, weight {weight:g}"]
+            for split in ("val", "train"):
+                accs = [cache[(split, b)].accuracy(net, True, RADIAL_PRIOR) for b in range(4)]
+                cells.append(" / ".join(f"{a:.1f}" for a in accs) + f" (mean {np.mean(accs):.1f})")
+            rows.append(cells)
+    keypoint.FOCAL_PRIOR_WEIGHT = DEFAULT_PRIOR_WEIGHT
+    _set_camera(net, code)
+    return rows
+
+
+def limits_table(net: KeypointNet, data_dir: Path) -> list[list[str]]:
+    """Class accuracy (%) per split and blur level from the network's or the labelled
+    corners, with the self-calibrated or the calibrated camera; and the board photos the
+    network's presence misses."""
+    rows = []
+    for split in ("val", "train"):
+        found: dict[str, list[float]] = {}
+        missed = []
+        for b in range(4):
+            data = load_dataset(data_dir / f"real-s2-b{b}", split=split)
+            cached = Cached(net, data)
+            for labelled in (False, True):
+                for calibrated in (False, True):
+                    name = (
+                        f"{'labelled' if labelled else 'network'} corners, "
+                        f"{'calibrated' if calibrated else 'self-calibrated'} camera"
+                    )
+                    found.setdefault(name, []).append(
+                        cached.accuracy_from(net, data.rows, labelled, calibrated)
+                    )
+            board = data.labels > 0
+            missed.append(
+                f"{int((board & (cached.present.numpy() < 0.5)).sum())}/{int(board.sum())}"
+            )
+        for name, accs in found.items():
+            rows.append([split, name, " / ".join(f"{a:.1f}" for a in accs)])
+        rows.append([split, "board photos the presence misses", " / ".join(missed)])
     return rows
 
 
@@ -165,14 +272,22 @@ def portrait_table(net: KeypointNet) -> list[list[str]]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("checkpoint", type=Path, help="a keypoint-s2 training checkpoint (best.pt)")
+    parser.add_argument(
+        "checkpoint", type=Path, help="a keypoint training checkpoint (best.pt) or ONNX model"
+    )
     parser.add_argument("data", type=Path, help="the folder of the real-s2-b0..3 data sets")
     parser.add_argument("--out", type=Path, default=REPO_ROOT / "docs/camera_model.md")
     args = parser.parse_args()
     for path in (args.checkpoint, *(args.data / f"real-s2-b{b}" for b in range(4))):
         if not path.exists():
             sys.exit(f"error: not found: {path} (run scripts/train_default.sh first)")
-    net, _ = load_network(args.checkpoint)
+    try:
+        if args.checkpoint.suffix == ".onnx":
+            net, _ = keypoint_from_onnx(args.checkpoint)
+        else:
+            net, _ = load_network(args.checkpoint)
+    except ValueError as exc:  # TrainingError, OnnxWeightsError: a one-line reason
+        sys.exit(f"error: {exc}")
     if not isinstance(net, KeypointNet):
         sys.exit(f"error: {args.checkpoint} is not a keypoint network")
     net.eval()
@@ -199,6 +314,20 @@ def main() -> None:
             ["camera (split)", "pixel aspect", "square pixels", "pixel aspect"],
             labelled_corner_table(net, args.data),
         ),
+        "",
+        "## The focal-length prior (pixel aspect, the code's k1): class accuracy (%) at blur "
+        "0 / 1 / 2 / 3",
+        "",
+        f"The code's: {keypoint.FOCAL_PRIOR:g} x SPEC, weight {DEFAULT_PRIOR_WEIGHT:g}.",
+        "",
+        *table(["focal prior", "val sources", "train sources"], focal_prior_table(net, args.data)),
+        "",
+        "## What limits the answer: class accuracy (%) at blur 0 / 1 / 2 / 3",
+        "",
+        "The network's corners or the labelled ones; the self-calibrated camera (the code's "
+        "model) or each photo's calibrated one (labels.csv); presence from the network in all.",
+        "",
+        *table(["split", "corners, camera", "accuracy"], limits_table(net, args.data)),
         "",
         "## Portraits: the val 4:3 board photos turned a quarter counter-clockwise",
         "",

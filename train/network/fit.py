@@ -10,9 +10,9 @@ sets), stops early when it stops improving and writes into `config.out`:
 * `log.jsonl` one JSON line per epoch (loss, accuracy, learning rate, time).
 
 With `init`, the weights (and the input normalisation) come from a checkpoint, or from a
-shipped keypoint model's ONNX graph: fine-tuning, e.g. on a real data set. A run is deterministic on CPU for a seed: batches and augmentation
-draw from generators seeded by (seed, epoch), so a resumed run ends where an uninterrupted
-one does.
+shipped keypoint model's ONNX graph: fine-tuning, e.g. on a real data set. A run is
+deterministic on CPU for a seed: batches and augmentation draw from generators seeded by
+(seed, epoch), so a resumed run ends where an uninterrupted one does.
 """
 
 from __future__ import annotations
