@@ -359,8 +359,6 @@ def _initial_network(
                 net, parent = keypoint_from_onnx(config.init)
             except OnnxWeightsError as exc:
                 raise TrainingError(f"--init {exc}") from None
-            sample = np.random.default_rng(config.seed).permutation(len(train.labels))[:1024]
-            recalibrate_batch_norm(net, to_input(train.images[np.sort(sample)]))
         else:
             net, parent = load_network(config.init)
         if net.size != size:
@@ -368,6 +366,9 @@ def _initial_network(
                 f"--init {config.init} takes {net.size[0]}x{net.size[1]} "
                 f"images but the data sets are {size[0]}x{size[1]}"
             )
+        if config.init.suffix == ".onnx":
+            sample = np.random.default_rng(config.seed).permutation(len(train.labels))[:1024]
+            recalibrate_batch_norm(net, to_input(train.images[np.sort(sample)]))
         if config.arch == "keypoint-s2" and arch_of(net) == "keypoint":
             return _grown(net, build_network(config.arch, size, profile=profile)), parent
         return net, parent

@@ -66,6 +66,9 @@ def test_what_is_not_a_keypoint_graph_is_refused(tmp_path):
         keypoint_from_onnx(junk)
     with pytest.raises(OnnxWeightsError, match="ONNX model not found"):
         keypoint_from_onnx(tmp_path / "missing.onnx")
-    config = FitConfig(datasets=[tmp_path], out=tmp_path / "run", init=junk, progress=False)
-    with pytest.raises(TrainingError):
-        fit(config)
+    small = tmp_path / "tiny80"
+    make_dataset(small, DatasetSpec("noC", 1, 0, 18, 4, load_profile("chessboard")))
+    for init, message in ((junk, "not a readable ONNX model"), (DEFAULT, "takes 160x120 images")):
+        config = FitConfig(datasets=[small], out=tmp_path / "run", init=init, progress=False)
+        with pytest.raises(TrainingError, match=message):
+            fit(config)
