@@ -70,7 +70,7 @@ def keypoint_from_onnx(path: Path) -> tuple[NormalisedNet, dict[str, Any]]:
     state = net.state_dict()
     read = set()
     for name, module in net.named_modules():
-        if not isinstance(module, nn.Conv2d) or name in ("align",) or name not in convs:
+        if not isinstance(module, nn.Conv2d) or name not in convs:
             continue
         weight, bias = (inits[n] for n in convs[name])
         state[f"{name}.weight"] = weight
@@ -89,7 +89,7 @@ def keypoint_from_onnx(path: Path) -> tuple[NormalisedNet, dict[str, Any]]:
         if PREFIX + key in inits:
             state[key] = inits[PREFIX + key].reshape(state[key].shape)
             read.add(key)
-    unread = [k for k, p in net.named_parameters() if k not in read]
+    unread = [k for k, _ in net.named_parameters() if k not in read]
     if unread:
         raise OnnxWeightsError(f"{path}: no weights in the graph for {', '.join(unread)}")
     net.load_state_dict(state)
