@@ -59,7 +59,8 @@ CORPUS = REPO_ROOT / "train/assets/real/corpus"
 
 class Cached:
     """The network's part of the answer on one data set split (`KeypointNet.observe`):
-    aligned corners [N, 4, 2], their parity [N], P(present) [N]; pixel aspect [N], labels [N]."""
+    aligned corners [N, 4, 2], their parity [N], P(present) [N]; pixel aspect [N], labels [N]
+    and the labels.csv rows."""
 
     def __init__(self, net: KeypointNet, data: LoadedDataset) -> None:
         x = to_input(data.images)
@@ -68,6 +69,7 @@ class Cached:
         self.q, self.parity, self.present = (torch.cat(p) for p in zip(*parts, strict=True))
         self.aspect = torch.from_numpy(data.pixel_aspect())
         self.labels = data.labels
+        self.rows = data.rows
 
     def accuracy(self, net: KeypointNet, use_aspect: bool, k1: float) -> float:
         """Class accuracy (%) with the camera model (pixel aspect or square pixels, k1)."""
@@ -83,17 +85,15 @@ class Cached:
         predicted = torch.cat([1 - pr, pr * pk], 1).argmax(1).numpy()
         return 100.0 * float(np.mean(predicted == self.labels))
 
-    def accuracy_from(
-        self, net: KeypointNet, rows: list[dict[str, str]], labelled: bool, calibrated: bool
-    ) -> float:
+    def accuracy_from(self, net: KeypointNet, labelled: bool, calibrated: bool) -> float:
         """Class accuracy (%) from the network's corners or (`labelled`) the labelled ones
         in the object's order, with the code's self-calibrated camera or (`calibrated`) each
         photo's calibrated one (labels.csv: fx, fy, cx, cy, k1 in network pixels; the
         self-calibrated one where a row has none)."""
-        corners = torch.from_numpy(_corners(rows).reshape(-1, 4, 2))
-        pk = torch.zeros(len(rows), 8)
+        corners = torch.from_numpy(_corners(self.rows).reshape(-1, 4, 2))
+        pk = torch.zeros(len(self.rows), 8)
         code = _camera(net)
-        for i, row in enumerate(rows):
+        for i, row in enumerate(self.rows):
             q, parity = self.q[i : i + 1], self.parity[i : i + 1]
             if labelled and bool(torch.isfinite(corners[i]).all()):
                 q, parity = corners[i : i + 1], torch.ones(1)
@@ -133,8 +133,7 @@ def _caches(net: KeypointNet, data_dir: Path) -> dict[tuple[str, int], Cached]:
     }
 
 
-def accuracy_table(net: KeypointNet, data_dir: Path) -> list[list[str]]:
-    cache = _caches(net, data_dir)
+def accuracy_table(net: KeypointNet, cache: dict[tuple[str, int], Cached]) -> list[list[str]]:
     rows = []
     for use_aspect in (False, True):
         for k1 in RADIAL:
@@ -147,9 +146,9 @@ def accuracy_table(net: KeypointNet, data_dir: Path) -> list[list[str]]:
     return rows
 
 
-def focal_prior_table(net: KeypointNet, data_dir: Path) -> list[list[str]]:
+def focal_prior_table(net: KeypointNet, cache: dict[tuple[str, int], Cached]) -> list[list[str]]:
     """Class accuracy per focal-length prior and prior weight (pixel aspect, k1 of the code)."""
-    cache, code = _caches(net, data_dir), _camera(net)
+    code = _camera(net)
     spec_f = float(net.focal) / keypoint.FOCAL_PRIOR
     rows = []
     for prior in FOCAL_PRIORS:
@@ -166,7 +165,7 @@ def focal_prior_table(net: KeypointNet, data_dir: Path) -> list[list[str]]:
     return rows
 
 
-def limits_table(net: KeypointNet, data_dir: Path) -> list[list[str]]:
+def limits_table(net: KeypointNet, cache: dict[tuple[str, int], Cached]) -> list[list[str]]:
     """Class accuracy (%) per split and blur level from the network's or the labelled
     corners, with the self-calibrated or the calibrated camera; and the board photos the
     network's presence misses."""
@@ -175,8 +174,7 @@ def limits_table(net: KeypointNet, data_dir: Path) -> list[list[str]]:
         found: dict[str, list[float]] = {}
         missed = []
         for b in range(4):
-            data = load_dataset(data_dir / f"real-s2-b{b}", split=split)
-            cached = Cached(net, data)
+            cached = cache[(split, b)]
             for labelled in (False, True):
                 for calibrated in (False, True):
                     name = (
@@ -184,9 +182,9 @@ def limits_table(net: KeypointNet, data_dir: Path) -> list[list[str]]:
                         f"{'calibrated' if calibrated else 'self-calibrated'} camera"
                     )
                     found.setdefault(name, []).append(
-                        cached.accuracy_from(net, data.rows, labelled, calibrated)
+                        cached.accuracy_from(net, labelled, calibrated)
                     )
-            board = data.labels > 0
+            board = cached.labels > 0
             missed.append(
                 f"{int((board & (cached.present.numpy() < 0.5)).sum())}/{int(board.sum())}"
             )
@@ -291,6 +289,7 @@ def main() -> None:
     if not isinstance(net, KeypointNet):
         sys.exit(f"error: {args.checkpoint} is not a keypoint network")
     net.eval()
+    cache = _caches(net, args.data)
     stamp = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
     cpu = platform.processor() or platform.machine()
     lines = [
@@ -304,7 +303,7 @@ def main() -> None:
         "",
         "## Class accuracy (%) at blur 0 / 1 / 2 / 3",
         "",
-        *table(["camera model", "val sources", "train sources"], accuracy_table(net, args.data)),
+        *table(["camera model", "val sources", "train sources"], accuracy_table(net, cache)),
         "",
         "## The labelled corners of the cameras that are not 4:3 (blur 0)",
         "",
@@ -320,14 +319,14 @@ def main() -> None:
         "",
         f"The code's: {keypoint.FOCAL_PRIOR:g} x SPEC, weight {DEFAULT_PRIOR_WEIGHT:g}.",
         "",
-        *table(["focal prior", "val sources", "train sources"], focal_prior_table(net, args.data)),
+        *table(["focal prior", "val sources", "train sources"], focal_prior_table(net, cache)),
         "",
         "## What limits the answer: class accuracy (%) at blur 0 / 1 / 2 / 3",
         "",
         "The network's corners or the labelled ones; the self-calibrated camera (the code's "
         "model) or each photo's calibrated one (labels.csv); presence from the network in all.",
         "",
-        *table(["split", "corners, camera", "accuracy"], limits_table(net, args.data)),
+        *table(["split", "corners, camera", "accuracy"], limits_table(net, cache)),
         "",
         "## Portraits: the val 4:3 board photos turned a quarter counter-clockwise",
         "",

@@ -354,7 +354,8 @@ def _initial_network(
     a new `config.arch` network for the first data set's object `profile` (manifest),
     normalised to the training images (parent None)."""
     if config.init is not None:
-        if config.init.suffix == ".onnx":
+        from_onnx = config.init.suffix == ".onnx"
+        if from_onnx:
             try:
                 net, parent = keypoint_from_onnx(config.init)
             except OnnxWeightsError as exc:
@@ -366,7 +367,7 @@ def _initial_network(
                 f"--init {config.init} takes {net.size[0]}x{net.size[1]} "
                 f"images but the data sets are {size[0]}x{size[1]}"
             )
-        if config.init.suffix == ".onnx":
+        if from_onnx:  # after the size check: the images must fit the network
             sample = np.random.default_rng(config.seed).permutation(len(train.labels))[:1024]
             recalibrate_batch_norm(net, to_input(train.images[np.sort(sample)]))
         if config.arch == "keypoint-s2" and arch_of(net) == "keypoint":
