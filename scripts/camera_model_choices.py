@@ -66,7 +66,9 @@ class Cached:
         x = to_input(data.images)
         with torch.no_grad():
             parts = [net.observe(x[i : i + 128]) for i in range(0, len(x), 128)]
-        self.q, self.parity, self.present = (torch.cat(p) for p in zip(*parts, strict=True))
+        self.q, self.parity, self.present = (
+            torch.cat([getattr(p, f) for p in parts]) for f in ("corners", "parity", "present")
+        )
         self.aspect = torch.from_numpy(data.pixel_aspect())
         self.labels = data.labels
         self.rows = data.rows

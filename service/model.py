@@ -6,7 +6,10 @@ initializer): the height over the width of an input pixel in the scene
 (`service.preprocess.NetworkFrame.pixel_aspect`); output `probabilities` float32 [N, 9]
 (softmax), optionally `corners` float32 [N, 4, 2] (the object's corners in input pixels,
 order (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y)); metadata_props `model_card` = card JSON. A graph
-with one output takes it as the probabilities whatever its name.
+with one output takes it as the probabilities whatever its name. Since 3.5.0 the keypoint
+graphs also take `view` float32 [N, 3] (default (0, 0, 1)): where the input lies in the
+camera's frame, the corners then being in frame pixels; and output `pattern` float32 [N],
+P(object present) from the checker pattern alone; both serve the zoom pass (`service.zoom`).
 """
 
 from __future__ import annotations
@@ -22,7 +25,20 @@ import onnxruntime as ort
 from service.regions import NUM_CLASSES
 
 PROBABILITIES, CORNERS = "probabilities", "corners"  # output names (train/network/export.py)
-PIXEL_ASPECT = "pixel_aspect"  # the optional input (an overridable initializer)
+PATTERN = "pattern"  # the optional output of the zoom pass (`service.zoom`)
+PIXEL_ASPECT, VIEW = "pixel_aspect", "view"  # the optional inputs (overridable initializers)
+DEFAULT_VIEW = np.array([0.0, 0.0, 1.0], np.float32)  # (u0, v0, s): the input is the frame
+
+
+@dataclass(frozen=True)
+class Answer:
+    """A graph's outputs for N inputs: probabilities float64 [N, 9] (rows summing to 1),
+    corners float64 [N, 4, 2] in frame pixels (None: no such output) and the pattern's
+    P(present) float64 [N] (None: no such output)."""
+
+    probabilities: np.ndarray
+    corners: np.ndarray | None
+    pattern: np.ndarray | None
 
 
 class ModelLoadError(RuntimeError):
@@ -58,15 +74,30 @@ class PoseModel:
     output_name: str  # the probabilities
     corners_name: str | None = None  # the optional corners output
     takes_aspect: bool = False  # whether the graph has the `pixel_aspect` input
+    pattern_name: str | None = None  # the optional pattern output
+    takes_view: bool = False  # whether the graph has the `view` input
+
+    @property
+    def zooms(self) -> bool:
+        """Whether the graph serves the zoom pass (`service.zoom`): view in, pattern out."""
+        return self.takes_view and self.pattern_name is not None and self.corners_name is not None
 
     @property
     def name(self) -> str:
         return str(self.card["name"])
 
     @classmethod
-    def load(cls, path: Path, intra_op_threads: int = 1, inter_op_threads: int = 1) -> PoseModel:
-        """Open `path`, check the I/O contract, read the input size from the input shape."""
-        if not path.is_file():
+    def load(
+        cls,
+        path: Path,
+        intra_op_threads: int = 1,
+        inter_op_threads: int = 1,
+        graph: tuple[bytes, dict[str, Any]] | None = None,
+    ) -> PoseModel:
+        """Open `path`, check the I/O contract, read the input size from the input shape.
+        `graph` = (ONNX bytes, card): that graph instead of the file, `path` only naming it
+        (`train/network/export.py` measures a graph before it writes it)."""
+        if graph is None and not path.is_file():
             raise ModelLoadError(f"model file not found: {path}")
         options = ort.SessionOptions()
         options.intra_op_num_threads = intra_op_threads
@@ -77,7 +108,11 @@ class PoseModel:
         # `pixel_aspect` is one on purpose
         options.log_severity_level = 3
         try:
-            session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+            session = ort.InferenceSession(
+                str(path) if graph is None else graph[0],
+                options,
+                providers=["CPUExecutionProvider"],
+            )
         except Exception as exc:  # onnxruntime raises its own Fail/InvalidGraph/... types
             raise ModelLoadError(f"{path}: not a loadable ONNX model ({exc})") from None
         inputs, outputs = session.get_inputs(), session.get_outputs()
@@ -92,21 +127,26 @@ class PoseModel:
         by_name = {o.name: o for o in outputs}
         probs_out = outputs[0] if len(outputs) == 1 else by_name.get(PROBABILITIES)
         corners_out = by_name.get(CORNERS) if len(outputs) > 1 else None
+        pattern_out = by_name.get(PATTERN) if corners_out is not None else None
         if (
             probs_out is None
-            or len(outputs) > 1 + (corners_out is not None)
+            or len(outputs) > 1 + (corners_out is not None) + (pattern_out is not None)
             or probs_out.shape[-1] != NUM_CLASSES
         ):
             raise ModelLoadError(
                 f"{path}: expected one output [N, {NUM_CLASSES}], or {PROBABILITIES!r} "
-                f"[N, {NUM_CLASSES}] and {CORNERS!r} [N, 4, 2]; got {sorted(by_name)}"
+                f"[N, {NUM_CLASSES}] and {CORNERS!r} [N, 4, 2] (and {PATTERN!r} [N]); "
+                f"got {sorted(by_name)}"
             )
         if corners_out is not None and list(corners_out.shape[1:]) != [4, 2]:
             raise ModelLoadError(f"{path}: output {CORNERS!r} must be [N, 4, 2]")
+        if pattern_out is not None and len(pattern_out.shape) != 1:
+            raise ModelLoadError(f"{path}: output {PATTERN!r} must be [N]")
         size = (int(shape[3]), int(shape[2]))
-        card = _read_card(session, path)
+        card = _read_card(session, path) if graph is None else graph[1]
         if "input" in card and tuple(card["input"]) != size:
             raise ModelLoadError(f"{path}: card says input {card['input']}, graph says {size}")
+        defaults = {i.name for i in session.get_overridable_initializers()}
         return cls(
             session,
             inputs[0].name,
@@ -115,16 +155,25 @@ class PoseModel:
             path,
             probs_out.name,
             None if corners_out is None else corners_out.name,
-            any(i.name == PIXEL_ASPECT for i in session.get_overridable_initializers()),
+            PIXEL_ASPECT in defaults,
+            None if pattern_out is None else pattern_out.name,
+            VIEW in defaults,
         )
 
-    def _feeds(self, batch: np.ndarray, pixel_aspect: np.ndarray | None) -> dict[str, Any]:
+    def _feeds(
+        self, batch: np.ndarray, pixel_aspect: np.ndarray | None, view: np.ndarray | None = None
+    ) -> dict[str, Any]:
         feeds: dict[str, Any] = {self.input_name: batch}
         if pixel_aspect is not None and self.takes_aspect:
             aspect = np.asarray(pixel_aspect, dtype=np.float32).reshape(-1)
             if aspect.shape != (len(batch),):
                 raise ValueError(f"pixel_aspect: {aspect.size} values for {len(batch)} images")
             feeds[PIXEL_ASPECT] = aspect
+        if view is not None and self.takes_view:
+            views = np.asarray(view, dtype=np.float32)
+            if views.shape != (len(batch), 3):
+                raise ValueError(f"view: shape {views.shape} for {len(batch)} images, not [N, 3]")
+            feeds[VIEW] = views
         return feeds
 
     def predict(self, batch: np.ndarray, pixel_aspect: np.ndarray | None = None) -> np.ndarray:
@@ -138,12 +187,33 @@ class PoseModel:
     ) -> tuple[np.ndarray, np.ndarray | None]:
         """As `predict`, and the corners float64 [N, 4, 2] in input pixels (None when the
         model has no corners output)."""
-        if self.corners_name is None:
-            return self.predict(batch, pixel_aspect), None
-        raw, corners = self.session.run(
-            [self.output_name, self.corners_name], self._feeds(batch, pixel_aspect)
+        answer = self.run(batch, pixel_aspect)
+        return answer.probabilities, answer.corners
+
+    def run(
+        self,
+        batch: np.ndarray,
+        pixel_aspect: np.ndarray | None = None,
+        view: np.ndarray | None = None,
+    ) -> Answer:
+        """float32 [N, 3, H, W] in [0, 1], the pixel aspect [N] and the view [N, 3] (where
+        each input lies in its camera's frame; models that take them; None: 1 and the whole
+        frame) -> every output the graph has (`Answer`)."""
+        names = [self.output_name, self.corners_name, self.pattern_name]
+        wanted = [n for n in names if n is not None]
+        out = dict(
+            zip(
+                wanted,
+                self.session.run(wanted, self._feeds(batch, pixel_aspect, view)),
+                strict=True,
+            )
         )
-        return _normalised(raw), np.asarray(corners, dtype=np.float64)
+        corners, pattern = (out.get(n) if n else None for n in names[1:])
+        return Answer(
+            _normalised(out[self.output_name]),
+            None if corners is None else np.asarray(corners, dtype=np.float64),
+            None if pattern is None else np.asarray(pattern, dtype=np.float64),
+        )
 
 
 def _normalised(raw: Any) -> np.ndarray:

@@ -1,7 +1,8 @@
 """Bytes of one or many images -> per-image answers, the HTTP-free core of `/v1/predict`.
 
 Every image of a call goes through ONE batched onnxruntime run (whole mode: one input per
-image; sliding mode: all windows of all images). Thread-safe: the session is shared.
+image, then one more for the zoom pass's tiles where it applies, `service.zoom`; sliding
+mode: all windows of all images). Thread-safe: the session is shared.
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ from service.sliding import (
     working_copy,
     working_min_size,
 )
+from service.zoom import zoomed
 
 #: (filename or None, encoded image bytes)
 ImageInput = tuple[str | None, bytes]
@@ -83,14 +85,11 @@ class Predictor:
             name = f"image {index + 1}" + (f" ({image[0]})" if image[0] else "")
             raise type(exc)(f"{name}: {exc}") from None
 
-    def _infer(
-        self, batch: np.ndarray, aspect: np.ndarray | None = None
-    ) -> tuple[np.ndarray, np.ndarray | None, float]:
-        """Batch (and its pixel aspect [N]; None: 1) -> probabilities [N, 9], corners
-        [N, 4, 2] (None without), seconds."""
+    def _infer(self, batch: np.ndarray) -> tuple[np.ndarray, float]:
+        """Batch [N, 3, H, W] -> probabilities [N, 9], seconds."""
         t0 = time.perf_counter()
-        probs, corners = self.model.predict_with_corners(batch, aspect)
-        return probs, corners, time.perf_counter() - t0
+        probs = self.model.predict(batch)
+        return probs, time.perf_counter() - t0
 
     def _proposals(self, image: np.ndarray) -> np.ndarray:
         """Object-proposal boxes (SPEC 9, objectness) of the network's aspect in `image`."""
@@ -117,7 +116,11 @@ class Predictor:
             frames.append(NetworkFrame((decoded.width, decoded.height), size))
             prep.append(time.perf_counter() - t0)
         aspect = np.array([f.pixel_aspect for f in frames], dtype=np.float32)
-        probs, corners, infer_s = self._infer(np.stack(inputs), aspect)
+        t0 = time.perf_counter()
+        batch = np.stack(inputs)
+        zoom = self.settings.zoom
+        answer = zoomed(self.model, batch, aspect) if zoom else self.model.run(batch, aspect)
+        probs, corners, infer_s = answer.probabilities, answer.corners, time.perf_counter() - t0
         share = infer_s / len(images)
         results = []
         for i, (image, p, t) in enumerate(zip(images, probs, prep, strict=True)):
@@ -143,7 +146,7 @@ class Predictor:
             batches.append(window_batch(work, boxes, size))
             staged.append((boxes, scale, (decoded.width, decoded.height)))
             prep.append(time.perf_counter() - t0)
-        probs, _, infer_s = self._infer(np.concatenate(batches))
+        probs, infer_s = self._infer(np.concatenate(batches))
         total, start, results = len(probs), 0, []
         for image, (boxes, scale, full), t in zip(images, staged, prep, strict=True):
             answer = best_window(boxes, probs[start : start + len(boxes)], cfg.sliding_nms_iou)

@@ -70,6 +70,11 @@ class Settings(BaseSettings):
         default=0, ge=0, description="Images decoded/classified at once, 0 = one per CPU."
     )
     cors_origins: Annotated[list[str], NoDecode] = Field(default_factory=list)
+    zoom: bool = Field(
+        default=True,
+        description="Whole mode: a second look at 2x tiles where the board is small or "
+        "missed (service/zoom.py; models with its view input).",
+    )
     sliding_scales: Annotated[list[float], NoDecode] = Field(
         default_factory=lambda: [1.0, 0.8, 0.65],
         description="Window sizes as fractions of the largest input-aspect window in the image.",

@@ -176,10 +176,18 @@ def export(
     split: Annotated[str, typer.Option(help="Split measured for the card.")] = "test",
     version: str = "1.0.0",
     notes: Annotated[str, typer.Option(help="Free text for the card (how it was made).")] = "",
+    regraph: Annotated[
+        bool,
+        typer.Option(
+            help="With a keypoint .onnx: export its weights again in this version's graph "
+            "form (the zoom pass's view input and pattern output), as --version."
+        ),
+    ] = False,
 ) -> None:
     """Export a checkpoint to ONNX (probabilities, dynamic batch) with its model card.
 
-    Given an .onnx model instead, measure it again on --eval and rewrite its card's accuracy.
+    Given an .onnx model instead, measure it again on --eval and rewrite its card's accuracy
+    (with --regraph, its graph too).
     """
     import re
 
@@ -189,6 +197,8 @@ def export(
     _check_split(split)
     if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.-]*", name):
         raise fail(f"--name {name!r}: use letters, digits, '.', '_' or '-'", code=2)
+    if regraph and checkpoint.suffix != ".onnx":
+        raise fail("--regraph takes a keypoint .onnx model", code=2)
     if not checkpoint.is_file():
         raise fail(f"checkpoint not found: {checkpoint}")
     for path in eval_data or []:
@@ -197,8 +207,9 @@ def export(
     if checkpoint.suffix == ".onnx":
         if not eval_data:
             raise fail("measuring an .onnx model again needs --eval data set(s)", code=2)
+        new_version = version if regraph else None
         path, card = guard(
-            lambda: recard(checkpoint, name, out_dir, eval_data, split, notes or None)
+            lambda: recard(checkpoint, name, out_dir, eval_data, split, notes or None, new_version)
         )
     else:
         path, card = guard(

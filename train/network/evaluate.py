@@ -11,12 +11,16 @@ import math
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from service.preprocess import to_network_input
 from service.regions import NUM_CLASSES
 from train.dataset import LoadedDataset
+
+if TYPE_CHECKING:
+    from service.model import PoseModel
 
 #: A classifier: RGB uint8 images [N, H, W, 3] at the network's size and their pixel aspect
 #: [N] (`service.preprocess.NetworkFrame.pixel_aspect`: 1 unless a photo was squashed) ->
@@ -139,20 +143,33 @@ def network_batch(images: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     return np.stack([to_network_input(img, size) for img in images])
 
 
-def onnx_predictor(path: Path, threads: int = 0) -> tuple[Predictor, tuple[int, int], dict]:
+def onnx_predictor(
+    path: Path, threads: int = 0, zoom: bool = True
+) -> tuple[Predictor, tuple[int, int], dict]:
     """Load an exported model as the service does (`service.model.PoseModel`, onnxruntime)
-    -> (predictor, input size (W, H), model card). `threads` 0 lets onnxruntime choose."""
+    -> (predictor, input size (W, H), model card). `threads` 0 lets onnxruntime choose;
+    `zoom`: with the service's zoom pass (`service.zoom`) where the graph serves it."""
     from service.model import ModelLoadError, PoseModel
 
     try:
         model = PoseModel.load(path, intra_op_threads=threads)
     except ModelLoadError as exc:
         raise ValueError(str(exc)) from None
+    return model_predictor(model, zoom), model.input_size, model.card
+
+
+def model_predictor(model: PoseModel, zoom: bool = True) -> Predictor:
+    """A `Predictor` on a `service.model.PoseModel`, as the service's whole mode answers:
+    the service's preprocessing, then the graph (with the zoom pass if `zoom`)."""
+    from service.zoom import zoomed
 
     def predict(images: np.ndarray, pixel_aspect: np.ndarray) -> np.ndarray:
-        return model.predict(network_batch(images, model.input_size), pixel_aspect)
+        batch = network_batch(images, model.input_size)
+        if zoom:
+            return zoomed(model, batch, pixel_aspect).probabilities
+        return model.predict(batch, pixel_aspect)
 
-    return predict, model.input_size, model.card
+    return predict
 
 
 def checkpoint_predictor(path: Path) -> tuple[Predictor, tuple[int, int], dict]:

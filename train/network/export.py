@@ -3,10 +3,13 @@
 The graph takes `image` float32 [N, 3, H, W], RGB in [0, 1] (dynamic N; the normalisation is
 inside) and returns `probabilities` float32 [N, 9] (softmax); the keypoint networks also take
 `pixel_aspect` float32 [N] (an input with the default [1], an overridable initializer: a
-caller that feeds only `image` gets square pixels) and return `corners` float32 [N, 4, 2],
-the object's image corners in pixels of the input, in the order (-X,-Y), (+X,-Y), (+X,+Y),
-(-X,+Y) of the object frame. The model card (JSON) is stored in the ONNX `metadata_props`
-under `model_card` and written next to it as `<name>.json`.
+caller that feeds only `image` gets square pixels) and `view` float32 [N, 3] (default
+[[0, 0, 1]]: the input is the camera's whole frame; `train.network.keypoint.KeypointNet.answer`
+says what a crop's view is), and return `corners` float32 [N, 4, 2], the object's image
+corners in frame pixels, in the order (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y) of the object
+frame, and `pattern` float32 [N], P(present) from the checker pattern at the corners
+alone (`service.zoom` uses both). The model card (JSON) is stored in the ONNX
+`metadata_props` under `model_card` and written next to it as `<name>.json`.
 """
 
 from __future__ import annotations
@@ -20,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from service.model import CORNERS, PIXEL_ASPECT, PROBABILITIES
+from service.model import CORNERS, DEFAULT_VIEW, PATTERN, PIXEL_ASPECT, PROBABILITIES, VIEW
 from service.regions import NUM_CLASSES, class_descriptions, region_of_class
 from train import REPO_ROOT
 
@@ -40,8 +43,8 @@ INPUT_NAME = "image"
 
 def onnx_bytes(net: Any) -> bytes:
     """Serialise a pose network (eval mode) to ONNX bytes, dynamic batch: output
-    `probabilities` (softmax); the keypoint networks also take `pixel_aspect` (default 1)
-    and output `corners`."""
+    `probabilities` (softmax); the keypoint networks also take `pixel_aspect` (default 1) and
+    `view` (default (0, 0, 1)) and output `corners` and `pattern`."""
     import onnx
     import torch
 
@@ -49,10 +52,14 @@ def onnx_bytes(net: Any) -> bytes:
 
     w, h = net.size
     wrapper = Probabilities(net).eval()
-    aspect = takes_pixel_aspect(net)
-    inputs = [INPUT_NAME, PIXEL_ASPECT] if aspect else [INPUT_NAME]
-    outputs = [PROBABILITIES, CORNERS] if aspect else [PROBABILITIES]
-    example = (torch.rand(2, 3, h, w), torch.ones(2)) if aspect else (torch.rand(2, 3, h, w),)
+    keypoint = takes_pixel_aspect(net)
+    image = torch.rand(2, 3, h, w)
+    if keypoint:
+        inputs, outputs = [INPUT_NAME, PIXEL_ASPECT, VIEW], [PROBABILITIES, CORNERS, PATTERN]
+        defaults = {PIXEL_ASPECT: np.ones(1, np.float32), VIEW: DEFAULT_VIEW[None]}
+        example: tuple[Any, ...] = (image, *(torch.from_numpy(v) for v in defaults.values()))
+    else:
+        inputs, outputs, defaults, example = [INPUT_NAME], [PROBABILITIES], {}, (image,)
     buf = io.BytesIO()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
@@ -63,16 +70,16 @@ def onnx_bytes(net: Any) -> bytes:
             dynamo=False,
             input_names=inputs,
             output_names=outputs,
-            # the aspect's own batch dimension: its default [1] broadcasts over any N
+            # the defaults' own batch dimension: a default of one row broadcasts over any N
             dynamic_axes={name: {0: "N"} for name in [INPUT_NAME, *outputs]}
-            | ({PIXEL_ASPECT: {0: "N_aspect"}} if aspect else {}),
+            | {name: {0: f"N_{name}"} for name in defaults},
             opset_version=OPSET,
         )
-    if not aspect:
+    if not defaults:
         return buf.getvalue()
     model = onnx.load_from_string(buf.getvalue())
-    default = onnx.numpy_helper.from_array(np.ones(1, np.float32), PIXEL_ASPECT)
-    model.graph.initializer.append(default)  # a graph input with a default: overridable
+    for name, value in defaults.items():  # graph inputs with a default: overridable
+        model.graph.initializer.append(onnx.numpy_helper.from_array(value, name))
     return model.SerializeToString()
 
 
@@ -106,6 +113,31 @@ def profile_card(profile: dict[str, Any]) -> dict[str, Any]:
 def _data_summary(data: list[dict[str, Any]]) -> list[dict[str, Any]]:
     keys = ("path", "split", "count", "variant", "size", "blur", "seed", "real")
     return [{k: d[k] for k in keys if k in d} for d in data]
+
+
+def _io_card(keypoint: bool) -> dict[str, str]:
+    """The card's `input_format` and `output`: the graph's inputs and outputs (module doc)."""
+    return {
+        "input_format": "image: float32 [N, 3, H, W], RGB, values in [0, 1] (portraits turned "
+        "a quarter clockwise, resize with area)"
+        + (
+            "; pixel_aspect: float32 [N], default 1, the height over the width of an input "
+            "pixel in the scene (4/3 for a 16:9 photo resized to the input); view: float32 "
+            "[N, 3], default (0, 0, 1), where the input lies in the camera's frame: input pixel "
+            "(u, v) is frame pixel (u0 + (u + 0.5) s - 0.5, v0 + (v + 0.5) s - 0.5)"
+            if keypoint
+            else ""
+        ),
+        "output": "probabilities: float32 [N, 9] (softmax), index = class id"
+        + (
+            "; corners: float32 [N, 4, 2], the object's corners (u, v) in frame pixels "
+            "(input pixels with the default view), order (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y); "
+            "pattern: float32 [N], P(object present) from the checker pattern at the corners "
+            "alone"
+            if keypoint
+            else ""
+        ),
+    }
 
 
 def build_card(
@@ -154,21 +186,7 @@ def build_card(
         "date": datetime.now(UTC).isoformat(timespec="seconds"),
         "architecture": ARCHITECTURES[checkpoint.get("arch", "spec")],
         "input": list(checkpoint["size"]),
-        "input_format": "image: float32 [N, 3, H, W], RGB, values in [0, 1] (portraits turned "
-        "a quarter clockwise, resize with area)"
-        + (
-            "; pixel_aspect: float32 [N], default 1, the height over the width of an input "
-            "pixel in the scene (4/3 for a 16:9 photo resized to the input)"
-            if keypoint
-            else ""
-        ),
-        "output": "probabilities: float32 [N, 9] (softmax), index = class id"
-        + (
-            "; corners: float32 [N, 4, 2], the object's corners (u, v) in input pixels, "
-            "order (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y)"
-            if keypoint
-            else ""
-        ),
+        **_io_card(keypoint),
         "classes": [
             {"id": k, "label": region_of_class(k)["label"], "description": descriptions[k]}
             for k in range(NUM_CLASSES)
@@ -224,25 +242,25 @@ def accuracy_on(predict: Any, datasets: list[Path], split: str) -> dict[str, dic
     return out
 
 
-def _graph_predictor(raw: bytes, size: tuple[int, int]) -> Any:
-    """A `train.network.evaluate.Predictor` on ONNX bytes (onnxruntime), the pixel aspect
-    fed when the graph takes it."""
-    import onnxruntime as ort
+def _graph_predictor(raw: bytes, card: dict[str, Any]) -> Any:
+    """A `train.network.evaluate.Predictor` on ONNX bytes as the service answers with them
+    (`service.model.PoseModel`, the zoom pass where the graph serves it)."""
+    from service.model import PoseModel
+    from train.network.evaluate import model_predictor
 
-    from train.network.evaluate import network_batch
+    model = PoseModel.load(Path(f"{card['name']}.onnx"), intra_op_threads=0, graph=(raw, card))
+    return model_predictor(model)
 
-    options = ort.SessionOptions()
-    options.log_severity_level = 3  # not the warning about the overridable `pixel_aspect`
-    session = ort.InferenceSession(raw, options, providers=["CPUExecutionProvider"])
-    aspect = any(i.name == PIXEL_ASPECT for i in session.get_overridable_initializers())
 
-    def predict(images: np.ndarray, pixel_aspect: np.ndarray) -> np.ndarray:
-        feeds = {INPUT_NAME: network_batch(images, size)}
-        if aspect:
-            feeds[PIXEL_ASPECT] = np.asarray(pixel_aspect, np.float32)
-        return session.run([PROBABILITIES], feeds)[0]
+def regraph(onnx_path: Path) -> bytes:
+    """A shipped keypoint graph exported again from its own weights
+    (`train.network.onnx_weights`) in this version's form (`onnx_bytes`: the inputs and
+    outputs of the zoom pass)."""
+    from train.network.model import export_form
+    from train.network.onnx_weights import keypoint_from_onnx
 
-    return predict
+    net, _ = keypoint_from_onnx(onnx_path)
+    return onnx_bytes(export_form(net))
 
 
 def export(
@@ -264,7 +282,7 @@ def export(
     trained, checkpoint = load_network(checkpoint_path)
     net = export_form(trained)
     raw = onnx_bytes(net)
-    predict = _graph_predictor(raw, net.size)
+    predict = _graph_predictor(raw, {"name": name, "input": list(net.size)})
     accuracy = accuracy_on(predict, eval_datasets, split) if eval_datasets else {}
     card = build_card(name, checkpoint, accuracy, version, notes)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -281,9 +299,12 @@ def recard(
     eval_datasets: list[Path],
     split: str = "test",
     notes: str | None = None,
+    version: str | None = None,
 ) -> tuple[Path, dict[str, Any]]:
     """Measure a shipped ONNX model again on `eval_datasets` and write it with its card's
-    accuracy replaced (training provenance unchanged) as out_dir/<name>.onnx + .json."""
+    accuracy replaced (training provenance unchanged) as out_dir/<name>.onnx + .json.
+    With a `version`, a keypoint graph is first exported again from its weights in this
+    version's form (`regraph`) and its card says so."""
     import onnx
 
     model = onnx.load(str(onnx_path))
@@ -292,8 +313,11 @@ def recard(
         raise ValueError(f"{onnx_path} has no model card in its metadata")
     card = json.loads(cards[0])
     raw = onnx_path.read_bytes()
-    predict = _graph_predictor(raw, (int(card["input"][0]), int(card["input"][1])))
-    card |= {"name": name, "accuracy": accuracy_on(predict, eval_datasets, split)}
+    if version is not None:
+        raw = regraph(onnx_path)
+        card |= {"version": version, "regraphed_from": card.get("version")} | _io_card(True)
+    card |= {"name": name}
+    card["accuracy"] = accuracy_on(_graph_predictor(raw, card), eval_datasets, split)
     card["date_measured"] = datetime.now(UTC).isoformat(timespec="seconds")
     if notes is not None:
         card["notes"] = notes

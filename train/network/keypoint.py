@@ -31,14 +31,16 @@ The heat-map channels are trained on the corners up to a half turn: of the two o
 target is the one whose corner 0 is the upper end of the 0-2 diagonal (`fit._corner_loss`);
 parity is not learned. Input: float32 [N, 3, 120, 160], RGB in [0, 1], and optionally the
 pixel aspect [N] (`camera_centre`; 1 where not given). Output of `forward`: log-probabilities
-[N, 9]; `answer` also gives the aligned corners in the object's order (the exported graph's
-second output, `corners`).
+[N, 9]; `answer` also gives the aligned corners in the object's order and the checker
+pattern's evidence of the board (the exported graph's outputs `corners` and `pattern`), and
+takes where the input lies in the camera's frame (`view`: a crop of the frame, enlarged, is
+answered with the frame's camera; the service's zoom pass, `service/zoom.py`).
 """
 
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, NamedTuple
 
 import torch
 import torch.nn.functional as F
@@ -65,6 +67,15 @@ SQUARES = (10, 7)  # squares of the board along its width (x) and height (y)
 # whatever the presence logit says: real photos without a board stay under 0.16 (the
 # corpus's train and val sources), with one mostly over 0.6
 PATTERN_CORR, PATTERN_SLOPE = 0.4, 20.0
+
+
+class Observation(NamedTuple):
+    """What one image [N, 3, H, W] says before the camera model (`KeypointNet.observe`)."""
+
+    corners: torch.Tensor  # [N, 4, 2] input px, aligned, in the heat maps' order
+    parity: torch.Tensor  # [N] in [-1, 1], > 0 when that order is the object's
+    present: torch.Tensor  # [N] P(present): the presence logit or'ed with `pattern`
+    pattern: torch.Tensor  # [N] P(present) from the checker pattern at the corners alone
 
 
 def _block(cin: int, cout: int) -> nn.Sequential:
@@ -312,29 +323,39 @@ class KeypointNet(NormalisedNet):
         P(class 1..8 | object present) [N, 8] (`pose_classes` with the corners' parity)."""
         return self.pose_classes(q, self.parity(x, square_homography(q)), pixel_aspect)
 
-    def observe(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """RGB [N, 3, H, W] in [0, 1] -> what the image says before the camera model: the
-        aligned corners [N, 4, 2] px, their parity [N] and P(object present) [N] (the
-        presence logit or'ed with the checker pattern found at the corners)."""
+    def observe(self, x: torch.Tensor) -> Observation:
+        """RGB [N, 3, H, W] in [0, 1] -> what the image says before the camera model
+        (`Observation`)."""
         heat, presence = self._encode((x - self.mean) / self.std)
         q, corr = self.align(x, self._soft_argmax(heat))
         parity = self.parity(x, square_homography(q))
         # the checker pattern found at the corners is evidence of the board on its own
         pattern = torch.sigmoid(PATTERN_SLOPE * (corr.abs() - PATTERN_CORR))
-        return q, parity, 1 - (1 - torch.sigmoid(presence)) * (1 - pattern)
+        return Observation(q, parity, 1 - (1 - torch.sigmoid(presence)) * (1 - pattern), pattern)
 
     def answer(
-        self, x: torch.Tensor, pixel_aspect: torch.Tensor | None = None
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        """RGB [N, 3, H, W] in [0, 1] and the pixel aspect [N] (`camera_centre`; None: 1) ->
-        log-probabilities [N, 9] (softmax gives them back) and the aligned corners [N, 4, 2]
-        px of the input image, in the object's order (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y) as
-        the parity reads it (meaningless where the object is not in view)."""
-        q, parity, p_present = self.observe(x)
-        pk = self.pose_classes(q, parity, pixel_aspect)
-        present = p_present[:, None]
+        self,
+        x: torch.Tensor,
+        pixel_aspect: torch.Tensor | None = None,
+        view: torch.Tensor | None = None,
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """RGB [N, 3, H, W] in [0, 1], the pixel aspect [N] (`camera_centre`; None: 1) and
+        where the input lies in the frame the camera sees, `view` [N, 3] = (u0, v0, s): input
+        pixel (u, v) is frame pixel (u0 + (u + 0.5) s - 0.5, v0 + (v + 0.5) s - 0.5), frame
+        pixels as the input's (None: (0, 0, 1), the input is the frame; a crop of the frame
+        enlarged 2x is (left, top, 0.5)) -> log-probabilities [N, 9] (softmax gives them
+        back), the aligned corners [N, 4, 2] in frame pixels, in the object's order (-X,-Y),
+        (+X,-Y), (+X,+Y), (-X,+Y) as the parity reads it (meaningless where the object is
+        not in view), and P(present) [N] from the checker pattern alone (`Observation`)."""
+        seen = self.observe(x)
+        q = seen.corners
+        if view is not None:
+            q = view[:, None, :2] + (q + 0.5) * view[:, None, 2:] - 0.5
+        pk = self.pose_classes(q, seen.parity, pixel_aspect)
+        present = seen.present[:, None]
         log_p = torch.log(torch.cat([1 - present, present * pk], 1).clamp_min(1e-7))
-        return log_p, torch.where(parity[:, None, None] >= 0, q, torch.roll(q, 2, 1))
+        corners = torch.where(seen.parity[:, None, None] >= 0, q, torch.roll(q, 2, 1))
+        return log_p, corners, seen.pattern
 
     def logits(self, x: torch.Tensor, pixel_aspect: torch.Tensor | None = None) -> torch.Tensor:
         """RGB [N, 3, H, W] in [0, 1] (and its pixel aspect [N]) -> log-probabilities [N, 9]

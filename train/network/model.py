@@ -255,21 +255,24 @@ def log_probabilities(
 
 class Probabilities(nn.Module):
     """Wrap a pose network so it outputs probabilities [N, 9] (softmax) and, for a network
-    with an `answer` (the keypoint network), its corners [N, 4, 2] px from the image and its
-    pixel aspect [N]: the exported graph."""
+    with an `answer` (the keypoint network, which also takes the pixel aspect [N] and the
+    view [N, 3]), its corners [N, 4, 2] px and pattern evidence [N]: the exported graph."""
 
     def __init__(self, net: NormalisedNet) -> None:
         super().__init__()
         self.net = net
 
     def forward(
-        self, image: torch.Tensor, pixel_aspect: torch.Tensor | None = None
-    ) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
+        self,
+        image: torch.Tensor,
+        pixel_aspect: torch.Tensor | None = None,
+        view: torch.Tensor | None = None,
+    ) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         answer = getattr(self.net, "answer", None)
         if answer is None:
             return F.softmax(self.net.logits(image), dim=1)
-        log_p, corners = answer(image, pixel_aspect)
-        return F.softmax(log_p, dim=1), corners
+        log_p, corners, pattern = answer(image, pixel_aspect, view)
+        return F.softmax(log_p, dim=1), corners, pattern
 
 
 def channel_stats(images_u8: torch.Tensor, chunk: int = 512) -> tuple[torch.Tensor, torch.Tensor]:

@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from service.preprocess import to_network_input
-from train import ASSETS_DIR
+from train import ASSETS_DIR, REPO_ROOT
 from train.network.export import export
 from train.network.fit import CHECKPOINT_FORMAT
 from train.network.model import PoseNet
@@ -136,3 +136,37 @@ def test_catalog_lists_every_card_with_its_measured_accuracy(tmp_path):
     empty.mkdir()
     with pytest.raises(ValueError, match="no model card"):
         write_catalog(empty)
+
+
+def test_a_keypoint_graph_is_regraphed_with_the_zoom_inputs(tmp_path):
+    """`export --regraph`: a shipped keypoint graph of an older form (no `view`, no `pattern`)
+    comes back from its own weights with both, answering as before with the default view."""
+    from typer.testing import CliRunner
+
+    from train.cli import app
+    from train.network.export import recard
+    from train.real.realset import build_real_dataset
+
+    old = REPO_ROOT / "models" / "chessboard-keypoint-s2-real-160x120.onnx"
+    real = tmp_path / "real-s2-b0"
+    build_real_dataset(REAL, real, size=2, blur=0, profile="chessboard", seed=0)
+    path, card = recard(old, "re", tmp_path, [real], split="all", version="9.9.9")
+    before = json.loads(old.with_suffix(".json").read_text())
+    assert card["version"] == "9.9.9" and card["regraphed_from"] == before["version"]
+    assert card["training"] == before["training"] and "view" in card["input_format"]
+    session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    assert [o.name for o in session.get_outputs()] == ["probabilities", "corners", "pattern"]
+    assert [i.name for i in session.get_overridable_initializers()] == ["pixel_aspect", "view"]
+    photos = sorted(REAL.glob("*.jpg"))[:4]
+    x = np.stack([to_network_input(read_rgb(p), (160, 120)) for p in photos])
+    want = ort.InferenceSession(str(old), providers=["CPUExecutionProvider"]).run(
+        ["probabilities"], {"image": x}
+    )[0]
+    assert np.abs(session.run(["probabilities"], {"image": x})[0] - want).max() < 1e-4
+    runner = CliRunner()
+    args = ["export", "--name", "x", "--out-dir", str(tmp_path / "cli"), "--regraph"]
+    result = runner.invoke(app, [*args, str(tmp_path / "best.pt"), "--eval", str(real)])
+    assert result.exit_code == 2 and "--regraph takes a keypoint .onnx model" in result.output
+    convnet = REPO_ROOT / "models" / "chessboard-convnet-160x120.onnx"
+    result = runner.invoke(app, [*args, str(convnet), "--eval", str(real)])
+    assert result.exit_code == 1 and "not a planar-pose keypoint network" in result.output

@@ -163,16 +163,17 @@ def test_the_exported_graph_decodes_like_torch(stride):
         q = net.corners(torch.from_numpy(x)).numpy()
     assert np.abs(q[0] - corners).max() < 0.5  # the peaks, aligned
     session = ort.InferenceSession(onnx_bytes(net), providers=["CPUExecutionProvider"])
-    assert [o.name for o in session.get_outputs()] == ["probabilities", "corners"]
-    got, got_corners = session.run(None, {"image": x})
+    assert [o.name for o in session.get_outputs()] == ["probabilities", "corners", "pattern"]
+    got, got_corners, pattern = session.run(None, {"image": x})
+    assert pattern.shape == (3,) and pattern.min() > 0.5  # the checker is found
     assert np.abs(got - want).max() < 1e-4
     assert got_corners.shape == (3, 4, 2) and np.abs(got_corners - q).max() < 1e-3
     assert got.shape == (3, 9) and np.allclose(got.sum(1), 1.0, atol=1e-5)
     present = got[0, 1:] / got[0, 1:].sum()
     assert int(present.argmax()) + 1 == 4  # near, x+, y-
-    # `pixel_aspect`: an input with the default 1, not a required one
+    # `pixel_aspect` and `view`: inputs with defaults (1; the whole frame), not required ones
     assert [i.name for i in session.get_inputs()] == ["image"]
-    assert [i.name for i in session.get_overridable_initializers()] == ["pixel_aspect"]
+    assert [i.name for i in session.get_overridable_initializers()] == ["pixel_aspect", "view"]
     aspect = np.array([1.0, 4 / 3, 0.8], np.float32)
     fed = session.run(["probabilities"], {"image": x, "pixel_aspect": aspect})[0]
     assert np.abs(fed[0] - got[0]).max() < 1e-6 and np.abs(fed[1] - got[1]).max() > 1e-3
@@ -180,6 +181,17 @@ def test_the_exported_graph_decodes_like_torch(stride):
         want_fed = net(torch.from_numpy(x), torch.from_numpy(aspect)).exp().numpy()
     # float32 rounding of two runtimes: 1.03e-4 seen on one machine; the aspect's effect is > 1e-3
     assert np.abs(fed - want_fed).max() < 3e-4
+    # `view`: the same input read as the frame's tile at (40, 30) enlarged 2x; the corners
+    # come back in frame pixels, the pose from them with the frame's camera
+    view = np.tile(np.array([[40.0, 30.0, 0.5]], np.float32), (3, 1))
+    tiled, tiled_corners, _ = session.run(None, {"image": x, "view": view})
+    origin = np.array([40.0, 30.0], np.float32)  # (u0, v0): x from u0, y from v0
+    assert np.abs(tiled_corners - (origin + (got_corners + 0.5) * 0.5 - 0.5)).max() < 1e-3
+    assert np.abs(tiled - got).max() > 1e-3
+    with torch.no_grad():
+        log_p, want_corners, _ = net.answer(torch.from_numpy(x), None, torch.from_numpy(view))
+    assert np.abs(tiled - log_p.exp().numpy()).max() < 3e-4
+    assert np.abs(tiled_corners - want_corners.numpy()).max() < 1e-3
 
 
 def test_training_mode_outputs_and_build():

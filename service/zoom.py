@@ -1,0 +1,110 @@
+"""The zoom pass: a second look at parts of the network input enlarged 2x, for small boards.
+
+The keypoint network finds a board best when it spans about a third of its 160x120 input or
+more; a board 15-40 px wide (a camera 1-2 m away) is often missed or its corners are a pixel
+off, which is enough to flip the x/y side. After the whole-frame pass, each image whose board
+is small or missing gets a second look at half-size tiles of its network input, each enlarged
+2x (bicubic), through the same graph: its `view` input places the tile in the frame, so the
+pose is the frame's camera's, and its `pattern` output (the checker pattern found at the
+corners) says whether the tile holds the board. The tiles come from the network input, not
+from the uploaded photo: the zoom adds no pixels, only a scale the network reads better.
+
+* board found and inside a tile (`MARGIN_PX` in): that tile, the one centred nearest the
+  board; its answer replaces the whole frame's if its pattern says present (>= 0.5);
+* board not found: all `GRID` x `GRID` tiles; the one with the strongest pattern answers if
+  it says present. The presence logit does not count in tiles: on photos without a board it
+  fires on some tile of nine, the checker pattern does not (docs/service.md, "Zoom").
+
+Cost: 2 passes for a small board, 1 + 9 for an image without one, 1 for a large board.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from service.model import Answer, PoseModel
+
+GRID = 3  # tiles per axis, half the input's size each, overlapping by half
+MARGIN_PX = 4.0  # input pixels between the board's corners and a tile's edge
+PRESENT = 0.5  # P(present) of the whole frame's answer / the tile's pattern that counts
+
+
+def tile_views(size: tuple[int, int]) -> np.ndarray:
+    """The tiles of an input of `size` (W, H) as views float32 [GRID * GRID, 3] = (u0, v0,
+    0.5): a tile's top left corner in input pixels and its scale once enlarged 2x."""
+    w, h = size
+    u0 = np.linspace(0.0, w / 2, GRID)
+    v0 = np.linspace(0.0, h / 2, GRID)
+    uu, vv = np.meshgrid(u0, v0, indexing="xy")
+    return np.stack([uu.ravel(), vv.ravel(), np.full(uu.size, 0.5)], 1).astype(np.float32)
+
+
+def enlarged(image: np.ndarray, view: np.ndarray) -> np.ndarray:
+    """float32 [3, H, W] in [0, 1] and a tile's view (u0, v0, 0.5) -> the tile enlarged 2x,
+    float32 [3, H, W] in [0, 1] (bicubic, pixel centres kept)."""
+    _, h, w = image.shape
+    u0, v0 = int(round(view[0])), int(round(view[1]))
+    tile = np.ascontiguousarray(image[:, v0 : v0 + h // 2, u0 : u0 + w // 2].transpose(1, 2, 0))
+    big = cv2.resize(tile, (w, h), interpolation=cv2.INTER_CUBIC)
+    return np.ascontiguousarray(np.clip(big, 0.0, 1.0).transpose(2, 0, 1))
+
+
+def holding_tile(corners: np.ndarray, views: np.ndarray, size: tuple[int, int]) -> int | None:
+    """Corners [4, 2] in input pixels -> the index of the tile that holds them all
+    `MARGIN_PX` in, centred nearest them (None: the board is larger than a tile)."""
+    w, h = size
+    lo, hi = corners.min(0), corners.max(0)
+    inside = (
+        (lo[0] >= views[:, 0] + MARGIN_PX)
+        & (lo[1] >= views[:, 1] + MARGIN_PX)
+        & (hi[0] <= views[:, 0] + w / 2 - 1 - MARGIN_PX)
+        & (hi[1] <= views[:, 1] + h / 2 - 1 - MARGIN_PX)
+    )
+    if not inside.any():
+        return None
+    centres = views[:, :2] + np.array([w, h]) / 4
+    distance = np.linalg.norm(centres - corners.mean(0), axis=1)
+    return int(np.argmin(np.where(inside, distance, np.inf)))
+
+
+def zoomed(model: PoseModel, batch: np.ndarray, pixel_aspect: np.ndarray | None) -> Answer:
+    """The whole-frame answer of `model` on float32 [N, 3, H, W] in [0, 1] (and its pixel
+    aspect [N]), with the zoom pass where it applies (module doc) -> `Answer` (probabilities
+    [N, 9], corners [N, 4, 2] in input pixels, pattern [N]). A model without `view` and
+    `pattern` (`PoseModel.zooms`) gives its whole-frame answer."""
+    whole = model.run(batch, pixel_aspect)
+    if not model.zooms or whole.corners is None or whole.pattern is None:
+        return whole
+    views = tile_views(model.input_size)
+    owners, looks = [], []
+    for i, (p_absent, corners) in enumerate(
+        zip(whole.probabilities[:, 0], whole.corners, strict=True)
+    ):
+        if p_absent < PRESENT:
+            tile = holding_tile(corners, views, model.input_size)
+            chosen = [] if tile is None else [tile]
+        else:
+            chosen = list(range(len(views)))
+        owners += [i] * len(chosen)
+        looks += chosen
+    if not looks:
+        return whole
+    aspect = None if pixel_aspect is None else np.asarray(pixel_aspect, np.float32)[owners]
+    tiles = np.stack([enlarged(batch[i], views[t]) for i, t in zip(owners, looks, strict=True)])
+    second = model.run(tiles, aspect, views[looks])
+    assert second.corners is not None and second.pattern is not None  # model.zooms
+    probs, corners, pattern = (
+        a.copy() for a in (whole.probabilities, whole.corners, whole.pattern)
+    )
+    owner = np.asarray(owners)
+    for i in np.unique(owner):
+        rows = np.flatnonzero(owner == i)
+        best = rows[np.argmax(second.pattern[rows])]
+        if second.pattern[best] >= PRESENT:
+            probs[i], corners[i], pattern[i] = (
+                second.probabilities[best],
+                second.corners[best],
+                second.pattern[best],
+            )
+    return Answer(probs, corners, pattern)
