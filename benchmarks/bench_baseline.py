@@ -3,7 +3,9 @@
 On the 26 real photographs (train/assets/real/chessboard-stereo) resized to each network size:
 
 * the CNN: an ONNX model through `train.network.evaluate.onnx_predictor` (the service's
-  preprocessing + onnxruntime), batch 64 and batch 1;
+  preprocessing + onnxruntime, and its zoom pass where the model serves it), batch 64 and
+  batch 1; and with the zoom pass off, on these photos and on photos without the board
+  (the negatives of one train source of the corpus, where the pass looks at every tile);
 * the feature baseline (`train.compare.baseline`, SIFT and ORB, images enlarged to 320 px wide);
 * the chessboard detector peer (`train.compare.chessboard_peer`: the image enlarged 4x,
   `findChessboardCornersSB`, fallback `findChessboardCorners`, parity, IPPE PnP) and how many
@@ -37,7 +39,9 @@ from train.real.calibration import Calibration
 from train.real.label import chessboard_pattern
 from train.real.realset import read_rgb
 
-REAL = Path(__file__).resolve().parent.parent / "train" / "assets" / "real" / "chessboard-stereo"
+ASSETS = Path(__file__).resolve().parent.parent / "train" / "assets" / "real"
+REAL = ASSETS / "chessboard-stereo"
+NEGATIVES = ASSETS / "corpus" / "negatives" / "danielgatis__rembg" / "images"  # a train source
 
 
 def best_of(repeat: int, run) -> float:  # noqa: ANN001
@@ -86,6 +90,16 @@ def main() -> None:
     cnn1 = best_of(args.repeat, lambda: predict_all(predict, images, batch=1)[1])
     print(f"{len(images)} real photos at {size[0]}x{size[1]}, best of {args.repeat} runs")
     print(f"CNN {args.model.name}: {cnn64:.3f} ms / image (batch 64), {cnn1:.3f} (batch 1)")
+    whole, _, _ = onnx_predictor(args.model, threads=1, zoom=False)
+    negatives = np.stack([resize_rgb(read_rgb(p), size) for p in sorted(NEGATIVES.glob("*"))])
+    sets = (("these photos", images), (f"{len(negatives)} photos without the board", negatives))
+    for name, batch in sets:
+        zoom_ms = best_of(args.repeat, lambda b=batch: predict_all(predict, b, batch=64)[1])
+        whole_ms = best_of(args.repeat, lambda b=batch: predict_all(whole, b, batch=64)[1])
+        print(
+            f"zoom pass on {name}: {zoom_ms:.3f} ms / image against {whole_ms:.3f} without "
+            f"= {zoom_ms / whole_ms:.1f}x (batch 64)"
+        )
     for features in ("sift", "orb"):
         baseline = FeatureBaseline(
             profile.texture_rgb(), profile.width_cm, profile.height_cm,

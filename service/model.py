@@ -182,14 +182,6 @@ class PoseModel:
         (raw,) = self.session.run([self.output_name], self._feeds(batch, pixel_aspect))
         return _normalised(raw)
 
-    def predict_with_corners(
-        self, batch: np.ndarray, pixel_aspect: np.ndarray | None = None
-    ) -> tuple[np.ndarray, np.ndarray | None]:
-        """As `predict`, and the corners float64 [N, 4, 2] in input pixels (None when the
-        model has no corners output)."""
-        answer = self.run(batch, pixel_aspect)
-        return answer.probabilities, answer.corners
-
     def run(
         self,
         batch: np.ndarray,

@@ -100,8 +100,9 @@ def test_a_corners_output_is_read_beside_the_probabilities(tmp_path: Path) -> No
     model = PoseModel.load(_two_output_model(tmp_path, ["N", 4, 2]))
     assert model.corners_name == "corners"
     batch = np.random.default_rng(1).random((2, 3, 60, 80), dtype=np.float32)
-    probs, corners = model.predict_with_corners(batch)
-    assert probs.shape == (2, 9) and np.allclose(probs.sum(axis=1), 1)
+    answer = model.run(batch)
+    probs, corners = answer.probabilities, answer.corners
+    assert answer.pattern is None and probs.shape == (2, 9) and np.allclose(probs.sum(axis=1), 1)
     assert corners is not None and corners.shape == (2, 4, 2)
     assert np.allclose(model.predict(batch), probs)
 
@@ -114,8 +115,9 @@ def test_a_corners_output_of_the_wrong_shape_is_refused(tmp_path: Path) -> None:
 def test_models_without_corners_answer_none() -> None:
     model = PoseModel.load(DEFAULT_MODEL.with_name("chessboard-noC-160x120.onnx"))
     assert model.corners_name is None
-    probs, corners = model.predict_with_corners(np.zeros((1, 3, 120, 160), np.float32))
-    assert probs.shape == (1, 9) and corners is None
+    answer = model.run(np.zeros((1, 3, 120, 160), np.float32))
+    assert answer.probabilities.shape == (1, 9) and answer.corners is None
+    assert answer.pattern is None and not model.zooms
 
 
 def _aspect_model(tmp_path: Path) -> Path:
