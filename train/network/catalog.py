@@ -56,6 +56,21 @@ def _row(card: dict[str, Any]) -> list[Any]:
     ]
 
 
+SOURCE_HEADER = ["source", "photos", "accuracy", "near/far right", "x/y side right",
+                 "fx (x SPEC camera)"]  # fmt: skip
+
+
+def _source_table(sources: dict[str, dict[str, Any]]) -> list[str]:
+    """Markdown rows of a card's `by_source` (`train.network.evaluate.source_breakdown`; "-"
+    where the card has no such figure: cards written before it hold the accuracy only)."""
+    rows = [
+        [f"`{name}`", v["count"], pct(v["accuracy"]), pct(v.get("distance"), missing="-"),
+         pct(v.get("side"), missing="-"), "-" if v.get("focal_scale") is None else v["focal_scale"]]
+        for name, v in sources.items()
+    ]  # fmt: skip
+    return table(SOURCE_HEADER, rows)
+
+
 def write_catalog(models_dir: Path) -> Path:
     """Write models_dir/README.md from the cards there; return its path."""
     cards = []
@@ -73,13 +88,7 @@ def write_catalog(models_dir: Path) -> Path:
             k: v["by_source"] for k, v in card.get("accuracy", {}).items() if "by_source" in v
         }
         for key, sources in by_source.items():
-            rows = [[f"`{s}`", v["count"], pct(v["accuracy"])] for s, v in sources.items()]
-            lines += [
-                f"Real test sources, `{key}`:",
-                "",
-                *table(["source", "photos", "accuracy"], rows),
-                "",
-            ]
+            lines += [f"Real test sources, `{key}`:", "", *_source_table(sources), ""]
             if line := margin_line(card["accuracy"][key].get("by_margin")):
                 lines += [line, ""]
     stamp = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")

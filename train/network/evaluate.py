@@ -114,6 +114,30 @@ def margin_breakdown(
     return bands
 
 
+def source_breakdown(
+    y_true: np.ndarray, y_pred: np.ndarray, rows: list[dict[str, str]]
+) -> dict[str, dict[str, float | int | None]]:
+    """Per source (camera; the labels.csv `source` column of a real set): photos (`count`),
+    class `accuracy`, the `region_breakdown` shares `detected`, `side` and `distance`, and
+    `focal_scale`, the median fx / width of its calibrated photos over the SPEC camera's
+    (None without a calibration): the depth of a frontal board follows from it, which one
+    photo cannot tell (docs/camera_model.md). {} for a set without sources."""
+    sources = np.array([row.get("source", "") for row in rows])
+    out: dict[str, dict[str, float | int | None]] = {}
+    for name in sorted(set(sources) - {""}):
+        mine = sources == name
+        regions = region_breakdown(confusion_matrix(y_true[mine], y_pred[mine]))
+        focal = [float(r["focal_scale"]) for r, m in zip(rows, mine, strict=True)
+                 if m and r.get("focal_scale")]  # fmt: skip
+        out[str(name)] = {
+            "count": int(mine.sum()),
+            "accuracy": round(float(np.mean(y_true[mine] == y_pred[mine])), 4),
+            **{k: regions[k] for k in ("detected", "side", "distance")},
+            "focal_scale": round(float(np.median(focal)), 3) if focal else None,
+        }
+    return out
+
+
 def region_breakdown(cm: np.ndarray) -> dict[str, float | None]:
     """Shares of the object images (true class 1-8) of a 9x9 confusion matrix whose prediction
 

@@ -211,10 +211,11 @@ def with_card(model_bytes: bytes, card: dict[str, Any]) -> bytes:
 
 
 def accuracy_on(predict: Any, datasets: list[Path], split: str) -> dict[str, dict[str, Any]]:
-    """{data set folder name: {accuracy, class0_accuracy, count, split, by_margin}} of a
-    predictor (`by_margin`: `train.network.evaluate.margin_breakdown`)."""
+    """{data set folder name: {accuracy, class0_accuracy, count, split, by_margin[,
+    by_source]}} of a predictor (`train.network.evaluate.margin_breakdown`; real sets:
+    `source_breakdown`)."""
     from train.dataset import load_dataset
-    from train.network.evaluate import compute_metrics, predict_all
+    from train.network.evaluate import compute_metrics, predict_all, source_breakdown
 
     out: dict[str, dict[str, Any]] = {}
     for path in datasets:
@@ -231,14 +232,8 @@ def accuracy_on(predict: Any, datasets: list[Path], split: str) -> dict[str, dic
             "class0_accuracy": m["per_class_accuracy"][0],
             "by_margin": m["by_margin"],
         }
-        sources = data.column("source") if data.rows and "source" in data.rows[0] else []
-        if sources:  # a real corpus set: accuracy per source (camera) too
-            hit = predicted == data.labels
-            out[path.name]["by_source"] = {
-                s: {"count": int(sum(x == s for x in sources)),
-                    "accuracy": round(float(np.mean(hit[[x == s for x in sources]])), 4)}
-                for s in sorted(set(sources))
-            }  # fmt: skip
+        if by_source := source_breakdown(data.labels, predicted, data.rows):  # a real set
+            out[path.name]["by_source"] = by_source
     return out
 
 

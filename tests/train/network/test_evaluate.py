@@ -10,7 +10,12 @@ from typer.testing import CliRunner
 
 from train import ASSETS_DIR
 from train.cli import app
-from train.network.evaluate import compute_metrics, confusion_matrix, predict_all
+from train.network.evaluate import (
+    compute_metrics,
+    confusion_matrix,
+    predict_all,
+    source_breakdown,
+)
 from train.network.report import margin_line, write_report
 
 runner = CliRunner()
@@ -79,6 +84,26 @@ def test_accuracy_by_the_cameras_margin_from_a_region_boundary():
         "0-2 cm: 50.0 % of 2, 2-5 cm: 100.0 % of 1, 5-10 cm: - % of 0, >= 10 cm: 100.0 % of 2"
     )
     assert "by_margin" not in compute_metrics(y_true, y_pred, 1.0)
+
+
+def test_breakdown_by_source_with_its_cameras_focal_length():
+    # camera a: 3 board photos (one far called near, one x side wrong); b: 2 negatives, one missed
+    y_true = np.array([5, 1, 2, 0, 0])
+    y_pred = np.array([1, 1, 1, 0, 3])
+    rows = [
+        {"source": "a", "focal_scale": "1.7"},
+        {"source": "a", "focal_scale": "1.9"},
+        {"source": "a", "focal_scale": ""},  # no calibration: left out of the median
+        {"source": "b", "focal_scale": ""},
+        {"source": "b", "focal_scale": ""},
+    ]
+    out = source_breakdown(y_true, y_pred, rows)
+    assert list(out) == ["a", "b"]
+    expected = {"count": 3, "accuracy": 1 / 3, "detected": 1.0, "side": 2 / 3, "distance": 2 / 3}
+    assert out["a"] == pytest.approx(expected | {"focal_scale": 1.8}, abs=1e-4)  # 4 digits
+    assert out["b"]["count"] == 2 and out["b"]["accuracy"] == 0.5
+    assert out["b"]["side"] is None and out["b"]["focal_scale"] is None
+    assert source_breakdown(y_true, y_pred, [{} for _ in rows]) == {}  # renders: no source
 
 
 def test_bad_inputs_are_refused():

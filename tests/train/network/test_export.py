@@ -127,10 +127,19 @@ def test_catalog_lists_every_card_with_its_measured_accuracy(tmp_path):
     ckpt, _ = _checkpoint(tmp_path, (80, 60))
     models = tmp_path / "models"
     _, card = export(ckpt, "tiny", models, notes="how it was made")
-    card["accuracy"] = {"real-s1-b0": {"split": "test", "count": 10, "accuracy": 0.25}}
+    by_source = {
+        "cam-a": {"count": 6, "accuracy": 1 / 3, "detected": 1.0, "side": 0.5,
+                  "distance": 2 / 3, "focal_scale": 1.73},
+        "negatives": {"count": 4, "accuracy": 0.0},  # a card from before the breakdown
+    }  # fmt: skip
+    card["accuracy"] = {
+        "real-s1-b0": {"split": "test", "count": 10, "accuracy": 0.25, "by_source": by_source}
+    }
     (models / "tiny.json").write_text(json.dumps(card))
     page = write_catalog(models).read_text()
     assert "| `tiny` | spec | 80x60 |" in page and "| 25.0 % |" in page
+    assert "| `cam-a` | 6 | 33.3 % | 66.7 % | 50.0 % | 1.73 |" in page
+    assert "| `negatives` | 4 | 0.0 % | - | - | - |" in page
     assert "how it was made" in page and "planar-pose catalog" in page
     empty = tmp_path / "empty"
     empty.mkdir()
