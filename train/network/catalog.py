@@ -56,18 +56,32 @@ def _row(card: dict[str, Any]) -> list[Any]:
     ]
 
 
-SOURCE_HEADER = ["source", "photos", "accuracy", "near/far right", "x/y side right",
-                 "fx (x SPEC camera)"]  # fmt: skip
+SOURCE_HEADER = [
+    "source",
+    "photos",
+    "accuracy",
+    "near/far right",
+    "x/y side right",
+    "fx (x SPEC camera)",
+]
 
 
 def _source_table(sources: dict[str, dict[str, Any]]) -> list[str]:
     """Markdown rows of a card's `by_source` (`train.network.evaluate.source_breakdown`; "-"
     where the card has no such figure: cards written before it hold the accuracy only)."""
-    rows = [
-        [f"`{name}`", v["count"], pct(v["accuracy"]), pct(v.get("distance"), missing="-"),
-         pct(v.get("side"), missing="-"), "-" if v.get("focal_scale") is None else v["focal_scale"]]
-        for name, v in sources.items()
-    ]  # fmt: skip
+    rows = []
+    for name, v in sources.items():
+        focal = v.get("focal_scale")
+        rows.append(
+            [
+                f"`{name}`",
+                v["count"],
+                pct(v["accuracy"]),
+                pct(v.get("distance"), missing="-"),
+                pct(v.get("side"), missing="-"),
+                "-" if focal is None else f"{focal:.2f}",
+            ]
+        )
     return table(SOURCE_HEADER, rows)
 
 
