@@ -121,14 +121,14 @@ def source_breakdown(
     class `accuracy`, the `region_breakdown` shares `detected`, `side` and `distance`, and
     `focal_scale`, the median fx / width of its calibrated photos over the SPEC camera's
     (None without a calibration): the depth of a frontal board follows from it, which one
-    photo cannot tell (docs/camera_model.md). {} for a set without sources."""
+    photo cannot tell (docs/training.md). {} for a set without sources."""
     sources = np.array([row.get("source", "") for row in rows])
     out: dict[str, dict[str, float | int | None]] = {}
     for name in sorted(set(sources) - {""}):
         mine = sources == name
         regions = region_breakdown(confusion_matrix(y_true[mine], y_pred[mine]))
-        focal = [float(r["focal_scale"]) for r, m in zip(rows, mine, strict=True)
-                 if m and r.get("focal_scale")]  # fmt: skip
+        mine_rows = [row for row, m in zip(rows, mine, strict=True) if m]
+        focal = [float(row["focal_scale"]) for row in mine_rows if row.get("focal_scale")]
         out[str(name)] = {
             "count": int(mine.sum()),
             "accuracy": round(float(np.mean(y_true[mine] == y_pred[mine])), 4),
