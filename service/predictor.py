@@ -118,8 +118,10 @@ class Predictor:
         aspect = np.array([f.pixel_aspect for f in frames], dtype=np.float32)
         t0 = time.perf_counter()
         batch = np.stack(inputs)
-        zoom = self.settings.zoom
-        answer = zoomed(self.model, batch, aspect) if zoom else self.model.run(batch, aspect)
+        if self.settings.zoom:
+            answer = zoomed(self.model, batch, aspect, self.settings.zoom_search)
+        else:
+            answer = self.model.run(batch, aspect)
         probs, corners, infer_s = answer.probabilities, answer.corners, time.perf_counter() - t0
         share = infer_s / len(images)
         results = []

@@ -75,6 +75,11 @@ class Settings(BaseSettings):
         description="Whole mode: a second look at 2x tiles where the board is small or "
         "missed (service/zoom.py; models with its view input).",
     )
+    zoom_search: bool = Field(
+        default=True,
+        description="With ZOOM: also search all 9 tiles of an image where no board was found "
+        "(1 + 9 network inputs for each; off: at most 2 per image, a small board's tile).",
+    )
     sliding_scales: Annotated[list[float], NoDecode] = Field(
         default_factory=lambda: [1.0, 0.8, 0.65],
         description="Window sizes as fractions of the largest input-aspect window in the image.",

@@ -11,11 +11,13 @@ from the uploaded photo: the zoom adds no pixels, only a scale the network reads
 
 * board found and inside a tile (`MARGIN_PX` in): that tile, the one centred nearest the
   board; its answer replaces the whole frame's if its pattern says present (>= 0.5);
-* board not found: all `GRID` x `GRID` tiles; the one with the strongest pattern answers if
-  it says present. The presence logit does not count in tiles: on photos without a board it
-  fires on some tile of nine, the checker pattern does not (docs/service.md, "Zoom").
+* board not found (with `search`, the default): all `GRID` x `GRID` tiles; the one with the
+  strongest pattern answers if it says present. The presence logit does not count in tiles:
+  on photos without a board it fires on some tile of nine, the checker pattern does not
+  (docs/service.md, "Zoom").
 
-Cost: 2 passes for a small board, 1 + 9 for an image without one, 1 for a large board.
+Cost: 2 passes for a small board, 1 + 9 for an image without one (1 without `search`), 1
+for a large board.
 """
 
 from __future__ import annotations
@@ -68,11 +70,14 @@ def holding_tile(corners: np.ndarray, views: np.ndarray, size: tuple[int, int]) 
     return int(np.argmin(np.where(inside, distance, np.inf)))
 
 
-def zoomed(model: PoseModel, batch: np.ndarray, pixel_aspect: np.ndarray | None) -> Answer:
+def zoomed(
+    model: PoseModel, batch: np.ndarray, pixel_aspect: np.ndarray | None, search: bool = True
+) -> Answer:
     """The whole-frame answer of `model` on float32 [N, 3, H, W] in [0, 1] (and its pixel
-    aspect [N]), with the zoom pass where it applies (module doc) -> `Answer` (probabilities
-    [N, 9], corners [N, 4, 2] in input pixels, pattern [N]). A model without `view` and
-    `pattern` (`PoseModel.zooms`) gives its whole-frame answer."""
+    aspect [N]), with the zoom pass where it applies (module doc; `search`: also in all tiles
+    of the images where no board was found) -> `Answer` (probabilities [N, 9], corners
+    [N, 4, 2] in input pixels, pattern [N]). A model without `view` and `pattern`
+    (`PoseModel.zooms`) gives its whole-frame answer."""
     whole = model.run(batch, pixel_aspect)
     if not model.zooms or whole.corners is None or whole.pattern is None:
         return whole
@@ -85,7 +90,7 @@ def zoomed(model: PoseModel, batch: np.ndarray, pixel_aspect: np.ndarray | None)
             tile = holding_tile(corners, views, model.input_size)
             chosen = [] if tile is None else [tile]
         else:
-            chosen = list(range(len(views)))
+            chosen = list(range(len(views))) if search else []
         owners += [i] * len(chosen)
         looks += chosen
     if not looks:

@@ -105,6 +105,10 @@ def test_no_board_looks_at_all_tiles_and_stays_absent(model: PoseModel) -> None:
     answer = zoomed(spy, batch, np.ones(2, np.float32))  # type: ignore[arg-type]
     assert [n for n, _ in spy.calls] == [2, 18]  # every tile of both images, one run
     assert np.all(answer.probabilities[:, 0] > 0.5)
+    spy = Spy(model)
+    unsearched = zoomed(spy, batch, np.ones(2, np.float32), search=False)  # type: ignore[arg-type]
+    assert [n for n, _ in spy.calls] == [2]  # the whole frames only
+    assert np.allclose(unsearched.probabilities, model.run(batch).probabilities, atol=1e-6)
 
 
 def test_a_model_without_the_view_input_answers_the_whole_frame() -> None:
@@ -129,3 +133,9 @@ def test_the_zoom_setting_switches_the_pass_off(model: PoseModel) -> None:
         predictor.predict([(None, png.tobytes())], "whole")
         runs[zoom] = len(spy.calls)
     assert runs == {True: 2, False: 1}
+    # no board in view: the search's 9 tiles, or none with it off
+    blank = cv2.imencode(".png", np.full((120, 160, 3), 128, np.uint8))[1].tobytes()
+    for search, calls in ((True, [1, 9]), (False, [1])):
+        spy = Spy(model)
+        Predictor(spy, Settings(zoom_search=search)).predict([(None, blank)], "whole")  # type: ignore[arg-type]
+        assert [n for n, _ in spy.calls] == calls
