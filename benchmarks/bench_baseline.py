@@ -4,8 +4,9 @@ On the 26 real photographs (train/assets/real/chessboard-stereo) resized to each
 
 * the CNN: an ONNX model through `train.network.evaluate.onnx_predictor` (the service's
   preprocessing + onnxruntime, and its zoom pass where the model serves it), batch 64 and
-  batch 1; and with the zoom pass off, on these photos and on photos without the board
-  (the negatives of one train source of the corpus, where the pass looks at every tile);
+  batch 1; and with the zoom pass without its search and off, on these photos and on photos
+  without the board (the negatives of one train source of the corpus, where the search looks
+  at every tile);
 * the feature baseline (`train.compare.baseline`, SIFT and ORB, images enlarged to 320 px wide);
 * the chessboard detector peer (`train.compare.chessboard_peer`: the image enlarged 4x,
   `findChessboardCornersSB`, fallback `findChessboardCorners`, parity, IPPE PnP) and how many
@@ -27,13 +28,14 @@ from pathlib import Path
 
 import numpy as np
 
+from service.model import PoseModel
 from service.preprocess import resize_rgb
 from service.proposals import propose_boxes
 from service.sliding import SlidingWindows
 from train.compare.baseline import BaselineConfig, FeatureBaseline
 from train.compare.chessboard_peer import ChessboardPeer
 from train.geometry import pose_class
-from train.network.evaluate import onnx_predictor, predict_all
+from train.network.evaluate import model_predictor, onnx_predictor, predict_all
 from train.profile import load_profile
 from train.real.calibration import Calibration
 from train.real.label import chessboard_pattern
@@ -90,15 +92,19 @@ def main() -> None:
     cnn1 = best_of(args.repeat, lambda: predict_all(predict, images, batch=1)[1])
     print(f"{len(images)} real photos at {size[0]}x{size[1]}, best of {args.repeat} runs")
     print(f"CNN {args.model.name}: {cnn64:.3f} ms / image (batch 64), {cnn1:.3f} (batch 1)")
-    whole, _, _ = onnx_predictor(args.model, threads=1, zoom=False)
+    model = PoseModel.load(args.model, intra_op_threads=1)
+    whole, unsearched = model_predictor(model, zoom=False), model_predictor(model, search=False)
     negatives = np.stack([resize_rgb(read_rgb(p), size) for p in sorted(NEGATIVES.glob("*"))])
     sets = (("these photos", images), (f"{len(negatives)} photos without the board", negatives))
     for name, batch in sets:
-        zoom_ms = best_of(args.repeat, lambda b=batch: predict_all(predict, b, batch=64)[1])
-        whole_ms = best_of(args.repeat, lambda b=batch: predict_all(whole, b, batch=64)[1])
+        zoom_ms, small_ms, whole_ms = (
+            best_of(args.repeat, lambda b=batch, f=f: predict_all(f, b, batch=64)[1])
+            for f in (predict, unsearched, whole)
+        )
         print(
-            f"zoom pass on {name}: {zoom_ms:.3f} ms / image against {whole_ms:.3f} without "
-            f"= {zoom_ms / whole_ms:.1f}x (batch 64)"
+            f"zoom pass on {name}: {zoom_ms:.3f} ms / image, {small_ms:.3f} without its search "
+            f"(POSE_ZOOM_SEARCH=false), {whole_ms:.3f} without the pass = "
+            f"{zoom_ms / whole_ms:.1f}x / {small_ms / whole_ms:.1f}x (batch 64)"
         )
     for features in ("sift", "orb"):
         baseline = FeatureBaseline(

@@ -182,15 +182,16 @@ def onnx_predictor(
     return model_predictor(model, zoom), model.input_size, model.card
 
 
-def model_predictor(model: PoseModel, zoom: bool = True) -> Predictor:
+def model_predictor(model: PoseModel, zoom: bool = True, search: bool = True) -> Predictor:
     """A `Predictor` on a `service.model.PoseModel`, as the service's whole mode answers:
-    the service's preprocessing, then the graph (with the zoom pass if `zoom`)."""
+    the service's preprocessing, then the graph (with the zoom pass if `zoom`, its search of
+    frames with no board found if `search`: POSE_ZOOM, POSE_ZOOM_SEARCH)."""
     from service.zoom import zoomed
 
     def predict(images: np.ndarray, pixel_aspect: np.ndarray) -> np.ndarray:
         batch = network_batch(images, model.input_size)
         if zoom:
-            return zoomed(model, batch, pixel_aspect).probabilities
+            return zoomed(model, batch, pixel_aspect, search).probabilities
         return model.predict(batch, pixel_aspect)
 
     return predict
