@@ -2,7 +2,7 @@
 
 On the 26 real photographs (train/assets/real/chessboard-stereo) resized to each network size:
 
-* the CNN: an ONNX model through `train.network.evaluate.onnx_predictor` (the service's
+* the CNN: an ONNX model through `train.network.evaluate.model_predictor` (the service's
   preprocessing + onnxruntime, and its zoom pass where the model serves it), batch 64 and
   batch 1; and with the zoom pass without its search and off, on these photos and on photos
   without the board (the negatives of one train source of the corpus, where the search looks
@@ -35,7 +35,7 @@ from service.sliding import SlidingWindows
 from train.compare.baseline import BaselineConfig, FeatureBaseline
 from train.compare.chessboard_peer import ChessboardPeer
 from train.geometry import pose_class
-from train.network.evaluate import model_predictor, onnx_predictor, predict_all
+from train.network.evaluate import model_predictor, predict_all
 from train.profile import load_profile
 from train.real.calibration import Calibration
 from train.real.label import chessboard_pattern
@@ -82,7 +82,8 @@ def main() -> None:
 
     files = sorted(p for p in REAL.glob("*.jpg"))
     photos = [read_rgb(p) for p in files]
-    predict, size, _ = onnx_predictor(args.model, threads=1)
+    model = PoseModel.load(args.model, intra_op_threads=1)  # as onnx_predictor loads it
+    size, predict = model.input_size, model_predictor(model)
     images = np.stack([resize_rgb(p, size) for p in photos])
     profile = load_profile("chessboard")
     calibration = Calibration.load(REAL / "calibration.json")
@@ -92,7 +93,6 @@ def main() -> None:
     cnn1 = best_of(args.repeat, lambda: predict_all(predict, images, batch=1)[1])
     print(f"{len(images)} real photos at {size[0]}x{size[1]}, best of {args.repeat} runs")
     print(f"CNN {args.model.name}: {cnn64:.3f} ms / image (batch 64), {cnn1:.3f} (batch 1)")
-    model = PoseModel.load(args.model, intra_op_threads=1)
     whole, unsearched = model_predictor(model, zoom=False), model_predictor(model, search=False)
     negatives = np.stack([resize_rgb(read_rgb(p), size) for p in sorted(NEGATIVES.glob("*"))])
     sets = (("these photos", images), (f"{len(negatives)} photos without the board", negatives))
