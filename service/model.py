@@ -10,6 +10,8 @@ with one output takes it as the probabilities whatever its name. Since 3.5.0 the
 graphs also take `view` float32 [N, 3] (default (0, 0, 1)): where the input lies in the
 camera's frame, the corners then being in frame pixels; and output `pattern` float32 [N],
 P(object present) from the checker pattern alone; both serve the zoom pass (`service.zoom`).
+Since 3.6.0 they also take `focal` float32 [N] (default 0: unknown, self-calibrated): the
+camera's focal length fx where the caller knows it, in frame pixels of the input's width.
 """
 
 from __future__ import annotations
@@ -26,7 +28,8 @@ from service.regions import NUM_CLASSES
 
 PROBABILITIES, CORNERS = "probabilities", "corners"  # output names (train/network/export.py)
 PATTERN = "pattern"  # the optional output of the zoom pass (`service.zoom`)
-PIXEL_ASPECT, VIEW = "pixel_aspect", "view"  # the optional inputs (overridable initializers)
+# the optional inputs (overridable initializers)
+PIXEL_ASPECT, VIEW, FOCAL = "pixel_aspect", "view", "focal"
 DEFAULT_VIEW = np.array([0.0, 0.0, 1.0], np.float32)  # (u0, v0, s): the input is the frame
 
 
@@ -76,6 +79,7 @@ class PoseModel:
     takes_aspect: bool = False  # whether the graph has the `pixel_aspect` input
     pattern_name: str | None = None  # the optional pattern output
     takes_view: bool = False  # whether the graph has the `view` input
+    takes_focal: bool = False  # whether the graph has the `focal` input
 
     @property
     def zooms(self) -> bool:
@@ -158,10 +162,15 @@ class PoseModel:
             PIXEL_ASPECT in defaults,
             None if pattern_out is None else pattern_out.name,
             VIEW in defaults,
+            FOCAL in defaults,
         )
 
     def _feeds(
-        self, batch: np.ndarray, pixel_aspect: np.ndarray | None, view: np.ndarray | None = None
+        self,
+        batch: np.ndarray,
+        pixel_aspect: np.ndarray | None,
+        view: np.ndarray | None = None,
+        focal: np.ndarray | None = None,
     ) -> dict[str, Any]:
         feeds: dict[str, Any] = {self.input_name: batch}
         if pixel_aspect is not None and self.takes_aspect:
@@ -174,6 +183,13 @@ class PoseModel:
             if views.shape != (len(batch), 3):
                 raise ValueError(f"view: shape {views.shape} for {len(batch)} images, not [N, 3]")
             feeds[VIEW] = views
+        if focal is not None:
+            if not self.takes_focal:
+                raise ValueError(f"model {self.name} does not take a focal length")
+            fx = np.asarray(focal, dtype=np.float32).reshape(-1)
+            if fx.shape != (len(batch),):
+                raise ValueError(f"focal: {fx.size} values for {len(batch)} images")
+            feeds[FOCAL] = fx
         return feeds
 
     def predict(self, batch: np.ndarray, pixel_aspect: np.ndarray | None = None) -> np.ndarray:
@@ -187,16 +203,19 @@ class PoseModel:
         batch: np.ndarray,
         pixel_aspect: np.ndarray | None = None,
         view: np.ndarray | None = None,
+        focal: np.ndarray | None = None,
     ) -> Answer:
         """float32 [N, 3, H, W] in [0, 1], the pixel aspect [N] and the view [N, 3] (where
         each input lies in its camera's frame; models that take them; None: 1 and the whole
-        frame) -> every output the graph has (`Answer`)."""
+        frame) and the camera's focal length [N] (frame px of the input's width, 0: unknown;
+        None: unknown for all; ValueError for a model without that input) -> every output
+        the graph has (`Answer`)."""
         names = [self.output_name, self.corners_name, self.pattern_name]
         wanted = [n for n in names if n is not None]
         out = dict(
             zip(
                 wanted,
-                self.session.run(wanted, self._feeds(batch, pixel_aspect, view)),
+                self.session.run(wanted, self._feeds(batch, pixel_aspect, view, focal)),
                 strict=True,
             )
         )

@@ -7,6 +7,7 @@ mode: all windows of all images). Thread-safe: the session is shared.
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -96,18 +97,39 @@ class Predictor:
         w, h = self.model.input_size
         return propose_boxes(image, w / h, self.settings.proposals_max)
 
-    def predict(self, images: Sequence[ImageInput], mode: Mode) -> Prediction:
-        """Answer every image; raises ImageDecodeError/ImageTooLargeError naming the image.
+    def focal_problem(self, mode: Mode, fx: float | None) -> str | None:
+        """Why the camera's focal length `fx` (px of the uploaded images) cannot be used
+        with `mode` and this model, or None when it can (or is not given)."""
+        if fx is None:
+            return None
+        if not (math.isfinite(fx) and fx > 0):
+            return f"fx: must be a positive number of pixels, got {fx}"
+        if mode != "whole":
+            return f"fx: applies to mode=whole only, not mode={mode}"
+        if not self.model.takes_focal:
+            return f"fx: model {self.model.name} does not take a focal length"
+        return None
+
+    def predict(
+        self, images: Sequence[ImageInput], mode: Mode, fx: float | None = None
+    ) -> Prediction:
+        """Answer every image; raises ImageDecodeError/ImageTooLargeError naming the image,
+        ValueError for an `fx` that `focal_problem` refuses.
 
         whole: the image as one input; sliding: the window grid; proposals: object proposals.
+        `fx`: the camera's focal length in pixels of the images (the calibration's camera
+        matrix [0, 0] at the images' size), which the pose then uses instead of estimating it.
         """
+        problem = self.focal_problem(mode, fx)
+        if problem is not None:
+            raise ValueError(problem)
         if mode == "sliding":
             return self._detect(images, self.boxes, self.settings.sliding_resolution)
         if mode == "proposals":
             return self._detect(images, self._proposals, self.settings.proposals_resolution)
-        return self._whole(images)
+        return self._whole(images, fx)
 
-    def _whole(self, images: Sequence[ImageInput]) -> Prediction:
+    def _whole(self, images: Sequence[ImageInput], fx: float | None) -> Prediction:
         size, inputs, prep, frames = self.model.input_size, [], [], []
         for i, image in enumerate(images):
             t0 = time.perf_counter()
@@ -116,12 +138,13 @@ class Predictor:
             frames.append(NetworkFrame((decoded.width, decoded.height), size))
             prep.append(time.perf_counter() - t0)
         aspect = np.array([f.pixel_aspect for f in frames], dtype=np.float32)
+        focal = None if fx is None else np.array([f.input_focal(fx) for f in frames], np.float32)
         t0 = time.perf_counter()
         batch = np.stack(inputs)
         if self.settings.zoom:
-            answer = zoomed(self.model, batch, aspect, self.settings.zoom_search)
+            answer = zoomed(self.model, batch, aspect, self.settings.zoom_search, focal)
         else:
-            answer = self.model.run(batch, aspect)
+            answer = self.model.run(batch, aspect, focal=focal)
         probs, corners, infer_s = answer.probabilities, answer.corners, time.perf_counter() - t0
         share = infer_s / len(images)
         results = []

@@ -228,6 +228,11 @@ class NetworkFrame:
         (w0, h0), (w, h) = self.upright_size, self.size
         return (h / h0) / (w / w0)
 
+    def input_focal(self, fx: float) -> float:
+        """The camera's focal length `fx` in pixels of the image (square pixels; of its
+        height for a portrait, which is turned) -> in pixels of the input's width."""
+        return fx * self.size[0] / self.upright_size[0]
+
     def _scale(self) -> np.ndarray:
         return np.asarray(self.size, np.float64) / np.asarray(self.upright_size, np.float64)
 

@@ -9,9 +9,11 @@ one at a time. So the memory of a socket is bounded by (queue depth + 1) frames 
 client sends. A bad frame is answered with an error message and the stream goes on; when the
 socket closes, both tasks stop at once and the waiting frames are thrown away.
 
-`smooth=f` (0 <= f < 1, default 0 = off) smooths the probabilities exponentially over the
-frames: p_t = f * p_(t-1) + (1 - f) * q_t, with q_t the frame's own probabilities; class,
-confidence and region follow p_t, the box and detections stay the frame's own.
+`fx=F` gives the camera's focal length in pixels of the frames (whole mode; see
+`Predictor.predict`). `smooth=f` (0 <= f < 1, default 0 = off) smooths the probabilities
+exponentially over the frames: p_t = f * p_(t-1) + (1 - f) * q_t, with q_t the frame's own
+probabilities; class, confidence and region follow p_t, the box and detections stay the
+frame's own.
 
 The protocol is documented in docs/live.md.
 """
@@ -73,10 +75,11 @@ class StreamOptions:
     mode: Mode = "whole"
     smooth: float = 0.0
     model: str | None = None
+    fx: float | None = None  # the camera's focal length, px of the frames (`Predictor.predict`)
 
 
 def parse_options(query: Mapping[str, str]) -> StreamOptions:
-    """`mode`, `smooth` and `model` from the query string, or StreamRefused 4422."""
+    """`mode`, `smooth`, `model` and `fx` from the query string, or StreamRefused 4422."""
     mode = query.get("mode", "whole")
     if mode not in MODES:
         raise _invalid(f"mode: must be one of {', '.join(MODES)}, got {mode!r}")
@@ -88,7 +91,13 @@ def parse_options(query: Mapping[str, str]) -> StreamOptions:
     if not (math.isfinite(smooth) and 0.0 <= smooth < 1.0):
         raise _invalid(f"smooth: must be in [0, 1) (0 = off), got {text!r}")
     model = query.get("model") or None
-    return StreamOptions(mode, smooth, model)  # type: ignore[arg-type]  # mode checked above
+    fx = None
+    if query.get("fx"):
+        try:
+            fx = float(query["fx"])
+        except ValueError:
+            raise _invalid(f"fx: must be a number of pixels, got {query['fx']!r}") from None
+    return StreamOptions(mode, smooth, model, fx)  # type: ignore[arg-type]  # mode checked
 
 
 def _invalid(message: str) -> StreamRefused:
@@ -301,6 +310,7 @@ class StreamSession:
             "model": self.predictor.model.name,
             "mode": self.options.mode,
             "smooth": self.options.smooth,
+            "fx": self.options.fx,
             "queue": self.queue.depth,
             "max_frame_bytes": self.max_frame_bytes,
         }
@@ -365,6 +375,7 @@ class StreamSession:
                 self.predictor.predict,
                 [(None, frame.data)],
                 mode,
+                self.options.fx,
                 limiter=self.limiter,
                 abandon_on_cancel=True,
             )

@@ -71,14 +71,19 @@ def holding_tile(corners: np.ndarray, views: np.ndarray, size: tuple[int, int]) 
 
 
 def zoomed(
-    model: PoseModel, batch: np.ndarray, pixel_aspect: np.ndarray | None, search: bool = True
+    model: PoseModel,
+    batch: np.ndarray,
+    pixel_aspect: np.ndarray | None,
+    search: bool = True,
+    focal: np.ndarray | None = None,
 ) -> Answer:
     """The whole-frame answer of `model` on float32 [N, 3, H, W] in [0, 1] (and its pixel
-    aspect [N]), with the zoom pass where it applies (module doc; `search`: also in all tiles
-    of the images where no board was found) -> `Answer` (probabilities [N, 9], corners
+    aspect [N] and the known focal lengths [N], `PoseModel.run`), with the zoom pass where
+    it applies (module doc; `search`: also in all tiles of the images where no board was
+    found) -> `Answer` (probabilities [N, 9], corners
     [N, 4, 2] in input pixels, pattern [N]). A model without `view` and `pattern`
     (`PoseModel.zooms`) gives its whole-frame answer."""
-    whole = model.run(batch, pixel_aspect)
+    whole = model.run(batch, pixel_aspect, focal=focal)
     if not model.zooms or whole.corners is None or whole.pattern is None:
         return whole
     views = tile_views(model.input_size)
@@ -95,9 +100,11 @@ def zoomed(
         looks += chosen
     if not looks:
         return whole
-    aspect = None if pixel_aspect is None else np.asarray(pixel_aspect, np.float32)[owners]
+    aspect, fx = (
+        None if a is None else np.asarray(a, np.float32)[owners] for a in (pixel_aspect, focal)
+    )
     tiles = np.stack([enlarged(batch[i], views[t]) for i, t in zip(owners, looks, strict=True)])
-    second = model.run(tiles, aspect, views[looks])
+    second = model.run(tiles, aspect, views[looks], fx)
     assert second.corners is not None and second.pattern is not None  # model.zooms
     probs, corners, pattern = (
         a.copy() for a in (whole.probabilities, whole.corners, whole.pattern)

@@ -54,6 +54,16 @@ ModeQuery = Annotated[
     ),
 ]
 
+FxQuery = Annotated[
+    float | None,
+    Query(
+        description="The camera's focal length fx in pixels of the uploaded images (camera "
+        "matrix [0, 0] of a calibration at that size; mode=whole, keypoint models): the pose "
+        "uses it instead of estimating it from the view. Unset: estimated.",
+        gt=0,
+    ),
+]
+
 
 async def run_prediction(
     request: Request,
@@ -61,11 +71,15 @@ async def run_prediction(
     mode: Mode,
     max_images: int,
     limiter: anyio.CapacityLimiter,
+    fx: float | None = None,
 ) -> Prediction:
     """Read the request's images and classify them in a worker thread; errors as ApiError."""
+    problem = predictor.focal_problem(mode, fx)
+    if problem is not None:
+        raise ApiError(422, "invalid_parameters", problem)
     images = await read_images(request, max_images)
     try:
-        return await anyio.to_thread.run_sync(predictor.predict, images, mode, limiter=limiter)
+        return await anyio.to_thread.run_sync(predictor.predict, images, mode, fx, limiter=limiter)
     except ImageTooLargeError as exc:
         raise ApiError(413, "image_too_large", str(exc)) from None
     except ImageDecodeError as exc:
@@ -86,12 +100,13 @@ async def predict(
     limiter: LimiterDep,
     metrics: MetricsDep,
     mode: ModeQuery = "whole",
+    fx: FxQuery = None,
 ) -> PredictResponse:
     """Send images as multipart field `image` (repeat it for many) or one raw image body.
 
     All images of a request go through one batched network call.
     """
-    prediction = await run_prediction(request, predictor, mode, settings.max_images, limiter)
+    prediction = await run_prediction(request, predictor, mode, settings.max_images, limiter, fx)
     metrics.observe(mode, len(prediction.results), prediction.inference_s)
     return PredictResponse(model=predictor.model.name, mode=mode, results=prediction.results)
 
@@ -110,8 +125,9 @@ async def predict_with(
     limiter: LimiterDep,
     metrics: MetricsDep,
     mode: ModeQuery = "whole",
+    fx: FxQuery = None,
 ) -> PredictResponse:
     """As /v1/predict, answered by the served model `name` (see GET /v1/models)."""
-    prediction = await run_prediction(request, predictor, mode, settings.max_images, limiter)
+    prediction = await run_prediction(request, predictor, mode, settings.max_images, limiter, fx)
     metrics.observe(mode, len(prediction.results), prediction.inference_s)
     return PredictResponse(model=predictor.model.name, mode=mode, results=prediction.results)

@@ -1,4 +1,4 @@
-"""`WS /v1/stream?mode=whole|sliding|proposals&smooth=F&model=NAME`: live frames in, answers
+"""`WS /v1/stream?mode=whole|sliding|proposals&smooth=F&model=NAME&fx=F`: live frames in, answers
 out (the protocol: `service/stream.py` and docs/live.md)."""
 
 from __future__ import annotations
@@ -62,6 +62,9 @@ async def stream(websocket: WebSocket) -> None:
         await authorise(websocket, key)
         options = parse_options(websocket.query_params)
         predictor = find_predictor(state, options.model)
+        problem = predictor.focal_problem(options.mode, options.fx)
+        if problem is not None:
+            raise StreamRefused(CloseCode.INVALID_PARAMETERS, "invalid_parameters", problem)
     except StreamRefused as refused:
         await refuse(websocket, refused)
         return

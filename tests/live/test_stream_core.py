@@ -111,6 +111,7 @@ def test_smoothing_to_class_0_drops_the_corners() -> None:
         ({"smooth": "-0.1"}, "smooth: must be in [0, 1) (0 = off), got '-0.1'"),
         ({"smooth": "nan"}, "smooth: must be in [0, 1) (0 = off), got 'nan'"),
         ({"smooth": "x"}, "smooth: must be a number in [0, 1), got 'x'"),
+        ({"fx": "wide"}, "fx: must be a number of pixels, got 'wide'"),
     ],
 )
 def test_bad_parameters_name_themselves(query: dict[str, str], message: str) -> None:
@@ -121,8 +122,9 @@ def test_bad_parameters_name_themselves(query: dict[str, str], message: str) -> 
 
 
 def test_parameters() -> None:
-    options = parse_options({"mode": "sliding", "smooth": "0.5", "model": "m"})
+    options = parse_options({"mode": "sliding", "smooth": "0.5", "model": "m", "fx": "512"})
     assert (options.mode, options.smooth, options.model) == ("sliding", 0.5, "m")
+    assert options.fx == 512.0 and parse_options({}).fx is None
     assert parse_options({}).mode == "whole" and parse_options({"model": ""}).model is None
 
 
@@ -138,7 +140,7 @@ def test_a_crash_on_one_frame_is_an_error_message_and_the_stream_goes_on(
         real = predictor.predict
         calls = {"n": 0}
 
-        def flaky(images: object, mode: str) -> object:
+        def flaky(images: object, mode: str, fx: object = None) -> object:
             calls["n"] += 1
             if calls["n"] == 2:
                 raise RuntimeError("boom")

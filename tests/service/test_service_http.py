@@ -71,6 +71,50 @@ def test_whole_mode_gives_the_corners_in_image_pixels(client: TestClient) -> Non
     assert spec.status_code == 200 and spec.json()["results"][0]["corners"] is None
 
 
+def test_a_known_focal_length_sets_the_distance(client: TestClient) -> None:
+    """`fx` (px of the upload) replaces the estimated focal length: the board 280 px wide
+    in a 640 px image is 25 cm wide, so about 18 cm away through a lens of fx = 200 px (a
+    near class, 1-4) and 1.4 m through one of 1600 px (far, 5-8); the corners stay."""
+    data, _ = _board_photo()
+    png = {"content-type": "image/png"}
+    plain = client.post("/v1/predict", content=data, headers=png).json()["results"][0]
+    near, far = (
+        client.post("/v1/predict", params={"fx": fx}, content=data, headers=png)
+        for fx in (200, 1600)
+    )
+    assert near.status_code == far.status_code == 200
+    assert near.json()["results"][0]["class_id"] in range(1, 5)
+    assert far.json()["results"][0]["class_id"] in range(5, 9)
+    assert far.json()["results"][0]["corners"] == plain["corners"]
+
+
+@pytest.mark.parametrize(
+    ("url", "params", "message"),
+    [
+        ("/v1/predict", {"fx": "0"}, "fx: Input should be greater than 0"),
+        ("/v1/predict", {"fx": "inf"}, "fx: must be a positive number of pixels, got inf"),
+        ("/v1/predict", {"fx": "x"}, "fx: Input should be a valid number"),
+        (
+            "/v1/predict",
+            {"fx": "500", "mode": "sliding"},
+            "fx: applies to mode=whole only, not mode=sliding",
+        ),
+        (
+            "/v1/models/chessboard-noC-160x120/predict",
+            {"fx": "500"},
+            "fx: model chessboard-noC-160x120 does not take a focal length",
+        ),
+    ],
+)
+def test_a_focal_length_that_cannot_be_used_is_refused(
+    client: TestClient, url: str, params: dict[str, str], message: str
+) -> None:
+    r = client.post(url, params=params, content=PHOTO, headers={"content-type": "image/jpeg"})
+    assert r.status_code == 422
+    assert r.json()["error"]["code"] == "invalid_parameters"
+    assert message in r.json()["error"]["message"]
+
+
 def test_a_portrait_photo_is_turned_to_landscape_and_its_corners_back(client: TestClient) -> None:
     """The board photo turned a quarter counter-clockwise (a camera roll: same camera centre,
     same class) is answered as the landscape one, with the corners in its own pixels."""
@@ -309,7 +353,7 @@ def test_not_ready_without_model(app_factory: AppFactory, tmp_path: Path) -> Non
 
 
 class _Exploding(Predictor):
-    def predict(self, images: Any, mode: Any) -> Any:
+    def predict(self, images: Any, mode: Any, fx: Any = None) -> Any:
         raise RuntimeError("secret internals")
 
 

@@ -34,9 +34,11 @@ class Spy:
     def __getattr__(self, name: str) -> Any:
         return getattr(self.model, name)
 
-    def run(self, batch: np.ndarray, aspect: Any = None, view: Any = None) -> Answer:
+    def run(
+        self, batch: np.ndarray, aspect: Any = None, view: Any = None, focal: Any = None
+    ) -> Answer:
         self.calls.append((len(batch), None if view is None else np.array(view)))
-        return self.model.run(batch, aspect, view)
+        return self.model.run(batch, aspect, view, focal)
 
 
 def test_the_tiles_are_half_size_and_cover_the_input() -> None:

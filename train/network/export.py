@@ -3,13 +3,15 @@
 The graph takes `image` float32 [N, 3, H, W], RGB in [0, 1] (dynamic N; the normalisation is
 inside) and returns `probabilities` float32 [N, 9] (softmax); the keypoint networks also take
 `pixel_aspect` float32 [N] (an input with the default [1], an overridable initializer: a
-caller that feeds only `image` gets square pixels) and `view` float32 [N, 3] (default
+caller that feeds only `image` gets square pixels), `view` float32 [N, 3] (default
 [[0, 0, 1]]: the input is the camera's whole frame; `train.network.keypoint.KeypointNet.answer`
-says what a crop's view is), and return `corners` float32 [N, 4, 2], the object's image
-corners in frame pixels, in the order (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y) of the object
-frame, and `pattern` float32 [N], P(present) from the checker pattern at the corners
-alone (`service.zoom` uses both). The model card (JSON) is stored in the ONNX
-`metadata_props` under `model_card` and written next to it as `<name>.json`.
+says what a crop's view is) and `focal` float32 [N] (default [0]: unknown, self-calibrated;
+else the camera's focal length in frame pixels of the input's width), and return `corners`
+float32 [N, 4, 2], the object's image corners in frame pixels, in the order (-X,-Y),
+(+X,-Y), (+X,+Y), (-X,+Y) of the object frame, and `pattern` float32 [N], P(present) from
+the checker pattern at the corners alone (`service.zoom` uses both). The model card (JSON)
+is stored in the ONNX `metadata_props` under `model_card` and written next to it as
+`<name>.json`.
 """
 
 from __future__ import annotations
@@ -23,7 +25,15 @@ from typing import Any
 
 import numpy as np
 
-from service.model import CORNERS, DEFAULT_VIEW, PATTERN, PIXEL_ASPECT, PROBABILITIES, VIEW
+from service.model import (
+    CORNERS,
+    DEFAULT_VIEW,
+    FOCAL,
+    PATTERN,
+    PIXEL_ASPECT,
+    PROBABILITIES,
+    VIEW,
+)
 from service.regions import NUM_CLASSES, class_descriptions, region_of_class
 from train import REPO_ROOT
 
@@ -43,8 +53,8 @@ INPUT_NAME = "image"
 
 def onnx_bytes(net: Any) -> bytes:
     """Serialise a pose network (eval mode) to ONNX bytes, dynamic batch: output
-    `probabilities` (softmax); the keypoint networks also take `pixel_aspect` (default 1) and
-    `view` (default (0, 0, 1)) and output `corners` and `pattern`."""
+    `probabilities` (softmax); the keypoint networks also take `pixel_aspect` (default 1),
+    `view` (default (0, 0, 1)) and `focal` (default 0) and output `corners` and `pattern`."""
     import onnx
     import torch
 
@@ -55,8 +65,13 @@ def onnx_bytes(net: Any) -> bytes:
     keypoint = takes_pixel_aspect(net)
     image = torch.rand(2, 3, h, w)
     if keypoint:
-        inputs, outputs = [INPUT_NAME, PIXEL_ASPECT, VIEW], [PROBABILITIES, CORNERS, PATTERN]
-        defaults = {PIXEL_ASPECT: np.ones(1, np.float32), VIEW: DEFAULT_VIEW[None]}
+        inputs = [INPUT_NAME, PIXEL_ASPECT, VIEW, FOCAL]
+        outputs = [PROBABILITIES, CORNERS, PATTERN]
+        defaults = {
+            PIXEL_ASPECT: np.ones(1, np.float32),
+            VIEW: DEFAULT_VIEW[None],
+            FOCAL: np.zeros(1, np.float32),
+        }
         example: tuple[Any, ...] = (image, *(torch.from_numpy(v) for v in defaults.values()))
     else:
         inputs, outputs, defaults, example = [INPUT_NAME], [PROBABILITIES], {}, (image,)
@@ -124,7 +139,9 @@ def _io_card(keypoint: bool) -> dict[str, str]:
             "; pixel_aspect: float32 [N], default 1, the height over the width of an input "
             "pixel in the scene (4/3 for a 16:9 photo resized to the input); view: float32 "
             "[N, 3], default (0, 0, 1), where the input lies in the camera's frame: input pixel "
-            "(u, v) is frame pixel (u0 + (u + 0.5) s - 0.5, v0 + (v + 0.5) s - 0.5)"
+            "(u, v) is frame pixel (u0 + (u + 0.5) s - 0.5, v0 + (v + 0.5) s - 0.5); focal: "
+            "float32 [N], default 0 (unknown: self-calibrated), else the camera's focal length "
+            "fx in frame pixels of the input's width"
             if keypoint
             else ""
         ),

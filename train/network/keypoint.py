@@ -16,8 +16,9 @@ and the class follows from them as the SPEC labels define it:
     pose      homography of the board rectangle onto the corners undistorted with a prior
               radial distortion (closed form), pose with a pinhole camera (principal point
               at the image centre, pixels of the given aspect, the focal length that makes
-              the board's axes orthogonal, drawn to a prior where the view says little),
-              camera centre c [N, 3] cm in the object frame
+              the board's axes orthogonal, drawn to a prior where the view says little,
+              or the caller's own where it knows it: `focal`), camera centre c [N, 3] cm
+              in the object frame
     parity    the image sampled at the 70 square centres through the homography, correlated
               with the checker pattern: its sign says whether the corner order is the true one
               or a half turn (which maps c to (-cx, -cy, cz))
@@ -34,7 +35,8 @@ pixel aspect [N] (`camera_centre`; 1 where not given). Output of `forward`: log-
 [N, 9]; `answer` also gives the aligned corners in the object's order and the checker
 pattern's evidence of the board (the exported graph's outputs `corners` and `pattern`), and
 takes where the input lies in the camera's frame (`view`: a crop of the frame, enlarged, is
-answered with the frame's camera; the service's zoom pass, `service/zoom.py`).
+answered with the frame's camera; the service's zoom pass, `service/zoom.py`) and the
+camera's focal length where the caller knows it (`focal`, 0: unknown).
 """
 
 from __future__ import annotations
@@ -190,12 +192,13 @@ class KeypointNet(NormalisedNet):
         return torch.stack([u, v], 2)
 
     # -- geometry ------------------------------------------------------------------------------
-    def focal_length(self, Hc: torch.Tensor) -> torch.Tensor:
+    def focal_length(self, Hc: torch.Tensor, known: torch.Tensor | None = None) -> torch.Tensor:
         """Focal length [N] px for centred object-plane homographies Hc [N, 3, 3] in square
-        pixels: the prior `focal`, or (self_calibrate) the one that best makes the images of
-        the board's x and y axes orthogonal and of equal length (Zhang's constraints), with
-        the prior as one more constraint of weight `FOCAL_PRIOR_WEIGHT`, within
-        `focal_bounds`.
+        pixels: `known` [N] where it is > 0 (the caller's calibration, px of the input's width;
+        None: unknown everywhere), else the prior `focal`, or (self_calibrate) the one that
+        best makes the images of the board's x and y axes orthogonal and of equal length
+        (Zhang's constraints), with the prior as one more constraint of weight
+        `FOCAL_PRIOR_WEIGHT`, within `focal_bounds`.
 
         Unknown z = (f0 / f)^2 with f0 the prior; in pixel units of f0, with Hc scaled to unit
         norm of its first two columns, the constraints are a_i z + b_i = 0 (i = 1, 2) and the
@@ -212,7 +215,8 @@ class KeypointNet(NormalisedNet):
         kappa = FOCAL_PRIOR_WEIGHT
         z = (kappa - (a1 * b1 + a2 * b2)) / (kappa + a1 * a1 + a2 * a2)
         f = (f0 * z.clamp_min(1e-6).rsqrt()).clamp(self.focal_bounds[0], self.focal_bounds[1])
-        return torch.where(self.self_calibrate > 0.5, f, f0.expand_as(f))
+        f = torch.where(self.self_calibrate > 0.5, f, f0.expand_as(f))
+        return f if known is None else torch.where(known > 0, known * torch.ones_like(f), f)
 
     def _load_from_state_dict(
         self, state_dict: dict[str, Any], prefix: str, *args: Any, **kwargs: Any
@@ -246,16 +250,19 @@ class KeypointNet(NormalisedNet):
         centred = H[:, :2, :] - self.principal[None, :, None] * w
         return torch.cat([centred * self._to_square(pixel_aspect)[:, :, None], w], 1)
 
-    def camera_centre(self, H_unit: torch.Tensor, pixel_aspect: torch.Tensor) -> torch.Tensor:
+    def camera_centre(
+        self, H_unit: torch.Tensor, pixel_aspect: torch.Tensor, focal: torch.Tensor | None = None
+    ) -> torch.Tensor:
         """Unit-square homography [N, 3, 3] -> camera centre [N, 3] cm in the object frame
-        (M = A^-1 H = lambda [r1 r2 t], c = -R^T t), with the camera of `focal_length`.
+        (M = A^-1 H = lambda [r1 r2 t], c = -R^T t), with the camera of `focal_length` (and
+        its `known` focal length `focal` [N]).
 
         `pixel_aspect` [N] is the height over the width of an input pixel in the scene (fy /
         fx): 1 for a 4:3 photo, 0.75 W / H for a landscape W x H photo resized to 160x120
         (16:9: 4/3; `service.preprocess.NetworkFrame`, which turns portraits to landscape).
         The rows are brought to square pixels of the input's width first."""
         Hc = self.centred_homography(H_unit, pixel_aspect)
-        f = self.focal_length(Hc)
+        f = self.focal_length(Hc, focal)
         M = torch.cat([Hc[:, :2, :] / f[:, None, None], Hc[:, 2:, :]], 1)
         m1, m2, m3 = M[:, :, 0], M[:, :, 1], M[:, :, 2]
         lam = 2.0 / (m1.norm(dim=1) + m2.norm(dim=1) + 1e-9)
@@ -305,16 +312,21 @@ class KeypointNet(NormalisedNet):
         return torch.cat([near[:, None] * q, (1 - near[:, None]) * q], 1)
 
     def pose_classes(
-        self, q: torch.Tensor, parity: torch.Tensor, pixel_aspect: torch.Tensor | None
+        self,
+        q: torch.Tensor,
+        parity: torch.Tensor,
+        pixel_aspect: torch.Tensor | None,
+        focal: torch.Tensor | None = None,
     ) -> torch.Tensor:
-        """Corners [N, 4, 2] px, their parity [N] and the pixel aspect [N] (None: square
-        pixels) -> P(class 1..8 | object present) [N, 8] (camera centre of the undistorted
-        corners, mixed over the two half-turn readings)."""
+        """Corners [N, 4, 2] px, their parity [N], the pixel aspect [N] (None: square
+        pixels) and the known focal length [N] (px of the input's width, 0 or None: unknown,
+        `focal_length`) -> P(class 1..8 | object present) [N, 8] (camera centre of the
+        undistorted corners, mixed over the two half-turn readings)."""
         order_ok = torch.sigmoid(self.parity_gain * parity)
         # [N] from [N] or [1] (the exported graph's default)
         aspect = torch.ones_like(parity) * (1.0 if pixel_aspect is None else pixel_aspect)
         H = square_homography(self.undistorted(q, aspect))
-        return self.class_probabilities(self.camera_centre(H, aspect), order_ok)
+        return self.class_probabilities(self.camera_centre(H, aspect, focal), order_ok)
 
     def _classes_if_present(
         self, x: torch.Tensor, q: torch.Tensor, pixel_aspect: torch.Tensor | None
@@ -338,8 +350,11 @@ class KeypointNet(NormalisedNet):
         x: torch.Tensor,
         pixel_aspect: torch.Tensor | None = None,
         view: torch.Tensor | None = None,
+        focal: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """RGB [N, 3, H, W] in [0, 1], the pixel aspect [N] (`camera_centre`; None: 1) and
+        """RGB [N, 3, H, W] in [0, 1], the pixel aspect [N] (`camera_centre`; None: 1), the
+        camera's focal length [N] where the caller knows it (px of the frame's width in square
+        pixels, 0 or None: unknown, self-calibrated; `focal_length`) and
         where the input lies in the frame the camera sees, `view` [N, 3] = (u0, v0, s): input
         pixel (u, v) is frame pixel (u0 + (u + 0.5) s - 0.5, v0 + (v + 0.5) s - 0.5), frame
         pixels as the input's (None: (0, 0, 1), the input is the frame; a crop of the frame
@@ -351,7 +366,7 @@ class KeypointNet(NormalisedNet):
         q = seen.corners
         if view is not None:
             q = view[:, None, :2] + (q + 0.5) * view[:, None, 2:] - 0.5
-        pk = self.pose_classes(q, seen.parity, pixel_aspect)
+        pk = self.pose_classes(q, seen.parity, pixel_aspect, focal)
         present = seen.present[:, None]
         log_p = torch.log(torch.cat([1 - present, present * pk], 1).clamp_min(1e-7))
         corners = torch.where(seen.parity[:, None, None] >= 0, q, torch.roll(q, 2, 1))

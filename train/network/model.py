@@ -255,8 +255,9 @@ def log_probabilities(
 
 class Probabilities(nn.Module):
     """Wrap a pose network so it outputs probabilities [N, 9] (softmax) and, for a network
-    with an `answer` (the keypoint network, which also takes the pixel aspect [N] and the
-    view [N, 3]), its corners [N, 4, 2] px and pattern evidence [N]: the exported graph."""
+    with an `answer` (the keypoint network, which also takes the pixel aspect [N], the
+    view [N, 3] and the known focal length [N]), its corners [N, 4, 2] px and pattern
+    evidence [N]: the exported graph."""
 
     def __init__(self, net: NormalisedNet) -> None:
         super().__init__()
@@ -267,11 +268,12 @@ class Probabilities(nn.Module):
         image: torch.Tensor,
         pixel_aspect: torch.Tensor | None = None,
         view: torch.Tensor | None = None,
+        focal: torch.Tensor | None = None,
     ) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         answer = getattr(self.net, "answer", None)
         if answer is None:
             return F.softmax(self.net.logits(image), dim=1)
-        log_p, corners, pattern = answer(image, pixel_aspect, view)
+        log_p, corners, pattern = answer(image, pixel_aspect, view, focal)
         return F.softmax(log_p, dim=1), corners, pattern
 
 

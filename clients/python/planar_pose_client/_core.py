@@ -4,6 +4,7 @@ response parsing. Only the act of sending (and sleeping between attempts) differ
 
 from __future__ import annotations
 
+import math
 import random
 import re
 from collections.abc import Iterable
@@ -77,13 +78,16 @@ class ClientCore:
 
     @staticmethod
     def predict_request(
-        images: Iterable[ImageInput], mode: Mode, model: str | None = None
+        images: Iterable[ImageInput], mode: Mode, model: str | None = None, fx: float | None = None
     ) -> dict[str, Any]:
         """Keyword arguments of `request()` for POST /v1/predict (or, with `model`,
-        /v1/models/{model}/predict): every image as one multipart field `image`, in order.
-        Reads and encodes all images first, so a bad one fails here."""
+        /v1/models/{model}/predict): every image as one multipart field `image`, in order,
+        and the camera's focal length `fx` (px of the images) if given. Reads and encodes all
+        images first, so a bad one fails here."""
         if model is not None and not MODEL_NAME.fullmatch(model):
             raise ValueError(f"not a model name: {model!r} (letters, digits, '.', '_', '-')")
+        if fx is not None and not (math.isfinite(fx) and fx > 0):
+            raise ValueError(f"fx must be a positive number of pixels, got {fx}")
         if is_single_image(images):
             raise TypeError("predict_many takes a list of images; use predict for one image")
         uploads = [to_upload(image, i) for i, image in enumerate(images)]
@@ -92,7 +96,7 @@ class ClientCore:
         return {
             "method": "POST",
             "url": "/v1/predict" if model is None else f"/v1/models/{model}/predict",
-            "params": {"mode": mode},
+            "params": {"mode": mode} if fx is None else {"mode": mode, "fx": fx},
             "files": [("image", tuple(upload)) for upload in uploads],
         }
 

@@ -1,6 +1,7 @@
 """The `planar-pose-client` command: call a running planar-pose service from the shell.
 
-    planar-pose-client predict photo1.jpg photo2.png [--mode sliding] [--model NAME] [--json]
+    planar-pose-client predict photo1.jpg photo2.png [--mode sliding] [--model NAME] [--fx PX]
+        [--json]
     planar-pose-client info [--json]
     planar-pose-client models [--json]
     planar-pose-client status
@@ -108,6 +109,14 @@ def predict(
         str | None,
         typer.Option("--model", help="Served model name (see `models`; default: the default)."),
     ] = None,
+    fx: Annotated[
+        float | None,
+        typer.Option(
+            "--fx",
+            min=0.001,
+            help="The camera's focal length in pixels of the images (calibration), if known.",
+        ),
+    ] = None,
     as_json: JsonOption = False,
     url: UrlOption = DEFAULT_URL,
     api_key: KeyOption = None,
@@ -123,7 +132,7 @@ def predict(
         for path in images:  # all files exist before the first request
             check_path(path)
         for start in range(0, len(images), batch):
-            predictions += c.predict_many(images[start : start + batch], mode.value, model)
+            predictions += c.predict_many(images[start : start + batch], mode.value, model, fx)
     if as_json:
         typer.echo(json.dumps([p.model_dump(mode="json") for p in predictions], indent=2))
     else:

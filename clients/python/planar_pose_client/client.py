@@ -75,17 +75,27 @@ class PoseClient(_ClientBase[httpx.Client, httpx.BaseTransport]):
         return httpx.Client(**options)
 
     def predict(
-        self, image: ImageInput, mode: Mode = "whole", model: str | None = None
+        self,
+        image: ImageInput,
+        mode: Mode = "whole",
+        model: str | None = None,
+        fx: float | None = None,
     ) -> Prediction:
         """Pose region of one image (path, bytes, binary file object or numpy array), by the
-        default model or the served model `model` (see `models()`)."""
-        return self.predict_many([image], mode, model)[0]
+        default model or the served model `model` (see `models()`); `fx`: the camera's focal
+        length in pixels of the image, if known (whole mode)."""
+        return self.predict_many([image], mode, model, fx)[0]
 
     def predict_many(
-        self, images: Iterable[ImageInput], mode: Mode = "whole", model: str | None = None
+        self,
+        images: Iterable[ImageInput],
+        mode: Mode = "whole",
+        model: str | None = None,
+        fx: float | None = None,
     ) -> list[Prediction]:
-        """Pose regions of several images in one request; results in the order given."""
-        request = self._core.predict_request(images, mode, model)
+        """Pose regions of several images in one request; results in the order given (`fx`:
+        the camera's focal length in pixels of the images, as in `predict`)."""
+        request = self._core.predict_request(images, mode, model, fx)
         return self._core.parse_predictions(self._send(**request), len(request["files"]))
 
     def model_info(self) -> ModelCard:
@@ -156,17 +166,27 @@ class AsyncPoseClient(_ClientBase[httpx.AsyncClient, httpx.AsyncBaseTransport]):
         return httpx.AsyncClient(**options)
 
     async def predict(
-        self, image: ImageInput, mode: Mode = "whole", model: str | None = None
+        self,
+        image: ImageInput,
+        mode: Mode = "whole",
+        model: str | None = None,
+        fx: float | None = None,
     ) -> Prediction:
         """Pose region of one image (path, bytes, binary file object or numpy array), by the
-        default model or the served model `model` (see `models()`)."""
-        return (await self.predict_many([image], mode, model))[0]
+        default model or the served model `model` (see `models()`); `fx`: the camera's focal
+        length in pixels of the image, if known (whole mode)."""
+        return (await self.predict_many([image], mode, model, fx))[0]
 
     async def predict_many(
-        self, images: Iterable[ImageInput], mode: Mode = "whole", model: str | None = None
+        self,
+        images: Iterable[ImageInput],
+        mode: Mode = "whole",
+        model: str | None = None,
+        fx: float | None = None,
     ) -> list[Prediction]:
-        """Pose regions of several images in one request; results in the order given."""
-        request = self._core.predict_request(images, mode, model)
+        """Pose regions of several images in one request; results in the order given (`fx`:
+        the camera's focal length in pixels of the images, as in `predict`)."""
+        request = self._core.predict_request(images, mode, model, fx)
         return self._core.parse_predictions(await self._send(**request), len(request["files"]))
 
     async def model_info(self) -> ModelCard:

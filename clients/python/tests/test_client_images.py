@@ -98,6 +98,9 @@ def test_bad_inputs_fail_before_any_request(tmp_path):
                 client.predict_many(not_a_list)
         with pytest.raises(ValueError, match="at least one image"):
             client.predict_many([])
+        for fx in (0.0, -3.0, float("nan"), float("inf")):
+            with pytest.raises(ValueError, match="fx must be a positive number of pixels"):
+                client.predict(b"\xff\xd8\xff", fx=fx)
 
 
 @pytest.mark.parametrize("url", ["127.0.0.1:8000", "ftp://host", "http://"])

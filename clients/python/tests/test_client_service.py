@@ -83,6 +83,17 @@ def test_sync_client_every_method(service_url, photos):
     np.testing.assert_allclose(many[0].probabilities, one.probabilities, atol=1e-6)
 
 
+def test_a_known_focal_length_reaches_the_service(service_url, photos):
+    """`fx` goes with the request: through a lens 3x longer than the camera's the board is
+    far (a class 5-8), the corners unchanged; mode=sliding refuses it (422)."""
+    with PoseClient(service_url) as client:
+        plain = client.predict(photos[0])
+        long_lens = client.predict(photos[0], fx=1600.0)
+        assert long_lens.class_id in range(5, 9) and long_lens.corners == plain.corners
+        with pytest.raises(InvalidRequestError, match="fx: applies to mode=whole only"):
+            client.predict(photos[0], mode="sliding", fx=1600.0)
+
+
 def test_every_kind_of_image_input_gives_the_same_answer(service_url, photos):
     path = photos[1]
     rgb = cv2.cvtColor(cv2.imread(str(path)), cv2.COLOR_BGR2RGB)

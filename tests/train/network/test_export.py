@@ -165,7 +165,11 @@ def test_a_keypoint_graph_is_regraphed_with_the_zoom_inputs(tmp_path):
     assert card["training"] == before["training"] and "view" in card["input_format"]
     session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
     assert [o.name for o in session.get_outputs()] == ["probabilities", "corners", "pattern"]
-    assert [i.name for i in session.get_overridable_initializers()] == ["pixel_aspect", "view"]
+    assert [i.name for i in session.get_overridable_initializers()] == [
+        "pixel_aspect",
+        "view",
+        "focal",
+    ]
     photos = sorted(REAL.glob("*.jpg"))[:4]
     x = np.stack([to_network_input(read_rgb(p), (160, 120)) for p in photos])
     want = ort.InferenceSession(str(old), providers=["CPUExecutionProvider"]).run(

@@ -105,6 +105,23 @@ def test_self_calibration_moves_the_focal_length_to_what_a_tilted_view_shows():
     assert _focal_estimate(net, q) == pytest.approx(f0)
 
 
+def test_a_known_focal_length_replaces_the_estimate_where_it_is_given():
+    net = KeypointNet(focal_scale=0.6)
+    f0 = float(net.focal)
+    q = torch.from_numpy(_view(net, (30.0, -25.0, 40.0), 40.0, 1.2 * f0)).float()
+    Hc = net.centred_homography(square_homography(torch.stack([q, q])), torch.ones(2))
+    estimate = net.focal_length(Hc)
+    given = net.focal_length(Hc, torch.tensor([3.0 * f0, 0.0]))  # the second one unknown
+    assert float(given[0]) == pytest.approx(3.0 * f0)  # outside the bounds: the caller's
+    assert float(given[1]) == pytest.approx(float(estimate[1]))
+    # a near-frontal view through a lens twice as long: the board is twice as far
+    H = square_homography(torch.from_numpy(_view(net, (1.0, -0.5, 50.0), 30.0, f0)).float()[None])
+    near = net.camera_centre(H, torch.ones(1), torch.tensor([f0]))
+    far = net.camera_centre(H, torch.ones(1), torch.tensor([2 * f0]))
+    assert float(near[0, 2]) == pytest.approx(50.0, rel=0.02)
+    assert float(far[0, 2]) == pytest.approx(100.0, rel=0.02)
+
+
 def test_a_near_frontal_view_keeps_the_prior_focal_length():
     net = KeypointNet(focal_scale=0.6)
     f0 = float(net.focal)
@@ -171,9 +188,13 @@ def test_the_exported_graph_decodes_like_torch(stride):
     assert got.shape == (3, 9) and np.allclose(got.sum(1), 1.0, atol=1e-5)
     present = got[0, 1:] / got[0, 1:].sum()
     assert int(present.argmax()) + 1 == 4  # near, x+, y-
-    # `pixel_aspect` and `view`: inputs with defaults (1; the whole frame), not required ones
+    # `pixel_aspect`, `view` and `focal`: inputs with defaults (1; the whole frame; unknown)
     assert [i.name for i in session.get_inputs()] == ["image"]
-    assert [i.name for i in session.get_overridable_initializers()] == ["pixel_aspect", "view"]
+    assert [i.name for i in session.get_overridable_initializers()] == [
+        "pixel_aspect",
+        "view",
+        "focal",
+    ]
     aspect = np.array([1.0, 4 / 3, 0.8], np.float32)
     fed = session.run(["probabilities"], {"image": x, "pixel_aspect": aspect})[0]
     assert np.abs(fed[0] - got[0]).max() < 1e-6 and np.abs(fed[1] - got[1]).max() > 1e-3
