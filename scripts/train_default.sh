@@ -26,7 +26,7 @@ PP=${PP:-.venv/bin/planar-pose}
 D=runs/default/data   # the recipes name their data and run folders under runs/default
 R=runs/default/runs
 N_EVAL=${N_EVAL:-1000}  # images per synthetic evaluation set; its 20 % test split is evaluated
-VERSION=${VERSION:-3.5.0}
+VERSION=${VERSION:-3.6.0}
 mkdir -p "$D" "$R"
 
 make_set() {  # OUT VARIANT SIZE BLUR COUNT SEED [PROFILE]
@@ -73,7 +73,8 @@ train_recipe chessboard-keypoint-s2-160x120-real
 NOTES="Made by scripts/train_default.sh from recipes/chessboard-keypoint-s2-160x120-real.toml; \
 its corners are aligned to the image (train/network/align.py).${WEIGHTS_NOTE:+ $WEIGHTS_NOTE}"
 export_model chessboard-keypoint-s2-160x120-real default 2 "The default model. $NOTES \
-Since 3.5.0 its graph serves the zoom pass (service/zoom.py), with which its accuracies are measured."
+Since 3.5.0 its graph serves the zoom pass (service/zoom.py), with which its accuracies are measured; \
+since 3.6.0 it also takes the camera's focal length where the caller knows it (input focal; /v1/predict?fx=)."
 remeasure chessboard-keypoint-s2-real-160x120 2 "The default of version 3.4.0: the weights of \
 recipes/chessboard-keypoint-s2-160x120-real.toml in the graph of 3.4.0 (no view input, no \
 pattern output), so answered without the zoom pass, kept to measure it."
@@ -126,4 +127,5 @@ $PP compare $(printf -- "--models %s " "${MODELS[@]}") --peer chessboard --split
     $(printf -- "--datasets %s " "$D"/real-s{1,2}-b{0,1,2,3}) --out docs/comparison.md
 $PP catalog models
 .venv/bin/python scripts/camera_model_choices.py "$R/chessboard-keypoint-s2-160x120-real/best.pt" "$D"
-echo "done: models/default.onnx; results in docs/results.md, docs/comparison.md, models/README.md, docs/camera_model.md"
+.venv/bin/python scripts/known_focal.py models/default.onnx "$D"
+echo "done: models/default.onnx; results in docs/results.md, docs/comparison.md, models/README.md, docs/camera_model.md, docs/known_focal.md"
