@@ -28,10 +28,7 @@ from __future__ import annotations
 
 import argparse
 import csv
-import os
-import platform
 import sys
-from datetime import UTC, datetime
 from pathlib import Path
 
 import cv2
@@ -42,7 +39,7 @@ from service.preprocess import NetworkFrame, to_network_input
 from train import REPO_ROOT
 from train.dataset import LoadedDataset, load_dataset
 from train.geometry import pose_class
-from train.markdown import table
+from train.markdown import table, written_by
 from train.network import keypoint
 from train.network.align import square_homography
 from train.network.fit import _corners, load_network, to_input
@@ -292,14 +289,11 @@ def main() -> None:
         sys.exit(f"error: {args.checkpoint} is not a keypoint network")
     net.eval()
     cache = _caches(net, args.data)
-    stamp = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
-    cpu = platform.processor() or platform.machine()
     lines = [
         "# The keypoint network's camera model, measured on the real val and train sources",
         "",
-        f"Written {stamp} on {platform.node()} ({cpu}, {os.cpu_count()} CPUs) by "
-        f"`python scripts/camera_model_choices.py {args.checkpoint} {args.data}`; do not edit "
-        "by hand. The constants are in `train/network/keypoint.py` (`FOCAL_PRIOR`, "
+        written_by(f"python scripts/camera_model_choices.py {args.checkpoint} {args.data}")
+        + " The constants are in `train/network/keypoint.py` (`FOCAL_PRIOR`, "
         f"`RADIAL_PRIOR` = {keypoint.RADIAL_PRIOR:g}) and `service/preprocess.py` "
         "(`NetworkFrame`); docs/training.md says why.",
         "",

@@ -13,9 +13,7 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import sys
-from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
@@ -25,7 +23,7 @@ from service.predictor import Predictor
 from service.settings import Settings
 from train import REPO_ROOT
 from train.dataset import DatasetError, LoadedDataset, load_dataset
-from train.markdown import table
+from train.markdown import table, written_by
 from train.real.label import SPEC_FOCAL_160
 
 SPLITS = ("val", "test")
@@ -42,14 +40,14 @@ def accuracies(predictor: Predictor, folder: Path, split: str) -> tuple[float, f
     """(accuracy % without fx, with each photo's fx, photos with a calibration) of a split."""
     data = load_dataset(folder, split=split)
     files = [folder / r["file"] for r in data.rows]
+    focal = photo_focal(data)
     right = np.zeros((2, len(files)), bool)
-    for i, (path, fx) in enumerate(zip(files, photo_focal(data), strict=True)):
+    for i, (path, fx) in enumerate(zip(files, focal, strict=True)):
         image = [(path.name, path.read_bytes())]
         for j, given in enumerate((None, fx)):
             result = predictor.predict(image, "whole", given).results[0]
             right[j, i] = result.class_id == data.labels[i]
-    calibrated = sum(f is not None for f in photo_focal(data))
-    return 100 * right[0].mean(), 100 * right[1].mean(), calibrated
+    return 100 * right[0].mean(), 100 * right[1].mean(), sum(f is not None for f in focal)
 
 
 def main() -> None:
@@ -74,14 +72,11 @@ def main() -> None:
                 rows.append([split, label, f"{found[0][2]}", cells])
     except DatasetError as exc:
         sys.exit(f"error: {exc} (run scripts/train_default.sh or `planar-pose corpus sets`)")
-    stamp = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
-    cpu = platform.processor() or platform.machine()
     lines = [
         "# A known focal length: class accuracy on the real photos with and without `fx`",
         "",
-        f"Written {stamp} on {platform.node()} ({cpu}, {os.cpu_count()} CPUs) by "
-        f"`python scripts/known_focal.py {args.model} {args.data}`; do not edit by hand. "
-        f"Model: {model.name} {model.card.get('version', '')}. Each photo through the "
+        written_by(f"python scripts/known_focal.py {args.model} {args.data}")
+        + f" Model: {model.name} {model.card.get('version', '')}. Each photo through the "
         "service's path (`/v1/predict?fx=...`, whole mode, default settings); the test "
         "sources are reported, never used to choose anything (docs/service.md, `fx`).",
         "",

@@ -1,9 +1,12 @@
-"""Markdown pieces shared by the report writers: one table helper, one percent formatter."""
+"""Markdown pieces shared by the report writers: a table helper, a percent formatter, the
+"written on" line of a measured page."""
 
 from __future__ import annotations
 
 import os
+import platform
 from collections.abc import Sequence
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -33,3 +36,14 @@ def table(header: Sequence[Any], rows: Sequence[Sequence[Any]]) -> list[str]:
 def link(path: Path, base: Path) -> str:
     """`path` relative to the folder `base` of the Markdown file that links it (POSIX)."""
     return Path(os.path.relpath(path, base)).as_posix()
+
+
+def written_by(command: str) -> str:
+    """The line that dates a measured page: now (UTC), this machine (host, CPU, CPU count)
+    and the `command` that wrote it."""
+    stamp = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
+    cpu = platform.processor() or platform.machine()
+    return (
+        f"Written {stamp} on {platform.node()} ({cpu}, {os.cpu_count()} CPUs) by `{command}`; "
+        "do not edit by hand."
+    )
