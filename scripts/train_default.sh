@@ -123,7 +123,7 @@ $PP evaluate "${MODELS[@]}" \
     --title "Results of the shipped chessboard models" \
     --note "Written by \`planar-pose evaluate\` at the end of \`scripts/train_default.sh\`." \
     --note "Real sets: the corpus's test sources (train/assets/real/corpus/README.md), never used for training or model selection. Synthetic sets: $N_EVAL renders each, the 20 % test split."
-$PP compare $(printf -- "--models %s " "${MODELS[@]}") --peer chessboard --split test \
+$PP compare $(printf -- "--models %s " "${MODELS[@]}") --peer chessboard --split test --resize \
     $(printf -- "--datasets %s " "$D"/real-s{1,2}-b{0,1,2,3}) --out docs/comparison.md
 $PP catalog models
 .venv/bin/python scripts/camera_model_choices.py "$R/chessboard-keypoint-s2-160x120-real/best.pt" "$D"

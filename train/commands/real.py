@@ -174,6 +174,13 @@ def compare(
     ] = None,
     limit: Annotated[int, typer.Option(min=0, help="At most N images per split (0 = all).")] = 0,
     tune: Annotated[bool, typer.Option(help="Tune the baseline on each val split.")] = True,
+    resize: Annotated[
+        bool,
+        typer.Option(
+            help="Also run each model on the data sets of other image sizes, resized to its "
+            "input as the service resizes an upload."
+        ),
+    ] = False,
 ) -> None:
     """CNN (onnxruntime) vs the classical peers, per data set, in one run: Markdown + plots."""
     from train.compare.baseline import FEATURE_CHOICES
@@ -208,6 +215,7 @@ def compare(
         limit=limit,
         tune=tune,
         peers=list(peer or []),
+        resize=resize,
     )
     summary = guard(lambda: run_comparison(config))
     table = Table(title="accuracy %  (ms / image)")

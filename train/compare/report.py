@@ -31,7 +31,8 @@ CHESSBOARD = "opencv-chessboard"
 @dataclass(frozen=True)
 class ReportContext:
     """What every writer may need: the run's settings, the models {name: (path, input size
-    (W, H), card)}, the peers' names, the report's folder (`base`) and its data folder."""
+    (W, H), card)}, the peers' names, the report's folder (`base`), its data folder and
+    whether models also answered data sets of other sizes (`resize`)."""
 
     split: str
     limit: int
@@ -39,6 +40,7 @@ class ReportContext:
     peers: list[str]
     base: Path
     out_dir: Path
+    resize: bool = False
 
 
 def _ms(value: float | None, digits: int = 2) -> str:
@@ -118,8 +120,14 @@ def accuracy_section(ctx: ReportContext, rows: list[dict]) -> list[str]:
         "peers one image at a time: the feature baseline is feature detection + matching + "
         "RANSAC + PnP, the chessboard detector is 4x cubic enlargement + "
         "`findChessboardCornersSB` (fallback `findChessboardCorners`) + colour parity + IPPE "
-        "PnP). A model is run on the data sets of its input size and its object only, the "
-        "chessboard detector on chessboard data sets only.",
+        "PnP). "
+        + (
+            "A model is run on the data sets of its object, those of another size resized to "
+            "its input as the service resizes an upload; "
+            if ctx.resize
+            else "A model is run on the data sets of its input size and its object only, "
+        )
+        + "the chessboard detector on chessboard data sets only.",
         "",
         *table(header, body),
         "",

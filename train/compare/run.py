@@ -2,8 +2,10 @@
 proposals, measured in one run on one machine, so times compare as ratios:
 
 * per data set (size, blur, synthetic or real): accuracy of each ONNX model whose input size
-  and object match the data set (`train.network.evaluate.onnx_predictor` +
-  `evaluate_predictor`: the service's preprocessing, batches of 64) and of each peer
+  and object match the data set (with `resize`, of each model of its object: images of
+  another size are resized to its input as the service resizes an upload;
+  `train.network.evaluate.onnx_predictor` + `evaluate_predictor`: the service's
+  preprocessing, batches of 64) and of each peer
   (`train.compare.peers`: OpenCV's chessboard detector on chessboard sets, the feature
   baseline tuned on the set's val split), ms per image of each and their ratio; on real sets
   whose stored photographs are here, the chessboard detector on those for reference;
@@ -70,6 +72,7 @@ class CompareConfig:
     limit: int = 0
     tune: bool = True
     peers: list[str] = field(default_factory=list)
+    resize: bool = False
 
     def peer_kinds(self) -> list[str]:
         """The peers to run, in order, without repeats; ValueError for an unknown one."""
@@ -128,7 +131,7 @@ def measure_dataset(
     row["margin"] = {}
     measured: dict[str, dict] = {}
     for name, (_, predict, size, card) in models.items():
-        if tuple(size) != desc["size"] or not same_object(card, folder):
+        if (tuple(size) != desc["size"] and not config.resize) or not same_object(card, folder):
             continue
         with tqdm(total=len(data.labels), desc=f"{name} on {folder.name}") as bar:
             measured[name] = evaluate_predictor(predict, data, bar.update)
@@ -221,6 +224,7 @@ def write_outputs(
         peers,
         config.markdown.parent,
         out_dir,
+        config.resize,
     )
     config.markdown.parent.mkdir(parents=True, exist_ok=True)
     config.markdown.write_text(comparison_markdown(ctx, rows, detections, details))

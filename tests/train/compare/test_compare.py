@@ -135,3 +135,26 @@ def test_cli_errors(real_sets, tmp_path):
     args = ["compare", "--models", str(MODEL), *ds, *out, "--peer", "orb", "--features", "orb"]
     result = runner.invoke(app, args)
     assert result.exit_code == 2 and "either --peer or --features" in result.output
+
+
+def test_resize_runs_a_model_on_the_data_sets_of_another_size(tmp_path):
+    """--resize: the default (160x120) also answers an 80x60 set, as the service answers an
+    80x60 upload, and the report says so; without it the set is the detector's alone."""
+    small = tmp_path / "real-s1-b0"
+    build_real_dataset(SOURCE, small, size=1, blur=0, profile="chessboard", seed=0)
+    data = load_dataset(small, split="test")
+    predict, _, _ = onnx_predictor(MODEL)
+    direct = evaluate_predictor(predict, data)
+    results = {}
+    for flag in ("--resize", "--no-resize"):
+        md = tmp_path / flag / "comparison.md"
+        args = ["compare", "--models", str(MODEL), "--datasets", str(small), "--out", str(md)]
+        result = runner.invoke(app, [*args, "--peer", "chessboard", flag])
+        assert result.exit_code == 0, result.output
+        results[flag] = json.loads((md.with_suffix("") / "metrics.json").read_text())["results"]
+        text = md.read_text()
+    resized = results["--resize"]["default"]["chessboard/real-s1-b0"]
+    assert resized["count"] == 6 and resized["confusion"] == direct["confusion"]
+    assert results["--no-resize"]["default"] == {}  # no set of its size
+    assert "of its input size and its object only" in text  # the last report: --no-resize
+    assert "resized to its input" in (tmp_path / "--resize" / "comparison.md").read_text()
