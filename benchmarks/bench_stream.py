@@ -40,13 +40,13 @@ import cv2
 import httpx
 import numpy as np
 import psutil
+from docs_section import write_section  # benchmarks/, the script's own folder
 from websockets.sync.client import connect
 
 ROOT = Path(__file__).resolve().parent.parent
 REAL = ROOT / "train" / "assets" / "real" / "chessboard-stereo"
 MODEL = ROOT / "models" / "default.onnx"
 MODES = ("whole", "sliding")
-START, END = "<!-- bench_stream:start -->", "<!-- bench_stream:end -->"
 
 
 @dataclass
@@ -240,18 +240,6 @@ def ratios(results: dict[str, list[Cell]]) -> list[str]:
     return lines
 
 
-def write_section(path: Path, header: str, body: list[str]) -> None:
-    """Replace the text between the markers (or append the section) in `path`."""
-    section = "\n".join([START, "## Live stream", "", header, "", *body, END])
-    text = path.read_text(encoding="utf-8") if path.exists() else "# Benchmarks\n"
-    if START in text and END in text:
-        before, rest = text.split(START, 1)
-        text = before + section + rest.split(END, 1)[1]
-    else:
-        text = text.rstrip("\n") + "\n\n" + section + "\n"
-    path.write_text(text, encoding="utf-8")
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=4.0, help="per cell")
@@ -288,7 +276,12 @@ def main() -> None:
     notes.append(f"load average {os.getloadavg()[0]:.2f} at end")
     print("\n".join(lines), "", *notes, sep="\n")
     if args.write:
-        write_section(args.write, header, [*lines, "", *(f"* {n}" for n in notes)])
+        write_section(
+            args.write,
+            "bench_stream",
+            "Live stream",
+            [header, "", *lines, "", *(f"* {n}" for n in notes)],
+        )
         print(f"wrote the live stream section of {args.write}")
 
 

@@ -1,29 +1,50 @@
-"""Training speed of `train.network.fit` vs a plain PyTorch loop, both sizes, measured in one run.
+"""Training speed of `train.network.fit` vs a plain PyTorch loop, and what the default's recipe
+costs on this machine, measured in one run.
 
-Prints ms / image (forward + backward + SGD step, batch 64) for the project's training epoch
-(`train.network.fit._train_epoch`: eager, compiled, compiled with the batch-norm layers that
-`planar-pose train` adds by default, and that with augmentation) and for a plain eager loop
-over the SPEC network on pre-made float tensors (the reference), the ratio between them, and
-the thesis's Torch7 training times (15 ms at 80x60, 71 ms at 160x120) for scale.
+Prints ms per training image (forward + backward + optimiser step, batch 64) for the
+project's training epoch (`train.network.fit._train_epoch`) on uint8 images in memory: the
+SPEC network at both sizes (eager, compiled, with the batch-norm layers that `planar-pose
+train` adds by default, and that with augmentation), the convnet, and the default's networks
+(`keypoint`, `keypoint-s2` at 160x120, eager with augmentation and the corner loss, as their
+recipes train); a plain eager loop over the SPEC network on pre-made float tensors (the
+reference); the ratios, and the thesis's Torch7 training times (15 ms at 80x60, 71 ms at
+160x120) for scale. Where the recipes' data sets are on this machine (runs/default/data, made
+by scripts/train_default.sh), it also adds up the training images of every stage of the
+default's recipe (epochs x each data set's train split x its repeat) at the measured rate.
 
-    .venv/bin/python benchmarks/bench_train.py [--images 512] [--threads 2]
+    .venv/bin/python benchmarks/bench_train.py [--images 512] [--threads 2] [--write-docs]
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
+import datetime as dt
+import os
+import platform
 import time
 from pathlib import Path
 
 import numpy as np
 import torch
 import torch.nn.functional as F
+from docs_section import write_section  # benchmarks/, the script's own folder
 
+from train.network.config import load_config, read_recipe
 from train.network.fit import Augmenter, FitConfig, Split, _optimiser, _train_epoch
 from train.network.model import PoseNet, build_network
 
+ROOT = Path(__file__).resolve().parent.parent
+DOCS = ROOT / "docs" / "benchmarks.md"
 THESIS_MS = {(80, 60): 15.0, (160, 120): 71.0}
 BATCH = 64
+#: The default's recipe, in the order scripts/train_default.sh runs it.
+DEFAULT_RECIPE = (
+    "chessboard-keypoint-160x120-pretrain",
+    "chessboard-keypoint-160x120",
+    "chessboard-keypoint-s2-160x120",
+    "chessboard-keypoint-s2-160x120-real",
+)
 
 
 def plain_loop_ms(size: tuple[int, int], n: int) -> float:
@@ -42,6 +63,22 @@ def plain_loop_ms(size: tuple[int, int], n: int) -> float:
     return 1000 * (time.perf_counter() - start) / n
 
 
+def _split(size: tuple[int, int], n: int) -> Split:
+    """n random images with random classes and a board's corners inside the image (px)."""
+    rng = np.random.default_rng(0)
+    w, h = size
+    corners = np.tile(np.array([0.2, 0.2, 0.8, 0.2, 0.8, 0.8, 0.2, 0.8], np.float32), (n, 1))
+    corners *= np.tile([w, h], 4).astype(np.float32)
+    return Split(
+        rng.integers(0, 256, (n, h, w, 3), dtype=np.uint8),
+        rng.integers(0, 9, n).astype(np.int64),
+        np.zeros(n, dtype=np.int64),
+        [n],
+        corners,
+        np.ones(n, np.float32),
+    )
+
+
 def project_epoch_ms(
     size: tuple[int, int],
     n: int,
@@ -50,18 +87,15 @@ def project_epoch_ms(
     batch_norm: bool = False,
     arch: str = "spec",
 ) -> float:
-    """`train.network.fit._train_epoch` on uint8 images in memory (conversion, augmentation).
+    """`train.network.fit._train_epoch` on uint8 images in memory (conversion, augmentation,
+    the corner loss of the networks that have one) -> ms per image.
 
     With `compiled`, a first epoch compiles and warms up; the second is timed.
     """
-    rng = np.random.default_rng(0)
-    split = Split(
-        rng.integers(0, 256, (n, size[1], size[0], 3), dtype=np.uint8),
-        rng.integers(0, 9, n).astype(np.int64),
-        np.zeros(n, dtype=np.int64),
-        [n],
-    )
+    split = _split(size, n)
     config = FitConfig(datasets=[], out=Path("."), batch_size=BATCH, progress=False)
+    if arch.startswith("keypoint"):  # as the default's recipes train it
+        config.optimizer, config.corner_weight, config.corner_beta = "adam", 5.0, 0.01
     torch.manual_seed(0)
     net = build_network(arch, size, batch_norm).to(memory_format=torch.channels_last)
     opt = _optimiser(config, net)
@@ -73,18 +107,65 @@ def project_epoch_ms(
     return _train_epoch(step, opt, split, pool, config, 2, augmenter)["ms_per_image"]
 
 
+def train_images(folder: Path) -> int | None:
+    """Images of a data set's train split (labels.csv), None when the set is not here."""
+    labels = ROOT / folder / "labels.csv"
+    if not labels.is_file():
+        return None
+    with labels.open(newline="", encoding="utf-8") as f:
+        return sum(row["split"] == "train" for row in csv.DictReader(f))
+
+
+def recipe_rows(ms: dict[str, float]) -> tuple[list[list[str]], float | None]:
+    """Per stage of the default's recipe: (name, arch, epochs, images per epoch, hours at the
+    measured ms per image of its arch: a stage that fine-tunes keeps its parent's); and the
+    total hours (None: a data set is missing)."""
+    rows, total, arch = [], 0.0, "spec"
+    for name in DEFAULT_RECIPE:
+        path = ROOT / "recipes" / f"{name}.toml"
+        config = load_config(path, {})
+        arch = read_recipe(path).get("arch", arch)
+        counts = [train_images(d) for d in config.datasets]
+        if any(c is None for c in counts):
+            return rows, None
+        repeat = config.repeat or [1] * len(counts)
+        per_epoch = sum(c * r for c, r in zip(counts, repeat, strict=True) if c is not None)
+        hours = config.epochs * per_epoch * ms[arch] / 3.6e6
+        total += hours
+        rows.append([name, arch, str(config.epochs), str(per_epoch), f"{hours:.2f}"])
+    return rows, total
+
+
+def table(header: list[str], rows: list[list[str]]) -> list[str]:
+    return [
+        "| " + " | ".join(header) + " |",
+        "|" + "---|" * len(header),
+        *("| " + " | ".join(r) + " |" for r in rows),
+    ]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--images", type=int, default=512, help="images per measurement")
     parser.add_argument("--threads", type=int, default=0, help="torch threads (0 = default)")
+    parser.add_argument("--write-docs", action="store_true", help="update docs/benchmarks.md")
     args = parser.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
-    print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, batch {BATCH}")
-    print(
-        "size     | plain loop | fit eager | fit compiled | +batch norm | +augment "
-        "| convnet +augment | compiled/plain | thesis | thesis/ours"
+    when = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
+    header = (
+        f"`.venv/bin/python benchmarks/bench_train.py --images {args.images}"
+        f"{f' --threads {args.threads}' if args.threads else ''}`, {when}, "
+        f"{platform.machine()}, {os.cpu_count()} CPUs, torch {torch.__version__} with "
+        f"{torch.get_num_threads()} threads, batch {BATCH}, load average "
+        f"{os.getloadavg()[0]:.2f} at start. ms per training image."
     )
+    print(header)
+    spec_header = [
+        "size", "plain loop", "fit eager", "fit compiled", "+ batch norm", "+ augment",
+        "convnet + augment", "compiled / plain", "thesis", "thesis / ours (+ augment)",
+    ]  # fmt: skip
+    spec_rows = []
     for size in THESIS_MS:
         plain_loop_ms(size, BATCH)  # warm-up
         plain = plain_loop_ms(size, args.images)
@@ -94,11 +175,53 @@ def main() -> None:
         aug = project_epoch_ms(size, args.images, augment=True, compiled=True, batch_norm=True)
         conv = project_epoch_ms(size, args.images, augment=True, compiled=True, arch="convnet")
         thesis = THESIS_MS[size]
-        print(
-            f"{size[0]}x{size[1]:<4} | {plain:8.2f}ms | {eager:7.2f}ms | {ours:10.2f}ms | "
-            f"{bn:9.2f}ms | {aug:6.2f}ms | {conv:14.2f}ms | {ours / plain:14.2f} | {thesis:4.0f}ms "
-            f"| {thesis / aug:9.1f}x"
+        spec_rows.append(
+            [f"{size[0]}x{size[1]}"]
+            + [f"{v:.2f}" for v in (plain, eager, ours, bn, aug, conv)]
+            + [f"{ours / plain:.2f}x", f"{thesis:.0f}", f"{thesis / aug:.1f}x"]
         )
+        print(" | ".join(spec_rows[-1]))
+    keypoint_ms = {
+        arch: project_epoch_ms((160, 120), args.images, augment=True, compiled=False, arch=arch)
+        for arch in ("keypoint", "keypoint-s2")
+    }
+    key_rows = [
+        [arch, f"{ms:.2f}", f"{THESIS_MS[160, 120] / ms:.1f}x"] for arch, ms in keypoint_ms.items()
+    ]
+    for row in key_rows:
+        print(" | ".join(row))
+    stages, total = recipe_rows(keypoint_ms)
+    lines = [
+        header,
+        "",
+        "The SPEC network (batch norm folded away on export) and the convnet:",
+        "",
+        *table(spec_header, spec_rows),
+        "",
+        "The default's networks at 160x120, eager with augmentation and the corner loss (Adam), "
+        "as their recipes train them:",
+        "",
+        *table(["network", "ms / image", "thesis (71 ms) / ours"], key_rows),
+        "",
+    ]
+    if total is None:
+        lines.append(
+            "The default's recipe was not added up: its data sets are not on this machine "
+            "(runs/default/data; scripts/train_default.sh makes them)."
+        )
+    else:
+        lines += [
+            "The default's recipe (scripts/train_default.sh, stage 2) at these rates: training "
+            "steps only (no validation, data generation, export or evaluation):",
+            "",
+            *table(["recipe", "network", "epochs", "images / epoch", "hours"], stages),
+            "",
+            f"In all {total:.1f} hours of training steps on this machine.",
+        ]
+    print("\n".join(lines[-3:]))
+    if args.write_docs:
+        write_section(DOCS, "bench_train", "Training", lines)
+        print(f"wrote {DOCS}")
 
 
 if __name__ == "__main__":
