@@ -30,6 +30,7 @@ import torch
 import torch.nn.functional as F
 from docs_section import write_section  # benchmarks/, the script's own folder
 
+from train.markdown import table
 from train.network.config import load_config, read_recipe
 from train.network.fit import Augmenter, FitConfig, Split, _optimiser, _train_epoch
 from train.network.model import PoseNet, build_network
@@ -134,14 +135,6 @@ def recipe_rows(ms: dict[str, float]) -> tuple[list[list[str]], float | None]:
         total += hours
         rows.append([name, arch, str(config.epochs), str(per_epoch), f"{hours:.2f}"])
     return rows, total
-
-
-def table(header: list[str], rows: list[list[str]]) -> list[str]:
-    return [
-        "| " + " | ".join(header) + " |",
-        "|" + "---|" * len(header),
-        *("| " + " | ".join(r) + " |" for r in rows),
-    ]
 
 
 def main() -> None:

@@ -145,16 +145,16 @@ def test_resize_runs_a_model_on_the_data_sets_of_another_size(tmp_path):
     data = load_dataset(small, split="test")
     predict, _, _ = onnx_predictor(MODEL)
     direct = evaluate_predictor(predict, data)
-    results = {}
+    results, texts = {}, {}
     for flag in ("--resize", "--no-resize"):
         md = tmp_path / flag / "comparison.md"
         args = ["compare", "--models", str(MODEL), "--datasets", str(small), "--out", str(md)]
         result = runner.invoke(app, [*args, "--peer", "chessboard", flag])
         assert result.exit_code == 0, result.output
         results[flag] = json.loads((md.with_suffix("") / "metrics.json").read_text())["results"]
-        text = md.read_text()
+        texts[flag] = md.read_text()
     resized = results["--resize"]["default"]["chessboard/real-s1-b0"]
     assert resized["count"] == 6 and resized["confusion"] == direct["confusion"]
     assert results["--no-resize"]["default"] == {}  # no set of its size
-    assert "of its input size and its object only" in text  # the last report: --no-resize
-    assert "resized to its input" in (tmp_path / "--resize" / "comparison.md").read_text()
+    assert "of its input size and its object only" in texts["--no-resize"]
+    assert "resized to its input" in texts["--resize"]
