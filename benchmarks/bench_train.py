@@ -121,7 +121,8 @@ def recipe_rows(ms: dict[str, float]) -> tuple[list[list[str]], float | None]:
     """Per stage of the default's recipe: (name, arch, epochs, images per epoch, hours at the
     measured ms per image of its arch: a stage that fine-tunes keeps its parent's); and the
     total hours (None: a data set is missing)."""
-    rows, total, arch = [], 0.0, "spec"
+    rows: list[list[str]] = []
+    total, arch = 0.0, "spec"
     for name in DEFAULT_RECIPE:
         path = ROOT / "recipes" / f"{name}.toml"
         config = load_config(path, {})
