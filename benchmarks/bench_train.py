@@ -5,12 +5,13 @@ Prints ms per training image (forward + backward + optimiser step, batch 64) for
 project's training epoch (`train.network.fit._train_epoch`) on uint8 images in memory: the
 SPEC network at both sizes (eager, compiled, with the batch-norm layers that `planar-pose
 train` adds by default, and that with augmentation), the convnet, and the default's networks
-(`keypoint`, `keypoint-s2` at 160x120, eager with augmentation and the corner loss, as their
-recipes train); a plain eager loop over the SPEC network on pre-made float tensors (the
-reference); the ratios, and the thesis's Torch7 training times (15 ms at 80x60, 71 ms at
-160x120) for scale. Where the recipes' data sets are on this machine (runs/default/data, made
-by scripts/train_default.sh), it also adds up the training images of every stage of the
-default's recipe (epochs x each data set's train split x its repeat) at the measured rate.
+(`keypoint`, `keypoint-s2` at 160x120, eager, with the options of the first recipe stage
+that trains each: optimiser, corner loss, augmentation); a plain eager loop over the SPEC
+network on pre-made float tensors (the reference); the ratios, and the thesis's Torch7
+training times (15 ms at 80x60, 71 ms at 160x120) for scale. Where the recipes' data sets
+are on this machine (runs/default/data, made by scripts/train_default.sh), it also adds up
+the training images of every stage of the default's recipe (epochs x each data set's train
+split x its repeat) at the measured rate.
 
     .venv/bin/python benchmarks/bench_train.py [--images 512] [--threads 2] [--write-docs]
 """
@@ -23,6 +24,7 @@ import datetime as dt
 import os
 import platform
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -87,21 +89,22 @@ def project_epoch_ms(
     compiled: bool,
     batch_norm: bool = False,
     arch: str = "spec",
+    recipe: FitConfig | None = None,
 ) -> float:
     """`train.network.fit._train_epoch` on uint8 images in memory (conversion, augmentation,
-    the corner loss of the networks that have one) -> ms per image.
+    the corner loss of the networks that have one) -> ms per image; with the optimiser, loss
+    weights and augmentation options of `recipe` where given (default: FitConfig's).
 
     With `compiled`, a first epoch compiles and warms up; the second is timed.
     """
     split = _split(size, n)
-    config = FitConfig(datasets=[], out=Path("."), batch_size=BATCH, progress=False)
-    if arch.startswith("keypoint"):  # as the default's recipes train it
-        config.optimizer, config.corner_weight, config.corner_beta = "adam", 5.0, 0.01
+    base = recipe or FitConfig(datasets=[], out=Path("."))
+    config = replace(base, datasets=[], out=Path("."), batch_size=BATCH, progress=False)
     torch.manual_seed(0)
     net = build_network(arch, size, batch_norm).to(memory_format=torch.channels_last)
     opt = _optimiser(config, net)
     step = torch.compile(net) if compiled else net
-    augmenter = Augmenter(size) if augment else None
+    augmenter = Augmenter(size, p_squash=config.squash) if augment else None
     pool = split.pool([])
     if compiled:
         _train_epoch(step, opt, split, pool, config, 1, augmenter)
@@ -117,16 +120,25 @@ def train_images(folder: Path) -> int | None:
         return sum(row["split"] == "train" for row in csv.DictReader(f))
 
 
-def recipe_rows(ms: dict[str, float]) -> tuple[list[list[str]], float | None]:
-    """Per stage of the default's recipe: (name, arch, epochs, images per epoch, hours at the
-    measured ms per image of its arch: a stage that fine-tunes keeps its parent's); and the
-    total hours (None: a data set is missing)."""
-    rows: list[list[str]] = []
-    total, arch = 0.0, "spec"
+def default_stages() -> list[tuple[str, str, FitConfig]]:
+    """The default's recipe stages as (name, network, FitConfig): a stage that fine-tunes
+    without naming its network keeps its parent's."""
+    stages, arch = [], "spec"
     for name in DEFAULT_RECIPE:
         path = ROOT / "recipes" / f"{name}.toml"
-        config = load_config(path, {})
         arch = read_recipe(path).get("arch", arch)
+        stages.append((name, arch, load_config(path, {})))
+    return stages
+
+
+def recipe_rows(
+    stages: list[tuple[str, str, FitConfig]], ms: dict[str, float]
+) -> tuple[list[list[str]], float | None]:
+    """Per stage: (name, network, epochs, images per epoch, hours at the measured ms per
+    image of its network); and the total hours (None: a data set is missing)."""
+    rows: list[list[str]] = []
+    total = 0.0
+    for name, arch, config in stages:
         counts = [train_images(d) for d in config.datasets]
         if any(c is None for c in counts):
             return rows, None
@@ -175,16 +187,22 @@ def main() -> None:
             + [f"{ours / plain:.2f}x", f"{thesis:.0f}", f"{thesis / aug:.1f}x"]
         )
         print(" | ".join(spec_rows[-1]))
+    stages = default_stages()
+    first: dict[str, FitConfig] = {}  # each network's first stage
+    for _, arch, config in stages:
+        first.setdefault(arch, config)
     keypoint_ms = {
-        arch: project_epoch_ms((160, 120), args.images, augment=True, compiled=False, arch=arch)
-        for arch in ("keypoint", "keypoint-s2")
+        arch: project_epoch_ms(
+            (160, 120), args.images, augment=True, compiled=False, arch=arch, recipe=config
+        )
+        for arch, config in first.items()
     }
     key_rows = [
         [arch, f"{ms:.2f}", f"{THESIS_MS[160, 120] / ms:.1f}x"] for arch, ms in keypoint_ms.items()
     ]
     for row in key_rows:
         print(" | ".join(row))
-    stages, total = recipe_rows(keypoint_ms)
+    rows, total = recipe_rows(stages, keypoint_ms)
     lines = [
         header,
         "",
@@ -192,8 +210,8 @@ def main() -> None:
         "",
         *table(spec_header, spec_rows),
         "",
-        "The default's networks at 160x120, eager with augmentation and the corner loss (Adam), "
-        "as their recipes train them:",
+        "The default's networks at 160x120, eager, with the optimiser, corner loss and "
+        "augmentation of the first recipe stage that trains each:",
         "",
         *table(["network", "ms / image", "thesis (71 ms) / ours"], key_rows),
         "",
@@ -208,7 +226,7 @@ def main() -> None:
             "The default's recipe (scripts/train_default.sh, stage 2) at these rates: training "
             "steps only (no validation, data generation, export or evaluation):",
             "",
-            *table(["recipe", "network", "epochs", "images / epoch", "hours"], stages),
+            *table(["recipe", "network", "epochs", "images / epoch", "hours"], rows),
             "",
             f"In all {total:.1f} hours of training steps on this machine.",
         ]
