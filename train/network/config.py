@@ -65,6 +65,12 @@ class FitConfig:
     batch_norm: bool = _opt(True, "spec: train with batch norm, folded away on export.")
     threads: int = _opt(0, "Torch intra-op threads; 0 = torch default.", min=0)
     compile: bool = _opt(False, "torch.compile the training step.")
+    bf16: bool = _opt(
+        False,
+        "Forward and backward passes in bfloat16 (torch.autocast; weights, optimiser, loss and "
+        "evaluation stay float32): about 2x faster on CPUs with AMX (Sapphire Rapids and "
+        "later), slower on CPUs without bfloat16 units.",
+    )
     corner_weight: float = _opt(
         0.5, "convnet, keypoint: weight of the loss on the object's four image corners.", min=0.0
     )

@@ -114,8 +114,15 @@ def _corners(rows: list[dict[str, str]]) -> np.ndarray:
     return out
 
 
+def to_input(images: np.ndarray) -> torch.Tensor:
+    """RGB uint8 [N, H, W, 3] -> float32 [N, 3, H, W] in [0, 1], channels-last in memory."""
+    x = torch.from_numpy(images).permute(0, 3, 1, 2).float().div_(255.0)
+    return x.contiguous(memory_format=torch.channels_last)
+
+
 class Augmenter:
-    """On-the-fly augmentation of a training batch, RGB uint8 [B, H, W, 3] -> same shape.
+    """On-the-fly augmentation of a training batch, RGB uint8 [B, H, W, 3] -> the network's
+    input float32 [B, 3, H, W] in [0, 1].
 
     * blur: an image of a blur-0 data set gets, with probability `p_blur`, a SPEC blur level
       drawn from 1..3 (the same kernels as the data sets, `train.synth.blur`), so that one network
@@ -175,8 +182,9 @@ class Augmenter:
         blur: np.ndarray,
         rng: np.random.Generator,
         corners: np.ndarray | None = None,
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Augmented images [B, H, W, 3] and their corners [B, 8] px (nan if not given)."""
+    ) -> tuple[torch.Tensor, np.ndarray]:
+        """Augmented network input float32 [B, 3, H, W] in [0, 1] (channels-last, as
+        `to_input`) and the corners [B, 8] px (nan if not given)."""
         from train.synth.blur import blur_image
 
         n = len(images)
@@ -189,14 +197,27 @@ class Augmenter:
         )
         for i in np.flatnonzero(levels):
             out[i] = blur_image(out[i], int(levels[i]), self.size)
-        x = out.astype(np.float32)
-        grey = rng.random(n) < self.p_grey
-        x[grey] = x[grey].mean(axis=3, keepdims=True)
-        gain = rng.uniform(0.7, 1.3, (n, 1, 1, 1)) * rng.uniform(0.9, 1.1, (n, 1, 1, 3))
-        mean = x.mean(axis=(1, 2, 3), keepdims=True)
-        x = (x - mean) * gain + mean + rng.uniform(-25, 25, (n, 1, 1, 1))
-        x += rng.standard_normal(x.shape, dtype=np.float32) * rng.uniform(0, 6, (n, 1, 1, 1))
-        return np.clip(x, 0, 255).astype(np.uint8), corners
+        return self.photometric(to_input(out), rng), corners
+
+    def photometric(self, x: torch.Tensor, rng: np.random.Generator) -> torch.Tensor:
+        """The photometric part on the input [B, 3, H, W] in [0, 1], in torch (the noise is
+        most of the augmentation's time in numpy); its parameters, and the seed of the noise,
+        come from `rng`."""
+        n = len(x)
+
+        def per_image(values: np.ndarray) -> torch.Tensor:  # [B] or [B, 3] -> [B, 3 | 1, 1, 1]
+            t = torch.from_numpy(values.astype(np.float32))
+            return t.reshape(n, -1, 1, 1)
+
+        grey = torch.from_numpy(rng.random(n) < self.p_grey).reshape(n, 1, 1, 1)
+        x = torch.where(grey, x.mean(1, keepdim=True), x)
+        gain = per_image(rng.uniform(0.7, 1.3, (n, 1)) * rng.uniform(0.9, 1.1, (n, 3)))
+        shift = per_image(rng.uniform(-25, 25, n) / 255)
+        sigma = per_image(rng.uniform(0, 6, n) / 255)
+        noise = torch.Generator().manual_seed(int(rng.integers(2**62)))
+        mean = x.mean((1, 2, 3), keepdim=True)
+        x = (x - mean) * gain + mean + shift + sigma * torch.randn(x.shape, generator=noise)
+        return x.clamp_(0.0, 1.0).contiguous(memory_format=torch.channels_last)
 
 
 def load_network(path: Path) -> tuple[NormalisedNet, dict[str, Any]]:
@@ -239,12 +260,6 @@ def _schedule(
     if config.schedule == "constant":
         return torch.optim.lr_scheduler.ConstantLR(opt, factor=1.0, total_iters=0)
     raise TrainingError(f"unknown schedule {config.schedule!r} (cosine, step or constant)")
-
-
-def to_input(images: np.ndarray) -> torch.Tensor:
-    """RGB uint8 [N, H, W, 3] -> float32 [N, 3, H, W] in [0, 1], channels-last in memory."""
-    x = torch.from_numpy(images).permute(0, 3, 1, 2).float().div_(255.0)
-    return x.contiguous(memory_format=torch.channels_last)
 
 
 @torch.no_grad()
@@ -464,16 +479,19 @@ def _train_epoch(
         idx = np.sort(order[i : i + config.batch_size])
         images, corners = train.images[idx], train.corners[idx]
         if augmenter is not None:
-            images, corners = augmenter(images, train.blur[idx], rng, corners)
-        x = to_input(images)
+            x, corners = augmenter(images, train.blur[idx], rng, corners)
+        else:
+            x = to_input(images)
         y = torch.from_numpy(train.labels[idx])
-        out = net(x)
+        with torch.autocast("cpu", dtype=torch.bfloat16, enabled=config.bf16):
+            out = net(x)
         if isinstance(out, tuple):  # (log-probabilities, corners) of a net with a corner head
-            out, predicted = out
+            out, predicted = out[0].float(), out[1].float()
             loss = F.nll_loss(out, y) + config.corner_weight * _corner_loss(
                 predicted, corners, x.shape[3], x.shape[2], config.corner_beta, net.corner_order
             )
         else:
+            out = out.float()
             loss = F.nll_loss(out, y)
         opt.zero_grad(set_to_none=True)
         loss.backward()

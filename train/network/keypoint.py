@@ -390,11 +390,16 @@ class KeypointNet(NormalisedNet):
         if not self.training:
             return self.logits(x, pixel_aspect)
         heat, presence = self._encode((x - self.mean) / self.std)
-        q = self._soft_argmax(heat)
-        # the class loss trains the presence logit only; the corners learn from their own loss
-        with torch.no_grad():
-            pk = self._classes_if_present(x, q, pixel_aspect)
-        log_present = F.logsigmoid(presence)[:, None]
-        log_absent = F.logsigmoid(-presence)[:, None]
-        log_p = torch.cat([log_absent, log_present + torch.log(pk.clamp_min(1e-7))], 1)
+        # under a bfloat16 training step (`FitConfig.bf16`) only the encoder runs in bfloat16:
+        # the soft-argmax and the geometry need float32 (in bfloat16 a soft-argmax over
+        # 80x60 positions is up to half a pixel off)
+        with torch.autocast(x.device.type, enabled=False):
+            heat, presence = heat.float(), presence.float()
+            q = self._soft_argmax(heat)
+            # the class loss trains the presence logit only; the corners learn from their own
+            with torch.no_grad():
+                pk = self._classes_if_present(x, q, pixel_aspect)
+            log_present = F.logsigmoid(presence)[:, None]
+            log_absent = F.logsigmoid(-presence)[:, None]
+            log_p = torch.cat([log_absent, log_present + torch.log(pk.clamp_min(1e-7))], 1)
         return log_p, (q * self.px_to_unit - 1.0).reshape(-1, 8)

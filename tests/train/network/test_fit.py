@@ -23,6 +23,7 @@ from train.network.fit import (
     fit,
     load_network,
     load_split,
+    to_input,
 )
 from train.network.model import PoseNet
 
@@ -98,14 +99,28 @@ def test_fine_tuning_starts_from_the_checkpoint(tiny_set, tmp_path):
     assert ckpt["parent"]["checkpoint"].endswith("best.pt")
 
 
+def test_a_bfloat16_run_trains_float32_weights(tiny_set, tmp_path):
+    train, _ = load_split([tiny_set], "train")
+    torch.manual_seed(0)
+    before, _ = evaluate_split(PoseNet((80, 60)), train)
+    fit(_config(tiny_set, tmp_path, epochs=3, augment=False, schedule="constant", bf16=True))
+    net, checkpoint = load_network(tmp_path / "last.pt")
+    assert all(v.dtype == torch.float32 for v in net.state_dict().values() if v.is_floating_point())
+    assert checkpoint["config"]["bf16"] is True
+    assert evaluate_split(net, train)[0] < 0.95 * before
+
+
 def test_augmenter_keeps_shape_and_is_seeded():
     images = np.random.default_rng(0).integers(0, 256, (8, 60, 80, 3), dtype=np.uint8)
     aug = Augmenter((80, 60), p_blur=1.0, p_grey=0.5)
     corners = np.tile(np.array([10, 10, 70, 10, 70, 50, 10, 50], np.float32), (8, 1))
     a, ca = aug(images, np.zeros(8, int), np.random.default_rng(1), corners)
     b, cb = aug(images, np.zeros(8, int), np.random.default_rng(1), corners)
-    assert a.shape == images.shape and a.dtype == np.uint8
-    assert np.array_equal(a, b) and not np.array_equal(a, images) and np.array_equal(ca, cb)
+    assert a.shape == (8, 3, 60, 80) and a.dtype == torch.float32
+    assert float(a.min()) >= 0.0 and float(a.max()) <= 1.0
+    assert torch.equal(a, b) and not torch.equal(a, to_input(images)) and np.array_equal(ca, cb)
+    c, _ = aug(images, np.zeros(8, int), np.random.default_rng(2), corners)
+    assert not torch.equal(a, c)  # another seed, other crops, blur, gains and noise
     moved = np.any(ca != corners, axis=1)  # the cropped (zoomed-in) images
     width, height = ca[:, 2] - ca[:, 0], ca[:, 5] - ca[:, 3]
     assert moved.any() and np.all(width[moved] > 60) and np.all(height[moved] > 40)

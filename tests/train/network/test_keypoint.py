@@ -262,6 +262,18 @@ def test_fit_grows_a_stride_2_network_from_a_keypoint_checkpoint(tmp_path):
     assert grown.heat.weight.shape == (4, 16, 1, 1)
 
 
+def test_a_bfloat16_training_step_keeps_the_corners_and_the_geometry_in_float32():
+    torch.manual_seed(0)
+    net = build_network("keypoint-s2", (160, 120)).train()
+    x = torch.rand(4, 3, 120, 160)
+    log_p, corners = net(x)
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        log_p16, corners16 = net(x)
+    assert log_p16.dtype == corners16.dtype == torch.float32
+    assert (corners16 - corners).abs().max() < 0.01  # [-1, 1] units: under 0.8 px
+    assert torch.isfinite(log_p16).all()
+
+
 def test_solve_spd_matches_a_linear_solver():
     g = torch.Generator().manual_seed(0)
     J = torch.randn(6, 8, 200, generator=g) * torch.tensor([1, 1, 3, 3, 0.3, 0.3, 1, 1.0])[:, None]
