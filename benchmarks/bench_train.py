@@ -6,12 +6,13 @@ project's training epoch (`train.network.fit._train_epoch`) on uint8 images in m
 SPEC network at both sizes (eager, compiled, with the batch-norm layers that `planar-pose
 train` adds by default, and that with augmentation), the convnet, and the default's networks
 (`keypoint`, `keypoint-s2` at 160x120, eager, with the options of the first recipe stage
-that trains each: optimiser, corner loss, augmentation); a plain eager loop over the SPEC
+that trains each: optimiser, corner loss, augmentation; in float32 and with `bf16`, the
+autocast that the recipes ask for); a plain eager loop over the SPEC
 network on pre-made float tensors (the reference); the ratios, and the thesis's Torch7
 training times (15 ms at 80x60, 71 ms at 160x120) for scale. Where the recipes' data sets
 are on this machine (runs/default/data, made by scripts/train_default.sh), it also adds up
 the training images of every stage of the default's recipe (epochs x each data set's train
-split x its repeat) at the measured rate.
+split x its repeat) at the measured rate of its network and precision.
 
     .venv/bin/python benchmarks/bench_train.py [--images 512] [--threads 2] [--write-docs]
 """
@@ -131,11 +132,22 @@ def default_stages() -> list[tuple[str, str, FitConfig]]:
     return stages
 
 
+def bf16_units() -> str:
+    """What the CPU has for bfloat16 (Linux /proc/cpuinfo flags), in words."""
+    try:
+        flags = set(Path("/proc/cpuinfo").read_text().split())
+    except OSError:
+        return "has unknown bfloat16 support"
+    found = [f for f in ("amx_bf16", "avx512_bf16") if f in flags]
+    return f"has {' and '.join(found)}" if found else "has no bfloat16 units"
+
+
 def recipe_rows(
-    stages: list[tuple[str, str, FitConfig]], ms: dict[str, float]
+    stages: list[tuple[str, str, FitConfig]], ms: dict[tuple[str, bool], float]
 ) -> tuple[list[list[str]], float | None]:
     """Per stage: (name, network, epochs, images per epoch, hours at the measured ms per
-    image of its network); and the total hours (None: a data set is missing)."""
+    image of its network in its precision, `ms[arch, bf16]`); and the total hours (None: a
+    data set is missing)."""
     rows: list[list[str]] = []
     total = 0.0
     for name, arch, config in stages:
@@ -144,9 +156,10 @@ def recipe_rows(
             return rows, None
         repeat = config.repeat or [1] * len(counts)
         per_epoch = sum(c * r for c, r in zip(counts, repeat, strict=True) if c is not None)
-        hours = config.epochs * per_epoch * ms[arch] / 3.6e6
+        hours = config.epochs * per_epoch * ms[arch, config.bf16] / 3.6e6
         total += hours
-        rows.append([name, arch, str(config.epochs), str(per_epoch), f"{hours:.2f}"])
+        precision = "bfloat16" if config.bf16 else "float32"
+        rows.append([name, arch, precision, str(config.epochs), str(per_epoch), f"{hours:.2f}"])
     return rows, total
 
 
@@ -192,16 +205,26 @@ def main() -> None:
     for _, arch, config in stages:
         first.setdefault(arch, config)
     keypoint_ms = {
-        arch: project_epoch_ms(
-            (160, 120), args.images, augment=True, compiled=False, arch=arch, recipe=config
+        (arch, bf16): project_epoch_ms(
+            (160, 120),
+            args.images,
+            augment=True,
+            compiled=False,
+            arch=arch,
+            recipe=replace(config, bf16=bf16),
         )
         for arch, config in first.items()
+        for bf16 in (False, True)
     }
-    key_rows = [
-        [arch, f"{ms:.2f}", f"{THESIS_MS[160, 120] / ms:.1f}x"] for arch, ms in keypoint_ms.items()
-    ]
-    for row in key_rows:
-        print(" | ".join(row))
+    key_rows = []
+    for arch, config in first.items():
+        fp32, bf16 = keypoint_ms[arch, False], keypoint_ms[arch, True]
+        recipe_ms = keypoint_ms[arch, config.bf16]
+        key_rows.append(
+            [arch, f"{fp32:.2f}", f"{bf16:.2f}", f"{fp32 / bf16:.2f}x"]
+            + [f"{THESIS_MS[160, 120] / recipe_ms:.1f}x"]
+        )
+        print(" | ".join(key_rows[-1]))
     rows, total = recipe_rows(stages, keypoint_ms)
     lines = [
         header,
@@ -211,9 +234,14 @@ def main() -> None:
         *table(spec_header, spec_rows),
         "",
         "The default's networks at 160x120, eager, with the optimiser, corner loss and "
-        "augmentation of the first recipe stage that trains each:",
+        "augmentation of the first recipe stage that trains each, in float32 and with "
+        f"`bf16` (torch.autocast; this CPU {bf16_units()}):",
         "",
-        *table(["network", "ms / image", "thesis (71 ms) / ours"], key_rows),
+        *table(
+            ["network", "float32", "bfloat16 (`bf16`)", "float32 / bfloat16"]
+            + ["thesis (71 ms) / ours, as the recipe trains"],
+            key_rows,
+        ),
         "",
     ]
     if total is None:
@@ -226,7 +254,7 @@ def main() -> None:
             "The default's recipe (scripts/train_default.sh, stage 2) at these rates: training "
             "steps only (no validation, data generation, export or evaluation):",
             "",
-            *table(["recipe", "network", "epochs", "images / epoch", "hours"], rows),
+            *table(["recipe", "network", "precision", "epochs", "images / epoch", "hours"], rows),
             "",
             f"In all {total:.1f} hours of training steps on this machine.",
         ]
