@@ -226,6 +226,7 @@ def main() -> None:
         )
         print(" | ".join(key_rows[-1]))
     rows, total = recipe_rows(stages, keypoint_ms)
+    _, all_bf16 = recipe_rows([(n, a, replace(c, bf16=True)) for n, a, c in stages], keypoint_ms)
     lines = [
         header,
         "",
@@ -256,7 +257,8 @@ def main() -> None:
             "",
             *table(["recipe", "network", "precision", "epochs", "images / epoch", "hours"], rows),
             "",
-            f"In all {total:.1f} hours of training steps on this machine.",
+            f"In all {total:.1f} hours of training steps on this machine; with `bf16` in "
+            f"every stage {all_bf16:.1f} hours.",
         ]
     print("\n".join(lines[-3:]))
     if args.write_docs:
