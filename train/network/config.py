@@ -68,8 +68,9 @@ class FitConfig:
     bf16: bool = _opt(
         False,
         "Forward and backward passes in bfloat16 (torch.autocast; weights, optimiser, loss and "
-        "evaluation stay float32): about 2x faster on CPUs with AMX (Sapphire Rapids and "
-        "later), slower on CPUs without bfloat16 units.",
+        "evaluation stay float32): on CPUs with AMX (Sapphire Rapids and later) the "
+        "keypoint networks train 1.4-1.6x faster (docs/benchmarks.md); slower on CPUs "
+        "without bfloat16 units.",
     )
     corner_weight: float = _opt(
         0.5, "convnet, keypoint: weight of the loss on the object's four image corners.", min=0.0

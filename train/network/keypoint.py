@@ -396,7 +396,7 @@ class KeypointNet(NormalisedNet):
         with torch.autocast(x.device.type, enabled=False):
             heat, presence = heat.float(), presence.float()
             q = self._soft_argmax(heat)
-            # the class loss trains the presence logit only; the corners learn from their own
+            # the class loss trains the presence logit only; the corners learn from theirs
             with torch.no_grad():
                 pk = self._classes_if_present(x, q, pixel_aspect)
             log_present = F.logsigmoid(presence)[:, None]
