@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import csv
 import datetime as dt
+import functools
 import os
 import platform
 import time
@@ -112,8 +113,10 @@ def project_epoch_ms(
     return _train_epoch(step, opt, split, pool, config, 2, augmenter)["ms_per_image"]
 
 
+@functools.cache
 def train_images(folder: Path) -> int | None:
-    """Images of a data set's train split (labels.csv), None when the set is not here."""
+    """Images of a data set's train split (labels.csv, read once), None when the set is not
+    here."""
     labels = ROOT / folder / "labels.csv"
     if not labels.is_file():
         return None
