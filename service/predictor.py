@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from service.exif import exif_focal
 from service.model import PoseModel
 from service.preprocess import (
     DecodedImage,
@@ -24,7 +25,7 @@ from service.preprocess import (
 )
 from service.proposals import propose_boxes
 from service.regions import region_of_class
-from service.schemas import Box, Detection, ImageResult, Mode, RegionOut
+from service.schemas import Box, Detection, FocalSource, ImageResult, Mode, RegionOut
 from service.settings import Settings
 from service.sliding import (
     BoxGenerator,
@@ -130,15 +131,24 @@ class Predictor:
         return self._whole(images, fx)
 
     def _whole(self, images: Sequence[ImageInput], fx: float | None) -> Prediction:
-        size, inputs, prep, frames = self.model.input_size, [], [], []
+        size, inputs, prep, frames, known = self.model.input_size, [], [], [], []
         for i, image in enumerate(images):
             t0 = time.perf_counter()
             decoded = self._load(i, image, size)
             inputs.append(to_network_input(decoded.rgb, size))
             frames.append(NetworkFrame((decoded.width, decoded.height), size))
+            known.append(self._known_focal(image[1], (decoded.width, decoded.height), fx))
             prep.append(time.perf_counter() - t0)
         aspect = np.array([f.pixel_aspect for f in frames], dtype=np.float32)
-        focal = None if fx is None else np.array([f.input_focal(fx) for f in frames], np.float32)
+        focal = None  # 0 for an image: unknown, estimated (`PoseModel.run`)
+        if any(k is not None for k in known):
+            focal = np.array(
+                [
+                    0.0 if k is None else f.input_focal(k[0])
+                    for f, k in zip(frames, known, strict=True)
+                ],
+                np.float32,
+            )
         t0 = time.perf_counter()
         batch = np.stack(inputs)
         if self.settings.zoom:
@@ -148,12 +158,27 @@ class Predictor:
         probs, corners, infer_s = answer.probabilities, answer.corners, time.perf_counter() - t0
         share = infer_s / len(images)
         results = []
-        for i, (image, p, t) in enumerate(zip(images, probs, prep, strict=True)):
+        for i, (image, p, t, k) in enumerate(zip(images, probs, prep, known, strict=True)):
             result = _result(image[0], int(p.argmax()), p, t + share)
             if corners is not None and result.class_id != 0:
                 result.corners = frames[i].to_image(corners[i]).tolist()
+            if k is not None:
+                result.fx, result.fx_source = k
             results.append(result)
         return Prediction(results, infer_s)
+
+    def _known_focal(
+        self, data: bytes, size: tuple[int, int], fx: float | None
+    ) -> tuple[float, FocalSource] | None:
+        """The focal length (px of an image of `size` (W, H)) the pose uses for it and where it
+        came from: the request's `fx`, else its EXIF's (`exif_focal`), else None (estimated)."""
+        if fx is not None:
+            return fx, "query"
+        if self.settings.exif_focal and self.model.takes_focal:
+            exif_fx = exif_focal(data, size)
+            if exif_fx is not None:
+                return exif_fx, "exif"
+        return None
 
     def _detect(
         self, images: Sequence[ImageInput], boxes_of: BoxGenerator, resolution: float

@@ -7,6 +7,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, Field
 
 Mode = Literal["whole", "sliding", "proposals"]
+FocalSource = Literal["query", "exif"]  # where a known focal length came from
 
 
 class RegionOut(BaseModel):
@@ -55,6 +56,16 @@ class ImageResult(BaseModel):
         "EXIF orientation, pixel centres at integers), in the order (-X,-Y), (+X,-Y), "
         "(+X,+Y), (-X,+Y) of the object frame; with the camera's intrinsics they give the "
         "full pose (e.g. cv2.solvePnP). Else null.",
+    )
+    fx: float | None = Field(
+        default=None,
+        description="Whole mode: the camera's focal length the pose used, in pixels of the "
+        "uploaded image, where it was known; null where the pose estimated it.",
+    )
+    fx_source: FocalSource | None = Field(
+        default=None,
+        description="Where `fx` came from: the request's fx parameter or the photo's EXIF "
+        "35 mm equivalent focal length (service/exif.py); null where it was estimated.",
     )
     elapsed_ms: float = Field(
         description="Decoding and preprocessing this image plus its share of the batched "

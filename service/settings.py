@@ -80,6 +80,11 @@ class Settings(BaseSettings):
         description="With ZOOM: also search all 9 tiles of an image where no board was found "
         "(1 + 9 network inputs for each; off: at most 2 per image, a small board's tile).",
     )
+    exif_focal: bool = Field(
+        default=True,
+        description="Whole mode, models that take a focal length: where a request gives no "
+        "fx, use the one of the photo's EXIF 35 mm equivalent focal length (service/exif.py).",
+    )
     sliding_scales: Annotated[list[float], NoDecode] = Field(
         default_factory=lambda: [1.0, 0.8, 0.65],
         description="Window sizes as fractions of the largest input-aspect window in the image.",

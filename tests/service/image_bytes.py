@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import struct
 import zlib
 
@@ -18,3 +19,22 @@ def png_claiming(w: int, h: int, padding: int = 0) -> bytes:
     ihdr = struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0)
     chunk = struct.pack(">I", 13) + b"IHDR" + ihdr + struct.pack(">I", zlib.crc32(b"IHDR" + ihdr))
     return b"\x89PNG\r\n\x1a\n" + chunk + bytes(padding)
+
+
+def with_exif_focal(
+    image: bytes, f35: int, exif_size: tuple[int, int] | None = None, fmt: str = "PNG"
+) -> bytes:
+    """`image` re-encoded by Pillow as `fmt` (PNG: the same pixels) with EXIF tags: the 35 mm
+    equivalent focal length `f35` (mm) and, if given, the pixel size (W, H) it was taken at."""
+    from PIL import Image
+    from PIL.ExifTags import IFD, Base
+
+    exif = Image.Exif()
+    tags = exif.get_ifd(IFD.Exif)
+    tags[Base.FocalLengthIn35mmFilm] = f35
+    if exif_size is not None:
+        tags[Base.ExifImageWidth], tags[Base.ExifImageHeight] = exif_size
+    out = io.BytesIO()
+    with Image.open(io.BytesIO(image)) as decoded:
+        decoded.save(out, fmt, exif=exif.tobytes())
+    return out.getvalue()

@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
-from image_bytes import png_claiming, with_exif_orientation
+from image_bytes import png_claiming, with_exif_focal, with_exif_orientation
 from service_support import CARD, JPEG, PHOTO, REAL, ROOT, AppFactory, check_answer, encode
 
 from service.deps import get_predictor
@@ -86,6 +86,34 @@ def test_a_known_focal_length_sets_the_distance(client: TestClient) -> None:
     assert near.json()["results"][0]["class_id"] in range(1, 5)
     assert far.json()["results"][0]["class_id"] in range(5, 9)
     assert far.json()["results"][0]["corners"] == plain["corners"]
+
+
+def test_the_photos_exif_focal_length_is_used_where_the_request_gives_none(
+    client: TestClient, app_factory: AppFactory
+) -> None:
+    """The board photo with an EXIF 35 mm equivalent of 87 mm (fx = 1608 px at 640x480) is
+    answered as with fx=1600 (far), and says so; a request's fx wins over the EXIF; sliding
+    mode and POSE_EXIF_FOCAL=false leave the focal length estimated."""
+    data, _ = _board_photo()
+    tagged = with_exif_focal(data, 87, (4000, 3000))
+    png = {"content-type": "image/png"}
+    plain, exif, query, sliding = (
+        client.post("/v1/predict", params=params, content=body, headers=png).json()["results"][0]
+        for body, params in [
+            (data, {}),
+            (tagged, {}),
+            (tagged, {"fx": 200}),
+            (tagged, {"mode": "sliding"}),
+        ]
+    )
+    assert plain["fx"] is None and plain["fx_source"] is None
+    assert exif["fx_source"] == "exif" and exif["fx"] == pytest.approx(87 * 800 / 43.2666, 1e-4)
+    assert exif["class_id"] in range(5, 9) and exif["corners"] == plain["corners"]
+    assert query["fx_source"] == "query" and query["fx"] == 200 and query["class_id"] in range(1, 5)
+    assert sliding["fx"] is None
+    with app_factory(exif_focal=False) as off:
+        ignored = off.post("/v1/predict", content=tagged, headers=png).json()["results"][0]
+    assert ignored["fx"] is None and ignored["probabilities"] == plain["probabilities"]
 
 
 @pytest.mark.parametrize(

@@ -221,17 +221,20 @@ def _prediction_table(predictions: list[Prediction], mode: str) -> Table:
         ("region", "left"),
         ("confidence", "right"),
         ("box x,y wxh", "left"),
+        ("fx px", "right"),
         ("ms", "right"),
     ):
         table.add_column(name, justify=justify)  # type: ignore[arg-type]
     for p in predictions:
         box = f"{p.box.x},{p.box.y} {p.box.w}x{p.box.h}" if p.box else "-"
+        fx = f"{p.fx:.0f} ({p.fx_source})" if p.fx is not None else "-"  # "-": estimated
         table.add_row(
             p.filename or "-",
             str(p.class_id),
             p.label,
             f"{p.confidence:.3f}",
             box,
+            fx,
             f"{p.elapsed_ms:.1f}",
         )
     return table

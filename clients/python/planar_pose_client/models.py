@@ -65,6 +65,14 @@ class Prediction(_Answer):
         description="whole mode, models with corners, object in view: the object's four "
         "corners (x, y) in image pixels, order (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y); else None",
     )
+    fx: float | None = Field(
+        None,
+        description="whole mode: the camera's focal length in image pixels the pose used, "
+        "where it was known; None where the service estimated it",
+    )
+    fx_source: Literal["query", "exif"] | None = Field(
+        None, description="where fx came from: the request's fx= or the photo's EXIF"
+    )
     elapsed_ms: float = Field(ge=0.0, description="time the service spent on this image")
 
     @property

@@ -37,6 +37,8 @@ def test_predict_prints_a_table(service_url, photos):
         assert p.filename in result.stdout and p.label in result.stdout
         assert f"{p.confidence:.3f}" in result.stdout
     assert "3 image(s), mode whole" in result.stdout
+    known = invoke("predict", str(photos[0]), "--fx", "1600", "--url", service_url)
+    assert known.exit_code == 0 and "1600" in known.stdout and "(query)" in known.stdout
 
 
 def test_predict_sends_batches_within_the_service_limit(service_url):

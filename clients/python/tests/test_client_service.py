@@ -90,6 +90,8 @@ def test_a_known_focal_length_reaches_the_service(service_url, photos):
         plain = client.predict(photos[0])
         long_lens = client.predict(photos[0], fx=1600.0)
         assert long_lens.class_id in range(5, 9) and long_lens.corners == plain.corners
+        assert (plain.fx, plain.fx_source) == (None, None)  # the corpus photos have no EXIF
+        assert (long_lens.fx, long_lens.fx_source) == (1600.0, "query")
         with pytest.raises(InvalidRequestError, match="fx: applies to mode=whole only"):
             client.predict(photos[0], mode="sliding", fx=1600.0)
 
