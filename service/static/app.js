@@ -187,9 +187,10 @@ function showAnswer(card, result) {
     : "Object not in view";
   region.dataset.label = result.region.label;
   const where = result.box ? ` · box ${result.box.w}×${result.box.h} at (${result.box.x}, ${result.box.y})` : "";
+  const focal = result.fx != null ? ` · fx ${result.fx.toFixed(0)} px (${result.fx_source})` : "";
   $(".meta", card).textContent =
     `class ${result.class_id} · confidence ${(100 * result.confidence).toFixed(1)} %` +
-    ` · ${result.elapsed_ms.toFixed(1)} ms${where}`;
+    ` · ${result.elapsed_ms.toFixed(1)} ms${where}${focal}`;
   $(".octants", card).replaceChildren(octantPicture(result.class_id));
   $(".bars", card).replaceChildren(probabilityBars(result.probabilities, result.class_id));
   $(".result-error", card).hidden = true;

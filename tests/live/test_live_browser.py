@@ -10,6 +10,7 @@ makes docs/images/web-page.png). Skipped, with the reason, without chromium/chro
 from __future__ import annotations
 
 import base64
+import io
 import json
 import os
 import shutil
@@ -20,6 +21,8 @@ from typing import Any
 import httpx
 import pytest
 from live_support import API_KEY, PHOTO, Server
+from PIL import Image
+from PIL.ExifTags import IFD, Base
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 CHROMEDRIVER = shutil.which("chromedriver") or (
@@ -198,12 +201,25 @@ def test_the_page_answers_a_dropped_photo_like_the_api(
     assert_only_local(browser, server)
 
 
+def with_exif_focal(jpeg: bytes, f35: int) -> bytes:
+    """The JPEG re-encoded by Pillow with an EXIF 35 mm equivalent focal length `f35` (mm)."""
+    exif = Image.Exif()
+    exif.get_ifd(IFD.Exif)[Base.FocalLengthIn35mmFilm] = f35
+    out = io.BytesIO()
+    with Image.open(io.BytesIO(jpeg)) as image:
+        image.save(out, "JPEG", exif=exif.tobytes(), quality=95)
+    return out.getvalue()
+
+
 def test_the_page_outlines_the_board_from_its_corners(browser: WebDriver, server: Server) -> None:
+    """The board outlined from the answer's corners, on a photo with an EXIF 35 mm equivalent
+    focal length, which the page says the pose used."""
     browser.get(server.url + "/")
     wait_for(browser, "#model-card:not([hidden])")
     Select(browser.find_element(By.ID, "mode")).select_by_value("whole")
-    drop_file(browser, PHOTO.read_bytes(), PHOTO.name, "image/jpeg")
+    drop_file(browser, with_exif_focal(PHOTO.read_bytes(), 30), PHOTO.name, "image/jpeg")
     result = wait_for(browser, ".result[data-state='done']")
+    assert "fx 555 px (exif)" in result.find_element(By.CSS_SELECTOR, ".meta").text
     outline = browser.execute_script(  # pixels of the outline's colour (#2ec4b6) on the view
         """const c = arguments[0].querySelector("canvas.view");
         const d = c.getContext("2d").getImageData(0, 0, c.width, c.height).data;
