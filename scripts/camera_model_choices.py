@@ -1,10 +1,12 @@
 """Measure the keypoint network's camera-model constants on the corpus's val (and train)
-sources and write docs/camera_model.md.
+sources and on renders of the SPEC's own camera, and write docs/camera_model.md.
 
 The geometry after the corners has no weights: the focal-length prior, the radial-distortion
-prior and the pixel aspect are choices, made on the real val sources (cameras never used for
-training or test) with the train sources as a second check. This script runs the network once
-per photo (corners, presence, parity), then only the geometry per variant:
+prior, the principal point and the pixel aspect are choices, made on the real val sources
+(cameras never used for training or test) with the train sources and the val split of the
+SPEC-camera renders (`spec-s2-b0..3`, profile `chessboard-spec`) as second checks. This
+script runs the network once per photo (corners, presence, parity), then only the geometry
+per variant:
 
 * class accuracy per split and blur level for camera models (square pixels or the input's
   pixel aspect, radial prior k1);
@@ -13,13 +15,13 @@ per photo (corners, presence, parity), then only the geometry per variant:
   pixel aspect;
 * the val board photos turned to portrait, squashed to 160x120 or turned back first
   (`service.preprocess.NetworkFrame`);
-* the focal-length prior and its weight;
+* the focal-length prior and its weight; the principal point;
 * what limits the answer: the network's corners or the labelled ones, each with the
   self-calibrated camera or with the photo's calibrated one (focal length, principal point,
   k1, pixel aspect from labels.csv), presence from the network.
 
 Usage (after `scripts/train_default.sh`, which makes the run and the data sets; a shipped
-model's ONNX graph works too, e.g. models/default.onnx with `planar-pose corpus sets`):
+model's ONNX graph works too, e.g. models/default.onnx, with the data sets of its step 1):
     .venv/bin/python scripts/camera_model_choices.py \
         runs/default/runs/chessboard-keypoint-s2-160x120-real/best.pt runs/default/data
 """
@@ -30,6 +32,7 @@ import argparse
 import csv
 import sys
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -38,7 +41,7 @@ import torch
 from service.preprocess import NetworkFrame, to_network_input
 from train import REPO_ROOT
 from train.dataset import LoadedDataset, load_dataset
-from train.geometry import pose_class
+from train.geometry import intrinsics, pose_class
 from train.markdown import table, written_by
 from train.network import keypoint
 from train.network.align import square_homography
@@ -49,9 +52,11 @@ from train.real.realset import read_rgb, read_splits
 
 RADIAL = (0.0, -0.1, -0.2, -0.25, -0.3, -0.4)
 DEFAULT_PRIOR_WEIGHT, RADIAL_PRIOR = keypoint.FOCAL_PRIOR_WEIGHT, keypoint.RADIAL_PRIOR
-FOCAL_PRIORS = (0.6, 0.65, 0.7, 0.75, 0.8)  # x the SPEC camera's focal length
+FOCAL_PRIORS = (0.6, 0.7, 0.8, 0.85, 0.9, 0.95, 1.0, 1.1)  # x the SPEC camera's focal length
 PRIOR_WEIGHTS = (0.003, 0.01, 0.1)
 CORPUS = REPO_ROOT / "train/assets/real/corpus"
+SPLITS = ("val", "train", "spec")  # `_caches`: real val and train sources, SPEC-camera renders
+SPLIT_HEADER = ["val sources", "train sources", "SPEC-camera renders (val split)"]
 
 
 class Cached:
@@ -124,23 +129,34 @@ def _set_camera(net: KeypointNet, camera: dict[str, torch.Tensor]) -> None:
 
 
 def _caches(net: KeypointNet, data_dir: Path) -> dict[tuple[str, int], Cached]:
-    """The network's answers on the val and train splits of real-s2-b0..3, by (split, blur)."""
-    return {
+    """The network's answers by (split, blur): the val and train splits of real-s2-b0..3 and,
+    as split "spec", the val split of the SPEC-camera renders spec-s2-b0..3."""
+    cache = {
         (split, b): Cached(net, load_dataset(data_dir / f"real-s2-b{b}", split=split))
         for split in ("val", "train")
         for b in range(4)
     }
+    for b in range(4):
+        cache[("spec", b)] = Cached(net, load_dataset(data_dir / f"spec-s2-b{b}", split="val"))
+    return cache
+
+
+def _cells(cache: dict[tuple[str, int], Cached], accuracy: Any) -> list[str]:
+    """One table cell per split (val, train, spec): `accuracy(cached)` at blur 0 / 1 / 2 / 3
+    and their mean."""
+    cells = []
+    for split in SPLITS:
+        accs = [accuracy(cache[(split, b)]) for b in range(4)]
+        cells.append(" / ".join(f"{a:.1f}" for a in accs) + f" (mean {np.mean(accs):.1f})")
+    return cells
 
 
 def accuracy_table(net: KeypointNet, cache: dict[tuple[str, int], Cached]) -> list[list[str]]:
     rows = []
     for use_aspect in (False, True):
         for k1 in RADIAL:
-            cells = [("pixel aspect" if use_aspect else "square pixels") + f", k1 = {k1:g}"]
-            for split in ("val", "train"):
-                accs = [cache[(split, b)].accuracy(net, use_aspect, k1) for b in range(4)]
-                cells.append(" / ".join(f"{a:.1f}" for a in accs) + f" (mean {np.mean(accs):.1f})")
-            rows.append(cells)
+            name = ("pixel aspect" if use_aspect else "square pixels") + f", k1 = {k1:g}"
+            rows.append([name, *_cells(cache, lambda c, a=use_aspect, k=k1: c.accuracy(net, a, k))])
     net.radial_prior.fill_(keypoint.RADIAL_PRIOR)
     return rows
 
@@ -154,12 +170,26 @@ def focal_prior_table(net: KeypointNet, cache: dict[tuple[str, int], Cached]) ->
         for weight in PRIOR_WEIGHTS:
             net.focal.fill_(spec_f * prior)
             keypoint.FOCAL_PRIOR_WEIGHT = weight  # read by `focal_length` at each call
-            cells = [f"{prior:g} x SPEC, weight {weight:g}"]
-            for split in ("val", "train"):
-                accs = [cache[(split, b)].accuracy(net, True, RADIAL_PRIOR) for b in range(4)]
-                cells.append(" / ".join(f"{a:.1f}" for a in accs) + f" (mean {np.mean(accs):.1f})")
-            rows.append(cells)
+            name = f"{prior:g} x SPEC, weight {weight:g}"
+            rows.append([name, *_cells(cache, lambda c: c.accuracy(net, True, RADIAL_PRIOR))])
     keypoint.FOCAL_PRIOR_WEIGHT = DEFAULT_PRIOR_WEIGHT
+    _set_camera(net, code)
+    return rows
+
+
+def principal_point_table(
+    net: KeypointNet, cache: dict[tuple[str, int], Cached]
+) -> list[list[str]]:
+    """Class accuracy with the principal point at the image centre (the code's) or at the
+    SPEC camera's (80.05, 49.86 at 160x120: where the renders have it)."""
+    code = _camera(net)
+    rows = []
+    for name, point in (
+        ("image centre (the code's)", code["principal"]),
+        ("the SPEC camera's", torch.from_numpy(intrinsics(net.size)[:2, 2]).float()),
+    ):
+        net.principal.copy_(point)
+        rows.append([name, *_cells(cache, lambda c: c.accuracy(net, True, RADIAL_PRIOR))])
     _set_camera(net, code)
     return rows
 
@@ -275,7 +305,8 @@ def main() -> None:
     parser.add_argument("data", type=Path, help="the folder of the real-s2-b0..3 data sets")
     parser.add_argument("--out", type=Path, default=REPO_ROOT / "docs/camera_model.md")
     args = parser.parse_args()
-    for path in (args.checkpoint, *(args.data / f"real-s2-b{b}" for b in range(4))):
+    sets = [args.data / f"{kind}-s2-b{b}" for kind in ("real", "spec") for b in range(4)]
+    for path in (args.checkpoint, *sets):
         if not path.exists():
             sys.exit(f"error: not found: {path} (run scripts/train_default.sh first)")
     try:
@@ -299,7 +330,7 @@ def main() -> None:
         "",
         "## Class accuracy (%) at blur 0 / 1 / 2 / 3",
         "",
-        *table(["camera model", "val sources", "train sources"], accuracy_table(net, cache)),
+        *table(["camera model", *SPLIT_HEADER], accuracy_table(net, cache)),
         "",
         "## The labelled corners of the cameras that are not 4:3 (blur 0)",
         "",
@@ -315,7 +346,15 @@ def main() -> None:
         "",
         f"The code's: {keypoint.FOCAL_PRIOR:g} x SPEC, weight {DEFAULT_PRIOR_WEIGHT:g}.",
         "",
-        *table(["focal prior", "val sources", "train sources"], focal_prior_table(net, cache)),
+        "The renders of the SPEC's own camera (`chessboard-spec`, focal length 1 x) want a "
+        "longer prior than the real cameras: docs/training.md says what was chosen and why.",
+        "",
+        *table(["focal prior", *SPLIT_HEADER], focal_prior_table(net, cache)),
+        "",
+        "## The principal point (the code's focal prior and k1): class accuracy (%) at blur "
+        "0 / 1 / 2 / 3",
+        "",
+        *table(["principal point", *SPLIT_HEADER], principal_point_table(net, cache)),
         "",
         "## What limits the answer: class accuracy (%) at blur 0 / 1 / 2 / 3",
         "",

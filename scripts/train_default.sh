@@ -4,8 +4,9 @@
 # runs under runs/default are reused, so an interrupted run continues where it stopped
 # (`planar-pose train --resume` continues a run from its last epoch).
 #
-#   1. data: free-target renders (training), the SPEC evaluation grid, the level-camera
-#      renders of the SPEC-network models, and the real corpus as data sets (split by source);
+#   1. data: free-target renders (training), the SPEC evaluation grid (corpus-like cameras,
+#      and the SPEC's own camera: profile chessboard-spec), the level-camera renders of the
+#      SPEC-network models, and the real corpus as data sets (split by source);
 #   2. the default model: the keypoint network on renders + real train sources (two stages),
 #      its stride-2 form (keypoint-s2) grown from it, then keypoint-s2 fine-tuned on the real
 #      train sources of the corpus split of 2026-12-02 with the squash crop (keypoint-s2-real),
@@ -46,12 +47,14 @@ train_recipe() {  # NAME: recipes/NAME.toml, resumed if its run folder has a las
 export_model() {  # RUN NAME SIZE NOTES
     $PP export "$R/$1/best.pt" --name "$2" --out-dir models --version "$VERSION" \
         --eval "$D/free-s$3-b0" --eval "$D/free-s$3-b3" --eval "$D/noC-s$3-b0" \
+        --eval "$D/spec-s$3-b0" --eval "$D/spec-s$3-b3" \
         --eval "$D/real-s$3-b0" --eval "$D/real-s$3-b3" --notes "$4"
 }
 
 remeasure() {  # NAME SIZE NOTES: a shipped model measured again on this run's data sets
     $PP export "models/$1.onnx" --name "$1" --out-dir models \
         --eval "$D/free-s$2-b0" --eval "$D/free-s$2-b3" --eval "$D/noC-s$2-b0" \
+        --eval "$D/spec-s$2-b0" --eval "$D/spec-s$2-b3" \
         --eval "$D/real-s$2-b0" --eval "$D/real-s$2-b3" --notes "$3"
 }
 
@@ -61,6 +64,8 @@ for size in 1 2; do
     for blur in 0 1 2 3; do
         make_set "$D/free-s$size-b$blur" free "$size" "$blur" "$N_EVAL" $((2000 + 10 * size + blur))
         make_set "$D/noC-s$size-b$blur" noC "$size" "$blur" "$N_EVAL" $((1000 + 10 * size + blur))
+        make_set "$D/spec-s$size-b$blur" noC "$size" "$blur" "$N_EVAL" $((4000 + 10 * size + blur)) \
+            chessboard-spec
     done
 done
 [ -f "$D/real-s2-b3/manifest.json" ] || $PP corpus sets "$D"
@@ -119,10 +124,10 @@ MODELS=(models/default.onnx
     models/chessboard-noC-{80x60,160x120}.onnx)
 $PP evaluate "${MODELS[@]}" \
     "$D"/real-s{1,2}-b{0,1,2,3} "$D"/free-s{1,2}-b{0,1,2,3} "$D"/noC-s{1,2}-b{0,1,2,3} \
-    --same-size --split test --out docs/results --markdown docs/results.md \
+    "$D"/spec-s{1,2}-b{0,1,2,3} --same-size --split test --out docs/results --markdown docs/results.md \
     --title "Results of the shipped chessboard models" \
     --note "Written by \`planar-pose evaluate\` at the end of \`scripts/train_default.sh\`." \
-    --note "Real sets: the corpus's test sources (train/assets/real/corpus/README.md), never used for training or model selection. Synthetic sets: $N_EVAL renders each, the 20 % test split."
+    --note "Real sets: the corpus's test sources (train/assets/real/corpus/README.md), never used for training or model selection. Synthetic sets: $N_EVAL renders each, the 20 % test split; free and noC: corpus-like cameras (profile chessboard), spec: the SPEC's own camera (profile chessboard-spec)."
 $PP compare $(printf -- "--models %s " "${MODELS[@]}") --peer chessboard --split test --resize \
     $(printf -- "--datasets %s " "$D"/real-s{1,2}-b{0,1,2,3}) --out docs/comparison.md
 $PP catalog models

@@ -27,14 +27,15 @@ with unless asked for another model. Input: `image` float32 [N, 3, H, W], RGB in
 (the object's corners in input pixels, order (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y)).
 
 Accuracy columns are test splits: real = the corpus's test sources (cameras never used for
-training or model selection), free / noC = renders (see docs/data.md), at blur level b.
+training or model selection), free / noC = renders of corpus-like cameras, spec = renders of
+the SPEC's own camera (profile `chessboard-spec`; see docs/data.md), at blur level b.
 
 This page is written by `planar-pose catalog`; do not edit it by hand.
 """
 
 
 #: The card accuracies shown: (data set kind, blur level), as `export --eval` measures them.
-COLUMNS = (("real", 0), ("real", 3), ("free", 0), ("free", 3), ("noC", 0))
+COLUMNS = (("real", 0), ("real", 3), ("free", 0), ("free", 3), ("noC", 0), ("spec", 0), ("spec", 3))
 
 
 def _cell(card: dict[str, Any], key: str) -> str:

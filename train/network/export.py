@@ -130,9 +130,24 @@ def _data_summary(data: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return [{k: d[k] for k in keys if k in d} for d in data]
 
 
-def _io_card(keypoint: bool) -> dict[str, str]:
-    """The card's `input_format` and `output`: the graph's inputs and outputs (module doc)."""
+def _camera_card() -> dict[str, Any]:
+    """The keypoint graph's camera model (`train.network.keypoint`): constants of the geometry
+    after the corners, baked into the graph when it is exported (docs/camera_model.md)."""
+    from train.network import keypoint
+
     return {
+        "focal_prior_x_spec": keypoint.FOCAL_PRIOR,
+        "focal_prior_weight": keypoint.FOCAL_PRIOR_WEIGHT,
+        "focal_bounds_x_spec": list(keypoint.FOCAL_BOUNDS),
+        "radial_k1": keypoint.RADIAL_PRIOR,
+        "principal_point": "image centre",
+    }
+
+
+def _io_card(keypoint: bool) -> dict[str, Any]:
+    """The card's `input_format` and `output`: the graph's inputs and outputs (module doc),
+    and for a keypoint graph its `camera_model`."""
+    return ({"camera_model": _camera_card()} if keypoint else {}) | {
         "input_format": "image: float32 [N, 3, H, W], RGB, values in [0, 1] (portraits turned "
         "a quarter clockwise, resize with area)"
         + (

@@ -153,7 +153,9 @@ def test_a_keypoint_graph_is_regraphed_with_the_zoom_inputs(tmp_path):
     from typer.testing import CliRunner
 
     from train.cli import app
+    from train.network import keypoint
     from train.network.export import recard
+    from train.network.onnx_weights import keypoint_from_onnx
     from train.real.realset import build_real_dataset
 
     old = REPO_ROOT / "models" / "chessboard-keypoint-s2-real-160x120.onnx"
@@ -170,12 +172,19 @@ def test_a_keypoint_graph_is_regraphed_with_the_zoom_inputs(tmp_path):
         "view",
         "focal",
     ]
+    assert card["camera_model"]["focal_prior_x_spec"] == keypoint.FOCAL_PRIOR
     photos = sorted(REAL.glob("*.jpg"))[:4]
     x = np.stack([to_network_input(read_rgb(p), (160, 120)) for p in photos])
+    # the weights answer as before: the same corners as the old graph, and the probabilities
+    # of those weights with this version's camera model
     want = ort.InferenceSession(str(old), providers=["CPUExecutionProvider"]).run(
-        ["probabilities"], {"image": x}
+        ["corners"], {"image": x}
     )[0]
-    assert np.abs(session.run(["probabilities"], {"image": x})[0] - want).max() < 1e-4
+    assert np.abs(session.run(["corners"], {"image": x})[0] - want).max() < 1e-3
+    net, _ = keypoint_from_onnx(old)
+    with torch.no_grad():
+        want = net.eval().logits(torch.from_numpy(x)).exp().numpy()
+    assert np.abs(session.run(["probabilities"], {"image": x})[0] - want).max() < 1e-3
     runner = CliRunner()
     args = ["export", "--name", "x", "--out-dir", str(tmp_path / "cli"), "--regraph"]
     result = runner.invoke(app, [*args, str(tmp_path / "best.pt"), "--eval", str(real)])
