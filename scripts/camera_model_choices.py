@@ -31,8 +31,8 @@ from __future__ import annotations
 import argparse
 import csv
 import sys
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 import cv2
 import numpy as np
@@ -141,7 +141,7 @@ def _caches(net: KeypointNet, data_dir: Path) -> dict[tuple[str, int], Cached]:
     return cache
 
 
-def _cells(cache: dict[tuple[str, int], Cached], accuracy: Any) -> list[str]:
+def _cells(cache: dict[tuple[str, int], Cached], accuracy: Callable[[Cached], float]) -> list[str]:
     """One table cell per split (val, train, spec): `accuracy(cached)` at blur 0 / 1 / 2 / 3
     and their mean."""
     cells = []
