@@ -15,6 +15,7 @@ from typing import Annotated, Any
 import typer
 
 from train.commands.common import fail, guard, out
+from train.markdown import written_by
 
 SPLITS = ("train", "val", "test", "all")
 
@@ -146,7 +147,7 @@ def evaluate(
                 results[names[model]][ds.name] = metrics
                 tqdm.write(f"{names[model]} on {ds.name}: {100 * metrics['accuracy']:.2f} %")
         sources = {names[p]: str(p) for p in models} | {d.name: str(d) for d in datasets}
-        notes = [f"Split: `{split}`. Written by `planar-pose evaluate`."] + list(note or [])
+        notes = [f"Split: `{split}`. " + written_by("planar-pose evaluate")] + list(note or [])
         return write_report(results, out_dir, markdown, title, notes, sources)
 
     report = guard(body)
