@@ -44,18 +44,19 @@ train_recipe() {  # NAME: recipes/NAME.toml, resumed if its run folder has a las
     fi
     touch "$out/done"
 }
+card_evals() {  # SIZE: the --eval options of a model card's accuracies (models/README.md)
+    local set
+    for set in free-s$1-b0 free-s$1-b3 noC-s$1-b0 spec-s$1-b0 spec-s$1-b3 real-s$1-b0 real-s$1-b3; do
+        printf -- "--eval %s " "$D/$set"
+    done
+}
 export_model() {  # RUN NAME SIZE NOTES
     $PP export "$R/$1/best.pt" --name "$2" --out-dir models --version "$VERSION" \
-        --eval "$D/free-s$3-b0" --eval "$D/free-s$3-b3" --eval "$D/noC-s$3-b0" \
-        --eval "$D/spec-s$3-b0" --eval "$D/spec-s$3-b3" \
-        --eval "$D/real-s$3-b0" --eval "$D/real-s$3-b3" --notes "$4"
+        $(card_evals "$3") --notes "$4"
 }
 
 remeasure() {  # NAME SIZE NOTES: a shipped model measured again on this run's data sets
-    $PP export "models/$1.onnx" --name "$1" --out-dir models \
-        --eval "$D/free-s$2-b0" --eval "$D/free-s$2-b3" --eval "$D/noC-s$2-b0" \
-        --eval "$D/spec-s$2-b0" --eval "$D/spec-s$2-b3" \
-        --eval "$D/real-s$2-b0" --eval "$D/real-s$2-b3" --notes "$3"
+    $PP export "models/$1.onnx" --name "$1" --out-dir models $(card_evals "$2") --notes "$3"
 }
 
 # 1. Data.
