@@ -3,8 +3,10 @@ sources and on renders of the SPEC's own camera, and write docs/camera_model.md.
 
 The geometry after the corners has no weights: the focal-length prior, the radial-distortion
 prior, the principal point and the pixel aspect are choices, made on the real val sources
-(cameras never used for training or test) with the train sources and the val split of the
-SPEC-camera renders (`spec-s2-b0..3`, profile `chessboard-spec`) as second checks. This
+(cameras never used for training or test) with the train sources, the val split of the
+SPEC-camera renders (`spec-s2-b0..3`, profile `chessboard-spec`) and that of long-lens renders
+(`tele-s2-b0..3`, profile `chessboard-tele`: 1.2-2 x the SPEC focal length, beyond every
+corpus camera) as second checks. This
 script runs the network once per photo (corners, presence, parity), then only the geometry
 per variant:
 
@@ -15,7 +17,7 @@ per variant:
   pixel aspect;
 * the val board photos turned to portrait, squashed to 160x120 or turned back first
   (`service.preprocess.NetworkFrame`);
-* the focal-length prior and its weight; the principal point;
+* the focal-length prior and its weight; the bounds of the estimate; the principal point;
 * what limits the answer: the network's corners or the labelled ones, each with the
   self-calibrated camera or with the photo's calibrated one (focal length, principal point,
   k1, pixel aspect from labels.csv), presence from the network.
@@ -53,10 +55,17 @@ from train.real.realset import read_rgb, read_splits
 RADIAL = (0.0, -0.1, -0.2, -0.25, -0.3, -0.4)
 DEFAULT_PRIOR_WEIGHT, RADIAL_PRIOR = keypoint.FOCAL_PRIOR_WEIGHT, keypoint.RADIAL_PRIOR
 FOCAL_PRIORS = (0.6, 0.7, 0.8, 0.85, 0.9, 0.95, 1.0, 1.1)  # x the SPEC camera's focal length
-PRIOR_WEIGHTS = (0.003, 0.01, 0.1)
+PRIOR_WEIGHTS = (0.001, 0.003, 0.01, 0.1)
+FOCAL_UPPER = (1.2, 1.5, 2.0)  # upper bounds of the estimate tried, x the SPEC camera's
 CORPUS = REPO_ROOT / "train/assets/real/corpus"
-SPLITS = ("val", "train", "spec")  # `_caches`: real val and train sources, SPEC-camera renders
-SPLIT_HEADER = ["val sources", "train sources", "SPEC-camera renders (val split)"]
+# `_caches`: real val and train sources, SPEC-camera and long-lens renders
+SPLITS = ("val", "train", "spec", "tele")
+SPLIT_HEADER = [
+    "val sources",
+    "train sources",
+    "SPEC-camera renders (val split)",
+    "long-lens renders (val split)",
+]
 
 
 class Cached:
@@ -130,19 +139,22 @@ def _set_camera(net: KeypointNet, camera: dict[str, torch.Tensor]) -> None:
 
 def _caches(net: KeypointNet, data_dir: Path) -> dict[tuple[str, int], Cached]:
     """The network's answers by (split, blur): the val and train splits of real-s2-b0..3 and,
-    as split "spec", the val split of the SPEC-camera renders spec-s2-b0..3."""
+    as splits "spec" and "tele", the val splits of the SPEC-camera renders spec-s2-b0..3 and
+    of the long-lens renders tele-s2-b0..3."""
     cache = {
         (split, b): Cached(net, load_dataset(data_dir / f"real-s2-b{b}", split=split))
         for split in ("val", "train")
         for b in range(4)
     }
-    for b in range(4):
-        cache[("spec", b)] = Cached(net, load_dataset(data_dir / f"spec-s2-b{b}", split="val"))
+    for kind in ("spec", "tele"):
+        for b in range(4):
+            data = load_dataset(data_dir / f"{kind}-s2-b{b}", split="val")
+            cache[(kind, b)] = Cached(net, data)
     return cache
 
 
 def _cells(cache: dict[tuple[str, int], Cached], accuracy: Callable[[Cached], float]) -> list[str]:
-    """One table cell per split (val, train, spec): `accuracy(cached)` at blur 0 / 1 / 2 / 3
+    """One table cell per split (`SPLITS`): `accuracy(cached)` at blur 0 / 1 / 2 / 3
     and their mean."""
     cells = []
     for split in SPLITS:
@@ -191,6 +203,20 @@ def principal_point_table(
         net.principal.copy_(point)
         rows.append([name, *_cells(cache, lambda c: c.accuracy(net, True, RADIAL_PRIOR))])
     _set_camera(net, code)
+    return rows
+
+
+def focal_bounds_table(net: KeypointNet, cache: dict[tuple[str, int], Cached]) -> list[list[str]]:
+    """Class accuracy with the focal-length estimate's upper bound at each of `FOCAL_UPPER`
+    (the code's prior, weight, lower bound and k1)."""
+    spec_f = float(net.focal) / keypoint.FOCAL_PRIOR
+    code = net.focal_bounds.clone()
+    rows = []
+    for upper in FOCAL_UPPER:
+        net.focal_bounds[1] = spec_f * upper
+        name = f"{keypoint.FOCAL_BOUNDS[0]:g}-{upper:g} x SPEC"
+        rows.append([name, *_cells(cache, lambda c: c.accuracy(net, True, RADIAL_PRIOR))])
+    net.focal_bounds.copy_(code)
     return rows
 
 
@@ -305,7 +331,7 @@ def main() -> None:
     parser.add_argument("data", type=Path, help="the folder of the real-s2-b0..3 data sets")
     parser.add_argument("--out", type=Path, default=REPO_ROOT / "docs/camera_model.md")
     args = parser.parse_args()
-    sets = [args.data / f"{kind}-s2-b{b}" for kind in ("real", "spec") for b in range(4)]
+    sets = [args.data / f"{kind}-s2-b{b}" for kind in ("real", "spec", "tele") for b in range(4)]
     for path in (args.checkpoint, *sets):
         if not path.exists():
             sys.exit(f"error: not found: {path} (run scripts/train_default.sh first)")
@@ -350,6 +376,13 @@ def main() -> None:
         "longer prior than the real cameras: docs/training.md says what was chosen and why.",
         "",
         *table(["focal prior", *SPLIT_HEADER], focal_prior_table(net, cache)),
+        "",
+        "## The bounds of the focal-length estimate (the code's prior and weight): class "
+        "accuracy (%) at blur 0 / 1 / 2 / 3",
+        "",
+        f"The code's: {keypoint.FOCAL_BOUNDS[0]:g}-{keypoint.FOCAL_BOUNDS[1]:g} x SPEC.",
+        "",
+        *table(["focal-length bounds", *SPLIT_HEADER], focal_bounds_table(net, cache)),
         "",
         "## The principal point (the code's focal prior and k1): class accuracy (%) at blur "
         "0 / 1 / 2 / 3",

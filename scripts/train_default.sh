@@ -5,8 +5,9 @@
 # (`planar-pose train --resume` continues a run from its last epoch).
 #
 #   1. data: free-target renders (training), the SPEC evaluation grid (corpus-like cameras,
-#      and the SPEC's own camera: profile chessboard-spec), the level-camera renders of the
-#      SPEC-network models, and the real corpus as data sets (split by source);
+#      and the SPEC's own camera: profile chessboard-spec), long-lens renders (profile
+#      chessboard-tele: the camera model's check beyond the corpus's cameras), the level-camera
+#      renders of the SPEC-network models, and the real corpus as data sets (split by source);
 #   2. the default model: the keypoint network on renders + real train sources (two stages),
 #      its stride-2 form (keypoint-s2) grown from it, then keypoint-s2 fine-tuned on the real
 #      train sources of the corpus split of 2026-12-02 with the squash crop (keypoint-s2-real),
@@ -68,6 +69,9 @@ for size in 1 2; do
         make_set "$D/spec-s$size-b$blur" noC "$size" "$blur" "$N_EVAL" $((4000 + 10 * size + blur)) \
             chessboard-spec
     done
+done
+for blur in 0 1 2 3; do  # long lenses: scripts/camera_model_choices.py's fourth check
+    make_set "$D/tele-s2-b$blur" noC 2 "$blur" "$N_EVAL" $((5020 + blur)) chessboard-tele
 done
 [ -f "$D/real-s2-b3/manifest.json" ] || $PP corpus sets "$D"
 

@@ -56,7 +56,8 @@ from train.network.model import NormalisedNet
 SIZE = (160, 120)
 # The focal length (`KeypointNet.focal_length`): Zhang's constraints with a prior. The prior
 # and the bounds are x the SPEC camera's focal length, the weight in the units of the
-# normalised constraints; chosen on the corpus's val sources (class accuracy; docs/training.md).
+# normalised constraints; chosen on the corpus's val and train sources with the SPEC-camera
+# and long-lens renders as second checks (docs/camera_model.md, docs/training.md).
 FOCAL_PRIOR, FOCAL_PRIOR_WEIGHT, FOCAL_BOUNDS = 0.8, 0.01, (0.4, 1.2)
 # The radial distortion k1 the corners are undistorted with before the pose (`undistorted`),
 # in normalised coordinates of the prior camera: the corpus's calibrated train and val
