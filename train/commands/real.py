@@ -181,6 +181,13 @@ def compare(
             "input as the service resizes an upload."
         ),
     ] = False,
+    given_fx: Annotated[
+        bool,
+        typer.Option(
+            help="Also run each model that takes a focal length given the fx of the camera "
+            "the chessboard detector is given (method '<model> + fx')."
+        ),
+    ] = True,
 ) -> None:
     """CNN (onnxruntime) vs the classical peers, per data set, in one run: Markdown + plots."""
     from train.compare.baseline import FEATURE_CHOICES
@@ -216,6 +223,7 @@ def compare(
         tune=tune,
         peers=list(peer or []),
         resize=resize,
+        given_fx=given_fx,
     )
     summary = guard(lambda: run_comparison(config))
     table = Table(title="accuracy %  (ms / image)")

@@ -26,13 +26,15 @@ from train.network.report import band_label
 
 #: The peer the chessboard section is about (`train.compare.peers.peer_name("chessboard")`).
 CHESSBOARD = "opencv-chessboard"
+GIVEN_FX = " + fx"  # name suffix of a model given the detector's focal length (run.py)
 
 
 @dataclass(frozen=True)
 class ReportContext:
     """What every writer may need: the run's settings, the models {name: (path, input size
-    (W, H), card)}, the peers' names, the report's folder (`base`), its data folder and
-    whether models also answered data sets of other sizes (`resize`)."""
+    (W, H), card)}, the peers' names, the report's folder (`base`), its data folder, whether
+    models also answered data sets of other sizes (`resize`) and which models are given the
+    detector's focal length (`given_fx`: `<model> + fx`)."""
 
     split: str
     limit: int
@@ -41,6 +43,7 @@ class ReportContext:
     base: Path
     out_dir: Path
     resize: bool = False
+    given_fx: frozenset[str] = frozenset()
 
 
 def _ms(value: float | None, digits: int = 2) -> str:
@@ -87,6 +90,12 @@ def header_section(ctx: ReportContext) -> list[str]:
         None: "training data not in its card",
     }
     for name, (path, size, card) in ctx.models.items():
+        if name in ctx.given_fx:
+            lines.append(
+                f"* `{name}`: `{name.removesuffix(GIVEN_FX)}` given each image's focal length "
+                "fx, that of the camera the chessboard detector is given (below)."
+            )
+            continue
         lines.append(
             f"* `{name}` ({path}, input {size[0]}x{size[1]}): {tags[finetuned_on_real(card)]}."
         )
@@ -236,7 +245,7 @@ def chessboard_section(ctx: ReportContext, rows: list[dict]) -> list[str]:
         groups.setdefault((r["kind"], r["size"]), []).append(r)
     for (kind, size), group in groups.items():
         models = [m for m in ctx.models if any(m in r["acc"] for r in group)]
-        best = _best_model(group, models)
+        best = _best_model(group, [m for m in models if m not in ctx.given_fx])
         timed = [best] if best is not None else models  # the network the verdict names
         header = ["blur", "n", *(f"{m} %" for m in models), f"{CHESSBOARD} %"]
         header += [f"{best or 'CNN'} ms", f"{CHESSBOARD} ms", "detector / CNN time"]
@@ -258,6 +267,10 @@ def chessboard_section(ctx: ReportContext, rows: list[dict]) -> list[str]:
         lines += [f"### {kind}, {size[0]}x{size[1]}", "", *table(header, body), ""]
         if best is not None:
             lines += [verdict(group, best, CHESSBOARD, models), ""]
+        given = best + GIVEN_FX if best is not None else None
+        if given in models:
+            said = verdict(group, given, CHESSBOARD, models)
+            lines += [f"Given the detector's focal length, {said[0].lower()}{said[1:]}", ""]
     return lines
 
 

@@ -5,7 +5,9 @@ proposals, measured in one run on one machine, so times compare as ratios:
   and object match the data set (with `resize`, of each model of its object: images of
   another size are resized to its input as the service resizes an upload;
   `train.network.evaluate.onnx_predictor` + `evaluate_predictor`: the service's
-  preprocessing, batches of 64) and of each peer
+  preprocessing, batches of 64), with `given_fx` also of each model whose graph takes the
+  camera's focal length given the fx of the camera the chessboard detector is given (method
+  `<model> + fx`), and of each peer
   (`train.compare.peers`: OpenCV's chessboard detector on chessboard sets, the feature
   baseline tuned on the set's val split), ms per image of each and their ratio; on real sets
   whose stored photographs are here, the chessboard detector on those for reference;
@@ -23,11 +25,12 @@ import json
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from tqdm import tqdm
 
+from train.compare.baseline import dataset_cameras
 from train.compare.detection import detection_variants
 from train.compare.peers import (
     PEER_CHOICES,
@@ -37,7 +40,7 @@ from train.compare.peers import (
     run_reference,
 )
 from train.compare.plots import plot_accuracy, plot_times
-from train.compare.report import ReportContext, comparison_markdown
+from train.compare.report import GIVEN_FX, ReportContext, comparison_markdown
 from train.compare.sets import (
     describe,
     encode_png,
@@ -49,10 +52,22 @@ from train.compare.sets import (
 )
 from train.dataset import LoadedDataset
 from train.markdown import pct
-from train.network.evaluate import evaluate_predictor, onnx_predictor
+from train.network.evaluate import evaluate_predictor, model_predictor
 
-#: {model name: (path, predict function, input size (W, H), model card)}.
-Models = dict[str, tuple[Path, Callable[..., Any], tuple[int, int], dict]]
+
+class ModelEntry(NamedTuple):
+    """A compared network: its ONNX file, predict function, input size (W, H), model card,
+    and whether it is given each image's focal length (the `GIVEN_FX` variant)."""
+
+    path: Path
+    predict: Callable[..., Any]
+    size: tuple[int, int]
+    card: dict
+    given_fx: bool = False
+
+
+#: {method name: entry}.
+Models = dict[str, ModelEntry]
 #: {method name: {data set name: metrics}}: the `train.network.report` results layout.
 Results = dict[str, dict[str, dict]]
 
@@ -73,6 +88,7 @@ class CompareConfig:
     tune: bool = True
     peers: list[str] = field(default_factory=list)
     resize: bool = False
+    given_fx: bool = True
 
     def peer_kinds(self) -> list[str]:
         """The peers to run, in order, without repeats; ValueError for an unknown one."""
@@ -83,15 +99,34 @@ class CompareConfig:
         return kinds
 
 
-def load_models(paths: list[Path]) -> Models:
-    """The ONNX models by name (their card's name, else the file stem)."""
+def load_models(paths: list[Path], given_fx: bool = False) -> Models:
+    """The ONNX models by name (their card's name, else the file stem), as the service
+    answers (`model_predictor`: with the zoom pass where the graph serves it); with
+    `given_fx`, each model whose graph takes a focal length also as `<name> + fx`."""
+    from service.model import ModelLoadError, PoseModel
+
     loaded: Models = {}
     for path in paths:
-        predict, size, card = onnx_predictor(path)
-        own = card.get("name")
+        try:
+            model = PoseModel.load(path, intra_op_threads=0)
+        except ModelLoadError as exc:
+            raise ValueError(str(exc)) from None
+        own = model.card.get("name")
         name = own if isinstance(own, str) else path.stem
-        loaded[name] = (path, predict, (int(size[0]), int(size[1])), card)
+        size = (int(model.input_size[0]), int(model.input_size[1]))
+        loaded[name] = ModelEntry(path, model_predictor(model), size, model.card)
+        if given_fx and model.takes_focal:
+            loaded[name + GIVEN_FX] = loaded[name]._replace(given_fx=True)
     return loaded
+
+
+def camera_focal(data: LoadedDataset, width: int) -> np.ndarray:
+    """The fx [N] of the camera the chessboard detector is given for each image of `data`
+    (labels.csv, else the source's calibration, else the SPEC camera), in pixels of a
+    network input `width` pixels wide."""
+    cameras = dataset_cameras(data.path, data.column("file"), data.size)
+    scale = width / data.size[0]
+    return np.array([float(c.K[0, 0]) * scale for c in cameras], np.float32)
 
 
 def _reference(
@@ -130,11 +165,14 @@ def measure_dataset(
     row = {"name": key, **desc, "n": len(data.labels), "acc": {}, "ms": {}, "info": {}}
     row["margin"] = {}
     measured: dict[str, dict] = {}
-    for name, (_, predict, size, card) in models.items():
-        if (tuple(size) != desc["size"] and not config.resize) or not same_object(card, folder):
+    for name, entry in models.items():
+        if (entry.size != desc["size"] and not config.resize) or not same_object(
+            entry.card, folder
+        ):
             continue
+        focal = camera_focal(data, entry.size[0]) if entry.given_fx else None
         with tqdm(total=len(data.labels), desc=f"{name} on {folder.name}") as bar:
-            measured[name] = evaluate_predictor(predict, data, bar.update)
+            measured[name] = evaluate_predictor(entry.predict, data, bar.update, focal)
     for kind in config.peer_kinds():
         out = run_peer_on(data, kind, config.split, config.tune, config.limit, verbose=True)
         if out is not None:
@@ -179,11 +217,13 @@ def measure_detections(config: CompareConfig, models: Models) -> dict[str, dict[
             )
         )
     detections: dict[str, dict[str, dict]] = {}
-    for name, (path, _, _, _) in models.items():
+    for name, entry in models.items():
+        if entry.given_fx:  # the detection variants take no focal length
+            continue
         detections[name] = {}
         for set_name, images, labels, masks in sets:
             tqdm.write(f"detection variants: {name} on {set_name}")
-            detections[name] |= detection_variants(path, images, labels, masks)
+            detections[name] |= detection_variants(entry.path, images, labels, masks)
     return detections
 
 
@@ -208,7 +248,7 @@ def write_outputs(
             f"Split `{config.split}`. Written by `planar-pose compare`; "
             f"summary in {config.markdown.name}."
         ],
-        {n: str(p) for n, (p, _, _, _) in models.items()}
+        {n: str(e.path) for n, e in models.items()}
         | {r["name"]: str(d) for r, d in zip(rows, config.datasets, strict=True)},
     )
     if detections:
@@ -220,11 +260,12 @@ def write_outputs(
     ctx = ReportContext(
         config.split,
         config.limit,
-        {n: (p, s, c) for n, (p, _, s, c) in models.items()},
+        {n: (e.path, e.size, e.card) for n, e in models.items()},
         peers,
         config.markdown.parent,
         out_dir,
         config.resize,
+        frozenset(n for n, e in models.items() if e.given_fx),
     )
     config.markdown.parent.mkdir(parents=True, exist_ok=True)
     config.markdown.write_text(comparison_markdown(ctx, rows, detections, details))
@@ -239,7 +280,7 @@ def run_comparison(config: CompareConfig) -> dict[str, Any]:
     if not config.datasets:
         raise ValueError("give at least one data set")
     config.peer_kinds()  # unknown peers fail before anything is measured
-    models = load_models(config.models)
+    models = load_models(config.models, config.given_fx)
     results: Results = {name: {} for name in models}
     rows: list[dict] = []
     cache: dict[tuple, tuple[str, dict]] = {}

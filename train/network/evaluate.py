@@ -24,8 +24,9 @@ if TYPE_CHECKING:
 
 #: A classifier: RGB uint8 images [N, H, W, 3] at the network's size and their pixel aspect
 #: [N] (`service.preprocess.NetworkFrame.pixel_aspect`: 1 unless a photo was squashed) ->
-#: probabilities float32 [N, 9].
-Predictor = Callable[[np.ndarray, np.ndarray], np.ndarray]
+#: probabilities float32 [N, 9]. A predictor of a graph that takes the camera's focal length
+#: (`model_predictor`) also takes `focal` [N] (px of the input's width, 0: unknown).
+Predictor = Callable[..., np.ndarray]
 
 
 def _ratio(num: float, den: float) -> float | None:
@@ -188,11 +189,13 @@ def model_predictor(model: PoseModel, zoom: bool = True, search: bool = True) ->
     frames with no board found if `search`: POSE_ZOOM, POSE_ZOOM_SEARCH)."""
     from service.zoom import zoomed
 
-    def predict(images: np.ndarray, pixel_aspect: np.ndarray) -> np.ndarray:
+    def predict(
+        images: np.ndarray, pixel_aspect: np.ndarray, focal: np.ndarray | None = None
+    ) -> np.ndarray:
         batch = network_batch(images, model.input_size)
         if zoom:
-            return zoomed(model, batch, pixel_aspect, search).probabilities
-        return model.predict(batch, pixel_aspect)
+            return zoomed(model, batch, pixel_aspect, search, focal).probabilities
+        return model.run(batch, pixel_aspect, focal=focal).probabilities
 
     return predict
 
@@ -233,9 +236,11 @@ def predict_all(
     pixel_aspect: np.ndarray | None = None,
     batch: int = 64,
     progress: Callable | None = None,
+    focal: np.ndarray | None = None,
 ) -> tuple[np.ndarray, float]:
     """Run `predict` over images [N, H, W, 3] and their pixel aspect [N] (None: all 1) in
-    batches -> (probabilities [N, 9], ms / image).
+    batches -> (probabilities [N, 9], ms / image). `focal` [N]: the cameras' focal lengths
+    (px of the network input's width) for a predictor that takes them (None: not given).
 
     The time covers preprocessing and inference, measured with a wall clock.
     """
@@ -243,7 +248,8 @@ def predict_all(
     out = []
     start = time.perf_counter()
     for i in range(0, len(images), batch):
-        out.append(predict(images[i : i + batch], aspect[i : i + batch]))
+        given = {} if focal is None else {"focal": focal[i : i + batch]}
+        out.append(predict(images[i : i + batch], aspect[i : i + batch], **given))
         if progress is not None:
             progress(min(batch, len(images) - i))
     elapsed = time.perf_counter() - start
@@ -252,9 +258,14 @@ def predict_all(
 
 
 def evaluate_predictor(
-    predict: Predictor, data: LoadedDataset, progress: Callable | None = None
+    predict: Predictor,
+    data: LoadedDataset,
+    progress: Callable | None = None,
+    focal: np.ndarray | None = None,
 ) -> dict:
     """Metrics (see `compute_metrics`) of a predictor on a loaded data set (or split): its
-    images, labels, pixel aspect and the camera centres' margins."""
-    probs, ms = predict_all(predict, data.images, data.pixel_aspect(), progress=progress)
+    images, labels, pixel aspect and the camera centres' margins; `focal` as `predict_all`."""
+    probs, ms = predict_all(
+        predict, data.images, data.pixel_aspect(), progress=progress, focal=focal
+    )
     return compute_metrics(data.labels, probs.argmax(axis=1), ms, data.boundary_margin_cm())

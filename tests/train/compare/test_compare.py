@@ -9,13 +9,16 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from service.model import PoseModel
 from train import ASSETS_DIR, REPO_ROOT
 from train.cli import app
 from train.compare.detection import detection_variants
+from train.compare.run import camera_focal
 from train.compare.sets import encode_png
 from train.dataset import load_dataset
 from train.markdown import pct_cell
-from train.network.evaluate import evaluate_predictor, onnx_predictor
+from train.network.evaluate import evaluate_predictor, model_predictor, onnx_predictor
+from train.real.calibration import Calibration
 from train.real.realset import build_real_dataset
 
 SOURCE = ASSETS_DIR / "real" / "chessboard-stereo"
@@ -51,7 +54,7 @@ def test_report_tables_hold_the_measured_numbers(report, real_sets):
     text = report.read_text()
     metrics = json.loads((report.with_suffix("") / "metrics.json").read_text())["results"]
     assert set(metrics) == {
-        "default", "baseline-sift", "opencv-chessboard", "opencv-chessboard@stored"
+        "default", "default + fx", "baseline-sift", "opencv-chessboard", "opencv-chessboard@stored"
     }  # fmt: skip
     for ds in real_sets:
         for name in ("default", "baseline-sift", "opencv-chessboard"):
@@ -88,6 +91,28 @@ def test_report_has_the_chessboard_peer_rows(report, real_sets):
     assert "detector / CNN time" in section and "The detector took" in section
 
 
+def test_given_fx_is_the_model_given_the_detectors_focal_length(report, real_sets):
+    """`default + fx`: the service's answer given each photo's calibrated fx (the source's
+    calibration, in pixels of the network input), which changes the answer; its verdict."""
+    metrics = json.loads((report.with_suffix("") / "metrics.json").read_text())["results"]
+    model = PoseModel.load(MODEL)
+    predict = model_predictor(model)
+    for ds in real_sets:
+        data = load_dataset(ds, split="test")
+        cal = Calibration.load(SOURCE / "calibration.json")  # the source's calibration
+        fx = [cal.for_image(Path(f).name, data.size).K[0, 0] for f in data.column("file")]
+        focal = camera_focal(data, model.input_size[0])
+        assert np.allclose(focal, np.array(fx) * model.input_size[0] / data.size[0])
+        direct = evaluate_predictor(predict, data, focal=focal)
+        assert metrics["default + fx"][f"chessboard/{ds.name}"]["confusion"] == direct["confusion"]
+    images, aspect = data.images, data.pixel_aspect()
+    assert not np.allclose(predict(images, aspect), predict(images, aspect, focal=focal * 3))
+    text = report.read_text()
+    assert "* `default + fx`: `default` given each image's focal length fx" in text
+    assert "Given the detector's focal length, at " in text
+    assert "the network (`default + fx`) is ahead at" in text
+
+
 def test_report_breaks_the_real_photos_down_by_the_cameras_margin(report):
     text = report.read_text()
     metrics = json.loads((report.with_suffix("") / "metrics.json").read_text())["results"]
@@ -119,6 +144,15 @@ def test_whole_mode_matches_the_evaluator(real_sets):
     via_service = detection_variants(MODEL, encode_png(data.images), data.labels)["all"]["whole"]
     assert via_service["confusion"] == direct["confusion"]
     assert np.isclose(via_service["accuracy"], direct["accuracy"])
+
+
+def test_no_given_fx_leaves_the_variant_out(real_sets, tmp_path):
+    md = tmp_path / "c.md"
+    args = ["compare", "--models", str(MODEL), "--datasets", str(real_sets[0]), "--out", str(md)]
+    result = runner.invoke(app, [*args, "--peer", "chessboard", "--no-given-fx"])
+    assert result.exit_code == 0, result.output
+    metrics = json.loads((tmp_path / "c" / "metrics.json").read_text())["results"]
+    assert "default" in metrics and "default + fx" not in metrics
 
 
 def test_cli_errors(real_sets, tmp_path):
