@@ -267,8 +267,7 @@ def chessboard_section(ctx: ReportContext, rows: list[dict]) -> list[str]:
         lines += [f"### {kind}, {size[0]}x{size[1]}", "", *table(header, body), ""]
         if best is not None:
             lines += [verdict(group, best, CHESSBOARD, models), ""]
-        given = best + GIVEN_FX if best is not None else None
-        if given in models:
+        for given in (m for m in models if m in ctx.given_fx):
             said = verdict(group, given, CHESSBOARD, models)
             lines += [f"Given the detector's focal length, {said[0].lower()}{said[1:]}", ""]
     return lines
