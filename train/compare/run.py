@@ -4,7 +4,7 @@ proposals, measured in one run on one machine, so times compare as ratios:
 * per data set (size, blur, synthetic or real): accuracy of each ONNX model whose input size
   and object match the data set (with `resize`, of each model of its object: images of
   another size are resized to its input as the service resizes an upload;
-  `train.network.evaluate.onnx_predictor` + `evaluate_predictor`: the service's
+  `train.network.evaluate.model_predictor` + `evaluate_predictor`: the service's
   preprocessing, batches of 64), with `given_fx` also of each model whose graph takes the
   camera's focal length given the fx of the camera the chessboard detector is given (method
   `<model> + fx`), and of each peer
