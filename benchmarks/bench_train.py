@@ -5,10 +5,10 @@ Prints ms per training image (forward + backward + optimiser step, batch 64) for
 project's training epoch (`train.network.fit._train_epoch`) on uint8 images in memory: the
 SPEC network at both sizes (eager, compiled, with the batch-norm layers that `planar-pose
 train` adds by default, and that with augmentation), the convnet, and the default's networks
-(`keypoint`, `keypoint-s2` at 160x120, eager, with the options of the first recipe stage
-that trains each: optimiser, corner loss, augmentation; in float32 and with `bf16`, the
-autocast that the recipes ask for); a plain eager loop over the SPEC
-network on pre-made float tensors (the reference); the ratios, and the thesis's Torch7
+(`keypoint`, `keypoint-s2` at 160x120, with the options of the first recipe stage that
+trains each: optimiser, corner loss, augmentation; in float32 and with `bf16`, the autocast
+that the recipes ask for; eager, as the recipes train, and compiled); a plain eager loop over
+the SPEC network on pre-made float tensors (the reference); the ratios, and the thesis's Torch7
 training times (15 ms at 80x60, 71 ms at 160x120) for scale. Where the recipes' data sets
 are on this machine (runs/default/data, made by scripts/train_default.sh), it also adds up
 the training images of every stage of the default's recipe (epochs x each data set's train
@@ -207,24 +207,28 @@ def main() -> None:
     first: dict[str, FitConfig] = {}  # each network's first stage
     for _, arch, config in stages:
         first.setdefault(arch, config)
-    keypoint_ms = {
-        (arch, bf16): project_epoch_ms(
+    measured = {  # (arch, bf16, compiled) -> ms per image
+        (arch, bf16, compiled): project_epoch_ms(
             (160, 120),
             args.images,
             augment=True,
-            compiled=False,
+            compiled=compiled,
             arch=arch,
             recipe=replace(config, bf16=bf16),
         )
         for arch, config in first.items()
         for bf16 in (False, True)
+        for compiled in (False, True)
     }
+    keypoint_ms = {(a, bf16): ms for (a, bf16, compiled), ms in measured.items() if not compiled}
     key_rows = []
     for arch, config in first.items():
         fp32, bf16 = keypoint_ms[arch, False], keypoint_ms[arch, True]
         recipe_ms = keypoint_ms[arch, config.bf16]
+        compiled_ms = [measured[arch, b, True] for b in (False, True)]
         key_rows.append(
             [arch, f"{fp32:.2f}", f"{bf16:.2f}", f"{fp32 / bf16:.2f}x"]
+            + [f"{ms:.2f}" for ms in compiled_ms]
             + [f"{THESIS_MS[160, 120] / recipe_ms:.1f}x"]
         )
         print(" | ".join(key_rows[-1]))
@@ -237,12 +241,14 @@ def main() -> None:
         "",
         *table(spec_header, spec_rows),
         "",
-        "The default's networks at 160x120, eager, with the optimiser, corner loss and "
+        "The default's networks at 160x120, with the optimiser, corner loss and "
         "augmentation of the first recipe stage that trains each, in float32 and with "
-        f"`bf16` (torch.autocast; this CPU {bf16_units()}):",
+        f"`bf16` (torch.autocast; this CPU {bf16_units()}), eager (as the recipes train) "
+        "and compiled (`compile = true`: torch.compile of the step, after a warm-up epoch):",
         "",
         *table(
             ["network", "float32", "bfloat16 (`bf16`)", "float32 / bfloat16"]
+            + ["float32 compiled", "bfloat16 compiled"]
             + ["thesis (71 ms) / ours, as the recipe trains"],
             key_rows,
         ),
