@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from train.markdown import pct, table
-from train.network.report import margin_line
+from train.network.report import margin_line, source_table
 
 INTRO = """# Shipped models
 
@@ -57,35 +57,6 @@ def _row(card: dict[str, Any]) -> list[Any]:
     ]
 
 
-SOURCE_HEADER = [
-    "source",
-    "photos",
-    "accuracy",
-    "near/far right",
-    "x/y side right",
-    "fx (x SPEC camera)",
-]
-
-
-def _source_table(sources: dict[str, dict[str, Any]]) -> list[str]:
-    """Markdown rows of a card's `by_source` (`train.network.evaluate.source_breakdown`; "-"
-    where the card has no such figure: cards written before it hold the accuracy only)."""
-    rows = []
-    for name, v in sources.items():
-        focal = v.get("focal_scale")
-        rows.append(
-            [
-                f"`{name}`",
-                v["count"],
-                pct(v["accuracy"]),
-                pct(v.get("distance"), missing="-"),
-                pct(v.get("side"), missing="-"),
-                "-" if focal is None else f"{focal:.2f}",
-            ]
-        )
-    return table(SOURCE_HEADER, rows)
-
-
 def write_catalog(models_dir: Path) -> Path:
     """Write models_dir/README.md from the cards there; return its path."""
     cards = []
@@ -103,7 +74,7 @@ def write_catalog(models_dir: Path) -> Path:
             k: v["by_source"] for k, v in card.get("accuracy", {}).items() if "by_source" in v
         }
         for key, sources in by_source.items():
-            lines += [f"Real test sources, `{key}`:", "", *_source_table(sources), ""]
+            lines += [f"Real test sources, `{key}`:", "", *source_table(sources), ""]
             if line := margin_line(card["accuracy"][key].get("by_margin")):
                 lines += [line, ""]
     stamp = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")

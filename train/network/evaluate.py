@@ -264,8 +264,13 @@ def evaluate_predictor(
     focal: np.ndarray | None = None,
 ) -> dict:
     """Metrics (see `compute_metrics`) of a predictor on a loaded data set (or split): its
-    images, labels, pixel aspect and the camera centres' margins; `focal` as `predict_all`."""
+    images, labels, pixel aspect and the camera centres' margins; `focal` as `predict_all`.
+    A real set (photos with a `source`) also gets `by_source` (`source_breakdown`)."""
     probs, ms = predict_all(
         predict, data.images, data.pixel_aspect(), progress=progress, focal=focal
     )
-    return compute_metrics(data.labels, probs.argmax(axis=1), ms, data.boundary_margin_cm())
+    predicted = probs.argmax(axis=1)
+    metrics = compute_metrics(data.labels, predicted, ms, data.boundary_margin_cm())
+    if by_source := source_breakdown(data.labels, predicted, data.rows):
+        metrics["by_source"] = by_source
+    return metrics

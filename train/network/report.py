@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from service.regions import NUM_CLASSES, region_of_class
-from train.markdown import link, pct_cell, table
+from train.markdown import link, pct, pct_cell, table
 
 CLASS_LABELS = [region_of_class(k)["label"] for k in range(NUM_CLASSES)]
 
@@ -141,6 +141,35 @@ def margin_line(bands: list[dict] | None) -> str:
     )
 
 
+SOURCE_HEADER = [
+    "source",
+    "photos",
+    "accuracy",
+    "detected",
+    "near/far right",
+    "x/y side right",
+    "fx (x SPEC camera)",
+]
+
+
+def source_table(sources: dict[str, dict]) -> list[str]:
+    """Markdown rows of a `by_source` breakdown (`train.network.evaluate.source_breakdown`;
+    "-" where it has no such figure: cards written before it hold the accuracy only)."""
+    rows = []
+    for name, v in sources.items():
+        focal = v.get("focal_scale")
+        rows.append(
+            [
+                f"`{name}`",
+                v["count"],
+                pct(v["accuracy"]),
+                *(pct(v.get(k), missing="-") for k in ("detected", "distance", "side")),
+                "-" if focal is None else f"{focal:.2f}",
+            ]
+        )
+    return table(SOURCE_HEADER, rows)
+
+
 def cell_section(model: str, dataset: str, metrics: dict, image: str) -> list[str]:
     """Markdown details of one (model, data set): summary, per-class table, plot."""
     lines = [
@@ -152,6 +181,7 @@ def cell_section(model: str, dataset: str, metrics: dict, image: str) -> list[st
         "",
         *_regions_line(metrics),
         *([line, ""] if (line := margin_line(metrics.get("by_margin"))) else []),
+        *(["By source:", "", *source_table(s), ""] if (s := metrics.get("by_source")) else []),
     ]
     keys = ("per_class_accuracy", "precision", "recall", "f1")
     body = [

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import csv
 import json
+import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -179,8 +182,22 @@ def model_and_set(tmp_path_factory):
     return onnx_path, root / "best.pt", root / "real"
 
 
+def _with_sources(data: Path, out: Path) -> Path:
+    """A copy of a data set whose photos name their camera (`source`), as the corpus's do."""
+    shutil.copytree(data, out)
+    with (data / "labels.csv").open(newline="") as f:
+        rows = list(csv.DictReader(f))
+    with (out / "labels.csv").open("w", newline="") as f:
+        writer = csv.DictWriter(f, [*rows[0], "source"])
+        writer.writeheader()
+        for row in rows:
+            writer.writerow(row | {"source": "left" if "left" in row["file"] else "right"})
+    return out
+
+
 def test_cli_evaluates_onnx_and_checkpoint_the_same(model_and_set, tmp_path):
     onnx_path, ckpt, data = model_and_set
+    data = _with_sources(data, tmp_path / "real")
     out = tmp_path / "out"
     args = ["evaluate", str(onnx_path), str(ckpt), str(data), "--out", str(out), "--split", "all"]
     result = runner.invoke(app, args)
@@ -193,7 +210,15 @@ def test_cli_evaluates_onnx_and_checkpoint_the_same(model_and_set, tmp_path):
     assert sum(b["count"] for b in onnx_m["by_margin"]) == 26
     assert onnx_m["confusion"] == torch_m["confusion"]
     assert sum(map(sum, onnx_m["confusion"])) == 26
-    assert (out / "report.md").is_file() and (out / "plots" / "grid.png").is_file()
+    # a real set: the breakdown by source (camera), in metrics.json and in the report
+    assert list(onnx_m["by_source"]) == ["left", "right"]
+    assert sum(v["count"] for v in onnx_m["by_source"].values()) == 26
+    assert onnx_m["by_source"] == torch_m["by_source"]
+    report = (out / "report.md").read_text()
+    assert "By source:" in report and "| source | photos | accuracy | detected |" in report
+    for name, v in onnx_m["by_source"].items():
+        assert f"| `{name}` | {v['count']} | {100 * v['accuracy']:.1f} % |" in report
+    assert (out / "plots" / "grid.png").is_file()
 
 
 def test_cli_evaluate_errors(model_and_set, tmp_path):

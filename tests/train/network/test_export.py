@@ -138,8 +138,8 @@ def test_catalog_lists_every_card_with_its_measured_accuracy(tmp_path):
     (models / "tiny.json").write_text(json.dumps(card))
     page = write_catalog(models).read_text()
     assert "| `tiny` | spec | 80x60 |" in page and "| 25.0 % |" in page
-    assert "| `cam-a` | 6 | 33.3 % | 66.7 % | 50.0 % | 1.73 |" in page
-    assert "| `negatives` | 4 | 0.0 % | - | - | - |" in page
+    assert "| `cam-a` | 6 | 33.3 % | 100.0 % | 66.7 % | 50.0 % | 1.73 |" in page
+    assert "| `negatives` | 4 | 0.0 % | - | - | - | - |" in page
     assert "how it was made" in page and "planar-pose catalog" in page
     empty = tmp_path / "empty"
     empty.mkdir()
