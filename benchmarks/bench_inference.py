@@ -32,7 +32,7 @@ from docs_section import write_section  # benchmarks/, the script's own folder
 
 from service.model import PoseModel
 from service.preprocess import to_network_input
-from service.zoom import zoomed
+from service.zoom import detail_of, zoomed
 from train.markdown import table
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -81,7 +81,8 @@ def measure(path: Path, photos: dict[str, np.ndarray], seconds: float, repeat: i
     for kind, photo in photos.items():
 
         def whole(photo: np.ndarray = photo) -> object:
-            return zoomed(model, to_network_input(photo, size)[None], None)
+            detail = [detail_of(photo, size)] if model.zooms else None
+            return zoomed(model, to_network_input(photo, size)[None], None, detail=detail)
 
         row[f"service {kind}"] = best_ms(whole, 1, seconds, repeat)
     return row

@@ -36,7 +36,7 @@ from service.sliding import (
     working_copy,
     working_min_size,
 )
-from service.zoom import zoomed
+from service.zoom import detail_of, zoomed
 
 #: (filename or None, encoded image bytes)
 ImageInput = tuple[str | None, bytes]
@@ -132,10 +132,18 @@ class Predictor:
 
     def _whole(self, images: Sequence[ImageInput], fx: float | None) -> Prediction:
         size, inputs, prep, frames, known = self.model.input_size, [], [], [], []
+        zoom = self.settings.zoom and self.model.zooms
+        detail: list[np.ndarray | None] = []  # the zoom pass's frames at 2x the input size
+        # both sides >= 2 H (libjpeg's reduced decoding keeps them): a photo of 4:3 or wider
+        # keeps the pixels of the zoom's detail; the same with the pass off, so that the
+        # network input is made the same way either way
+        decode = (2 * size[1], 2 * size[1])
         for i, image in enumerate(images):
             t0 = time.perf_counter()
-            decoded = self._load(i, image, size)
+            decoded = self._load(i, image, decode)
             inputs.append(to_network_input(decoded.rgb, size))
+            if zoom:
+                detail.append(detail_of(decoded.rgb, size))
             frames.append(NetworkFrame((decoded.width, decoded.height), size))
             known.append(self._known_focal(image[1], (decoded.width, decoded.height), fx))
             prep.append(time.perf_counter() - t0)
@@ -151,8 +159,8 @@ class Predictor:
             )
         t0 = time.perf_counter()
         batch = np.stack(inputs)
-        if self.settings.zoom:
-            answer = zoomed(self.model, batch, aspect, self.settings.zoom_search, focal)
+        if zoom:
+            answer = zoomed(self.model, batch, aspect, self.settings.zoom_search, focal, detail)
         else:
             answer = self.model.run(batch, aspect, focal=focal)
         probs, corners, infer_s = answer.probabilities, answer.corners, time.perf_counter() - t0

@@ -3,11 +3,13 @@
 The keypoint network finds a board best when it spans about a third of its 160x120 input or
 more; a board 15-40 px wide (a camera 1-2 m away) is often missed or its corners are a pixel
 off, which is enough to flip the x/y side. After the whole-frame pass, each image whose board
-is small or missing gets a second look at half-size tiles of its network input, each enlarged
-2x (bicubic), through the same graph: its `view` input places the tile in the frame, so the
+is small or missing gets a second look at half-size tiles of its frame at twice the input's
+resolution, through the same graph: its `view` input places the tile in the frame, so the
 pose is the frame's camera's, and its `pattern` output (the checker pattern found at the
-corners) says whether the tile holds the board. The tiles come from the network input, not
-from the uploaded photo: the zoom adds no pixels, only a scale the network reads better.
+corners) says whether the tile holds the board. Where the uploaded photo has the pixels (at
+least twice the input size once turned to landscape), a tile is cut from the photo resized
+to twice the input size (`detail_of`): real detail. Otherwise it is the network input's tile
+enlarged 2x (bicubic): no new pixels, only a scale the network reads better.
 
 * board found and inside a tile (`MARGIN_PX` in): that tile, the one centred nearest the
   board; its answer replaces the whole frame's if its pattern says present (>= 0.5);
@@ -26,6 +28,7 @@ import cv2
 import numpy as np
 
 from service.model import Answer, PoseModel
+from service.preprocess import NetworkFrame, to_network_input
 
 GRID = 3  # tiles per axis, half the input's size each, overlapping by half
 MARGIN_PX = 4.0  # input pixels between the board's corners and a tile's edge
@@ -52,6 +55,28 @@ def enlarged(image: np.ndarray, view: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(np.clip(big, 0.0, 1.0).transpose(2, 0, 1))
 
 
+def detail_of(rgb: np.ndarray, size: tuple[int, int]) -> np.ndarray | None:
+    """An uploaded RGB uint8 [H0, W0, 3] -> its frame at twice the input `size` (W, H),
+    float32 [3, 2H, 2W] in [0, 1] (`to_network_input` at that size: turned, resized), or None
+    when it has fewer pixels than that."""
+    w, h = NetworkFrame((rgb.shape[1], rgb.shape[0]), size).upright_size
+    if w < 2 * size[0] or h < 2 * size[1]:
+        return None
+    return to_network_input(rgb, (2 * size[0], 2 * size[1]))
+
+
+def tile_input(image: np.ndarray, view: np.ndarray, detail: np.ndarray | None) -> np.ndarray:
+    """The second look's input at a tile's view (u0, v0, 0.5), float32 [3, H, W]: cut from
+    `detail` (the frame at twice the input size, `detail_of`) where there is one, else the
+    input `image` [3, H, W]'s tile `enlarged`. Both put a pixel's centre at the same place of
+    the frame."""
+    if detail is None:
+        return enlarged(image, view)
+    _, h, w = image.shape
+    u0, v0 = 2 * int(round(view[0])), 2 * int(round(view[1]))
+    return np.ascontiguousarray(detail[:, v0 : v0 + h, u0 : u0 + w])
+
+
 def holding_tile(corners: np.ndarray, views: np.ndarray, size: tuple[int, int]) -> int | None:
     """Corners [4, 2] in input pixels -> the index of the tile that holds them all
     `MARGIN_PX` in, centred nearest them (None: the board is larger than a tile)."""
@@ -76,13 +101,14 @@ def zoomed(
     pixel_aspect: np.ndarray | None,
     search: bool = True,
     focal: np.ndarray | None = None,
+    detail: list[np.ndarray | None] | None = None,
 ) -> Answer:
     """The whole-frame answer of `model` on float32 [N, 3, H, W] in [0, 1] (and its pixel
     aspect [N] and the known focal lengths [N], `PoseModel.run`), with the zoom pass where
     it applies (module doc; `search`: also in all tiles of the images where no board was
-    found) -> `Answer` (probabilities [N, 9], corners
-    [N, 4, 2] in input pixels, pattern [N]). A model without `view` and `pattern`
-    (`PoseModel.zooms`) gives its whole-frame answer."""
+    found; `detail`: per image its frame at twice the input size, or None, `detail_of`) ->
+    `Answer` (probabilities [N, 9], corners [N, 4, 2] in input pixels, pattern [N]). A
+    model without `view` and `pattern` (`PoseModel.zooms`) gives its whole-frame answer."""
     whole = model.run(batch, pixel_aspect, focal=focal)
     if not model.zooms or whole.corners is None or whole.pattern is None:
         return whole
@@ -103,7 +129,10 @@ def zoomed(
     aspect, fx = (
         None if a is None else np.asarray(a, np.float32)[owners] for a in (pixel_aspect, focal)
     )
-    tiles = np.stack([enlarged(batch[i], views[t]) for i, t in zip(owners, looks, strict=True)])
+    sharp = detail or [None] * len(batch)
+    tiles = np.stack(
+        [tile_input(batch[i], views[t], sharp[i]) for i, t in zip(owners, looks, strict=True)]
+    )
     second = model.run(tiles, aspect, views[looks], fx)
     assert second.corners is not None and second.pattern is not None  # model.zooms
     probs, corners, pattern = (

@@ -51,8 +51,10 @@ def triton_client(server: str) -> Iterator[triton.InferenceServerClient]:
 
 
 def network_inputs(size: tuple[int, int]) -> np.ndarray:
-    """PHOTOS preprocessed as the service does in whole mode: float32 [3, 3, H, W]."""
-    return np.stack([to_network_input(load_image(d, min_size=size).rgb, size) for d in PHOTOS])
+    """PHOTOS preprocessed as the service does in whole mode (decoded with both sides at
+    least twice the input height, for the zoom pass's detail): float32 [3, 3, H, W]."""
+    decode = (2 * size[1], 2 * size[1])
+    return np.stack([to_network_input(load_image(d, min_size=decode).rgb, size) for d in PHOTOS])
 
 
 def test_health_and_metadata(triton_client: triton.InferenceServerClient) -> None:

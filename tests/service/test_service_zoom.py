@@ -13,7 +13,15 @@ from service.model import Answer, PoseModel
 from service.predictor import Predictor
 from service.preprocess import load_image, to_network_input
 from service.settings import DEFAULT_MODEL, Settings
-from service.zoom import MARGIN_PX, enlarged, holding_tile, tile_views, zoomed
+from service.zoom import (
+    MARGIN_PX,
+    detail_of,
+    enlarged,
+    holding_tile,
+    tile_input,
+    tile_views,
+    zoomed,
+)
 
 SIZE = (160, 120)
 
@@ -26,10 +34,10 @@ def model() -> PoseModel:
 
 
 class Spy:
-    """A `PoseModel` whose `run` calls are recorded as (N, view)."""
+    """A `PoseModel` whose `run` calls are recorded as (N, view), their inputs in `inputs`."""
 
     def __init__(self, model: PoseModel) -> None:
-        self.model, self.calls = model, []
+        self.model, self.calls, self.inputs = model, [], []
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self.model, name)
@@ -38,6 +46,7 @@ class Spy:
         self, batch: np.ndarray, aspect: Any = None, view: Any = None, focal: Any = None
     ) -> Answer:
         self.calls.append((len(batch), None if view is None else np.array(view)))
+        self.inputs.append(batch)
         return self.model.run(batch, aspect, view, focal)
 
 
@@ -62,6 +71,34 @@ def test_an_enlarged_tile_keeps_the_pixel_centres() -> None:
     inner = (slice(4, -4), slice(4, -4))  # bicubic borders replicate
     assert np.abs(big[0][inner] - want_u[inner]).max() * w < 0.1  # px
     assert np.abs(big[1][inner] - want_v[inner]).max() * h < 0.1
+
+
+def test_a_tile_cut_from_the_upload_keeps_the_pixel_centres() -> None:
+    """A 640x480 upload: the tile cut from its frame at 2x the input size puts each pixel's
+    centre where the enlarged tile does (a linear ramp comes back as that ramp), sharper."""
+    w0, h0 = 640, 480
+    u, v = np.meshgrid(np.arange(w0, dtype=np.float32), np.arange(h0, dtype=np.float32))
+    upload = np.stack([255 * (u + 0.5) / w0, 255 * (v + 0.5) / h0, np.zeros_like(u)], -1)
+    detail = detail_of(upload, SIZE)
+    assert detail is not None and detail.shape == (3, 240, 320) and detail.dtype == np.float32
+    view = tile_views(SIZE)[5]  # (80, 30)
+    tile = tile_input(to_network_input(upload, SIZE), view, detail)
+    assert tile.shape == (3, 120, 160)
+    tu, tv = np.meshgrid(np.arange(160, dtype=np.float32), np.arange(120, dtype=np.float32))
+    want_u = (view[0] + (tu + 0.5) * 0.5) / 160  # the frame's pixel centre, over its width
+    want_v = (view[1] + (tv + 0.5) * 0.5) / 120
+    assert np.abs(tile[0] - want_u).max() * 160 < 0.01  # px of the frame, border included
+    assert np.abs(tile[1] - want_v).max() * 120 < 0.01
+
+
+def test_only_uploads_of_twice_the_input_size_give_detail() -> None:
+    assert detail_of(np.zeros((120, 160, 3), np.uint8), SIZE) is None  # the input's size
+    assert detail_of(np.zeros((239, 640, 3), np.uint8), SIZE) is None  # too few rows
+    portrait = detail_of(np.zeros((640, 480, 3), np.uint8), SIZE)  # turned to landscape
+    assert portrait is not None and portrait.shape == (3, 240, 320)
+    image = np.zeros((3, 120, 160), np.float32)
+    view = tile_views(SIZE)[0]
+    assert np.array_equal(tile_input(image, view, None), enlarged(image, view))
 
 
 def test_the_holding_tile_is_the_nearest_centred_one_with_margin() -> None:
@@ -141,3 +178,20 @@ def test_the_zoom_setting_switches_the_pass_off(model: PoseModel) -> None:
         spy = Spy(model)
         Predictor(spy, Settings(zoom_search=search)).predict([(None, blank)], "whole")  # type: ignore[arg-type]
         assert [n for n, _ in spy.calls] == calls
+
+
+def test_the_service_cuts_the_tile_from_a_large_upload(model: PoseModel) -> None:
+    """A 640x480 photo with a small board: the second look's input is the tile of the upload
+    at 2x the input size, not the enlarged network input."""
+    photo = cv2.imdecode(np.frombuffer(PHOTO, np.uint8), cv2.IMREAD_COLOR)
+    frame = np.full((480, 640, 3), 128, np.uint8)
+    frame[120:360, 160:480] = cv2.resize(photo, (320, 240), interpolation=cv2.INTER_AREA)
+    png = cv2.imencode(".png", frame)[1].tobytes()
+    spy = Spy(model)
+    result = Predictor(spy, Settings()).predict([(None, png)], "whole").results[0]  # type: ignore[arg-type]
+    assert [n for n, _ in spy.calls] == [1, 1] and result.class_id != 0
+    rgb = cv2.cvtColor(frame, cv2.COLOR_BGR2RGB)
+    view = spy.calls[1][1][0]
+    sharp = tile_input(to_network_input(rgb, SIZE), view, detail_of(rgb, SIZE))
+    assert np.allclose(spy.inputs[1][0], sharp, atol=1e-6)
+    assert not np.allclose(spy.inputs[1][0], enlarged(to_network_input(rgb, SIZE), view), atol=0.02)

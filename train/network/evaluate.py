@@ -186,15 +186,17 @@ def onnx_predictor(
 def model_predictor(model: PoseModel, zoom: bool = True, search: bool = True) -> Predictor:
     """A `Predictor` on a `service.model.PoseModel`, as the service's whole mode answers:
     the service's preprocessing, then the graph (with the zoom pass if `zoom`, its search of
-    frames with no board found if `search`: POSE_ZOOM, POSE_ZOOM_SEARCH)."""
-    from service.zoom import zoomed
+    frames with no board found if `search`: POSE_ZOOM, POSE_ZOOM_SEARCH; its tiles cut from
+    images of at least twice the input size, `service.zoom.detail_of`)."""
+    from service.zoom import detail_of, zoomed
 
     def predict(
         images: np.ndarray, pixel_aspect: np.ndarray, focal: np.ndarray | None = None
     ) -> np.ndarray:
         batch = network_batch(images, model.input_size)
         if zoom:
-            return zoomed(model, batch, pixel_aspect, search, focal).probabilities
+            detail = [detail_of(image, model.input_size) for image in images]
+            return zoomed(model, batch, pixel_aspect, search, focal, detail).probabilities
         return model.run(batch, pixel_aspect, focal=focal).probabilities
 
     return predict
