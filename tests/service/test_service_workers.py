@@ -108,9 +108,9 @@ def test_ready_only_when_every_worker_has_its_models(
 ) -> None:
     runtime = tmp_path / "runtime"
     with app_factory(ready="/healthz", workers=2, runtime_dir=runtime) as c:
-        for _ in range(500):
-            if (runtime / "ready").is_dir() and any((runtime / "ready").iterdir()):
-                break
+        deadline = time.monotonic() + 60  # a loaded machine takes seconds to load a model
+        while not ((runtime / "ready").is_dir() and any((runtime / "ready").iterdir())):
+            assert time.monotonic() < deadline, "no worker became ready within 60 s"
             time.sleep(0.01)
         r = c.get("/readyz")
         assert r.status_code == 503 and "1 of 2 workers" in r.json()["error"]["message"]
