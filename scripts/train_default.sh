@@ -19,12 +19,13 @@
 #   3. with CONVNET=1 also the convnet (stage 1 on renders, stage 2 on renders + real train
 #      sources), with SPEC=1 the SPEC-network models A (80x60) and C (160x120); otherwise the
 #      shipped ones are measured again on this run's data sets;
-#      With BF16=1 every training step runs in bfloat16 (`planar-pose train --bf16`): the
-#      default's four stages in 1 h 56 min on this 2-core machine instead of ~2.7 h
-#      (recipes/README.md); the shipped models were trained in float32;
 #   4. export to models/ (ONNX + card with accuracies measured on the exported graph), the
 #      evaluation grid (docs/results.md), the comparison with the chessboard detector
 #      (docs/comparison.md) and models/README.md.
+#
+# With BF16=1 every training step runs in bfloat16 (`planar-pose train --bf16`): the
+# default's four stages in 1 h 56 min on this 2-core machine instead of ~2.7 h
+# (recipes/README.md); the shipped models were trained in float32.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PP=${PP:-.venv/bin/planar-pose}
@@ -39,14 +40,11 @@ make_set() {  # OUT VARIANT SIZE BLUR COUNT SEED [PROFILE]
         --count "$5" --seed "$6" --profile "${7:-chessboard}"
 }
 train_recipe() {  # NAME: recipes/NAME.toml, resumed if its run folder has a last.pt
-    local out=$R/$1 precision=()
+    local out=$R/$1 flags=()
     [ -f "$out/done" ] && return
-    [ "${BF16:-0}" = 1 ] && precision=(--bf16)
-    if [ -f "$out/last.pt" ]; then
-        $PP train --config "recipes/$1.toml" "${precision[@]}" --resume
-    else
-        $PP train --config "recipes/$1.toml" "${precision[@]}"
-    fi
+    [ "${BF16:-0}" = 1 ] && flags+=(--bf16)
+    [ -f "$out/last.pt" ] && flags+=(--resume)
+    $PP train --config "recipes/$1.toml" "${flags[@]}"
     touch "$out/done"
 }
 card_evals() {  # SIZE: the --eval options of a model card's accuracies (models/README.md)
