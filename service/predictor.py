@@ -36,7 +36,7 @@ from service.sliding import (
     working_copy,
     working_min_size,
 )
-from service.zoom import detail_of, zoomed
+from service.zoom import detail_decode_size, detail_of, zoomed
 
 #: (filename or None, encoded image bytes)
 ImageInput = tuple[str | None, bytes]
@@ -134,10 +134,8 @@ class Predictor:
         size, inputs, prep, frames, known = self.model.input_size, [], [], [], []
         zoom = self.settings.zoom and self.model.zooms
         detail: list[np.ndarray | None] = []  # the zoom pass's frames at 2x the input size
-        # both sides >= 2 H (libjpeg's reduced decoding keeps them): a photo of 4:3 or wider
-        # keeps the pixels of the zoom's detail; the same with the pass off, so that the
-        # network input is made the same way either way
-        decode = (2 * size[1], 2 * size[1])
+        # decoded the same with the pass off, so that the network input is made the same way
+        decode = detail_decode_size(size)
         for i, image in enumerate(images):
             t0 = time.perf_counter()
             decoded = self._load(i, image, decode)

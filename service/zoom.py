@@ -55,6 +55,13 @@ def enlarged(image: np.ndarray, view: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(np.clip(big, 0.0, 1.0).transpose(2, 0, 1))
 
 
+def detail_decode_size(size: tuple[int, int]) -> tuple[int, int]:
+    """The least size (W, H) to decode an upload at for an input of `size` (W, H): both sides
+    at least twice the input height, so that a photo of 4:3 or wider, once turned to
+    landscape, keeps the pixels of `detail_of` (libjpeg's reduced decoding keeps them)."""
+    return (2 * size[1], 2 * size[1])
+
+
 def detail_of(rgb: np.ndarray, size: tuple[int, int]) -> np.ndarray | None:
     """An uploaded RGB uint8 [H0, W0, 3] -> its frame at twice the input `size` (W, H),
     float32 [3, 2H, 2W] in [0, 1] (`to_network_input` at that size: turned, resized), or None

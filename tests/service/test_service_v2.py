@@ -18,6 +18,7 @@ from service_support import CARD, OTHER_MODELS, REAL, SERVE, card_of
 from tritonclient.utils import InferenceServerException
 
 from service.preprocess import load_image, to_network_input
+from service.zoom import detail_decode_size
 
 PHOTOS = [(REAL / name).read_bytes() for name in ("left01.jpg", "right05.jpg", "left12.jpg")]
 SIZE = tuple(CARD["input"])  # the default model's (W, H)
@@ -53,7 +54,7 @@ def triton_client(server: str) -> Iterator[triton.InferenceServerClient]:
 def network_inputs(size: tuple[int, int]) -> np.ndarray:
     """PHOTOS preprocessed as the service does in whole mode (decoded with both sides at
     least twice the input height, for the zoom pass's detail): float32 [3, 3, H, W]."""
-    decode = (2 * size[1], 2 * size[1])
+    decode = detail_decode_size(size)
     return np.stack([to_network_input(load_image(d, min_size=decode).rgb, size) for d in PHOTOS])
 
 
