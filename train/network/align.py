@@ -17,11 +17,19 @@ equations are solved by 8 steps of conjugate gradients, `solve_spd`), so it expo
              homography), r = g - a T - b; (J J' + damping diag) d = -J r, |d| <= max_step px
     guard    an image keeps the aligned corners where they moved at most `max_move` px and
              raised |corr(g, T)|; otherwise its corners come back unchanged
+    lens     given a `Lens`, a ninth parameter: the radial distortion k1 of the camera. The
+             corners are then where the image shows them (distorted), the homography maps
+             the unit square onto them undistorted (`Lens.undistort`) and the points it
+             projects are distorted again (`Lens.distort`), so the bend of the board's
+             lines in the image tells k1; a normal prior around the lens's k1 (sd
+             `radial_sd`, weighed against the fit's residual variance) holds it where the
+             image says little (a small or blurred board)
 """
 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -78,6 +86,37 @@ def solve_spd(A: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     return x
 
 
+class Lens(NamedTuple):
+    """One radial coefficient k1 about a principal point, in an image's pixels. Point p
+    [..., 2] px has normalised coordinates x = (p - centre) * scale (square pixels over the
+    focal length); an image point x_d is undistorted to x_u = x_d / (1 + k1 |x_d|^2) (the map
+    the pose uses, `KeypointNet.undistorted`), and `distort` is its exact inverse. Tensors are
+    per image [N, ...]; points [N, ..., 2] and k1 broadcastable to the points' [N, ..., 1]."""
+
+    centre: torch.Tensor  # [N, 2] px: the principal point
+    scale: torch.Tensor  # [N, 2] px -> normalised coordinates along u and v
+    k1: torch.Tensor  # [N] the prior: where a fit starts and what it is drawn to
+
+    def _frame(self, p: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        shape = (p.shape[0],) + (1,) * (p.dim() - 2) + (2,)
+        return self.centre.reshape(shape), self.scale.reshape(shape)
+
+    def distort(self, p: torch.Tensor, k1: torch.Tensor) -> torch.Tensor:
+        """Undistorted points [N, ..., 2] px -> where the image shows them: x_d = x_u 2 / (1 +
+        sqrt(1 - 4 k1 |x_u|^2)), the root of |x_u| = |x_d| / (1 + k1 |x_d|^2) that is |x_u|
+        near the centre (clamped where a pincushion lens has none)."""
+        c, s = self._frame(p)
+        x = (p - c) * s
+        root = (1 - 4 * k1 * (x * x).sum(-1, keepdim=True)).clamp_min(0.0).sqrt()
+        return x * 2 / (1 + root) / s + c
+
+    def undistort(self, p: torch.Tensor, k1: torch.Tensor) -> torch.Tensor:
+        """Image points [N, ..., 2] px -> undistorted, x_d / (1 + k1 |x_d|^2)."""
+        c, s = self._frame(p)
+        x = (p - c) * s
+        return x / (1 + k1 * (x * x).sum(-1, keepdim=True)) / s + c
+
+
 def _blurred_wave(u: np.ndarray, sigma: float) -> np.ndarray:
     """The square wave +1 on [0, 1), -1 on [1, 2), ... (squares) blurred by a Gaussian of
     `sigma` squares, at positions u [K] -> [K]."""
@@ -98,7 +137,8 @@ def _gaussian_kernel(sigma: float) -> torch.Tensor:
 class CheckerAlign(nn.Module):
     """The alignment above for images of `size` (W, H) px and a board of `squares` (along x,
     y), `per_square` points per square and axis; `steps` Gauss-Newton steps (0: corners
-    returned unchanged)."""
+    returned unchanged). With a `Lens`, k1 is fitted too (prior sd `radial_sd`, within
+    `k1_range`, at most `max_k1_step` per step)."""
 
     def __init__(
         self,
@@ -112,9 +152,15 @@ class CheckerAlign(nn.Module):
         max_step: float = 1.0,
         max_move: float = 8.0,
         damping: float = 1e-2,
+        radial_sd: float = 0.1,
+        k1_range: tuple[float, float] = (-0.6, 0.3),
+        max_k1_step: float = 0.1,
+        k1_min_corr: float = 0.3,
     ) -> None:
         super().__init__()
         self.steps, self.max_step, self.max_move, self.damping = steps, max_step, max_move, damping
+        self.radial_sd, self.k1_range, self.max_k1_step = radial_sd, k1_range, max_k1_step
+        self.k1_min_corr = k1_min_corr
         axes = []
         for n in squares:
             k = round((n - 2 * inset) * per_square)
@@ -132,6 +178,8 @@ class CheckerAlign(nn.Module):
         )
         # the 8 corner coordinates, one at a time: finite differences of the homography
         self.register_buffer("basis", torch.eye(8).reshape(8, 4, 2), persistent=False)
+        # the k1 entry of the 9 parameters (its prior's place in the normal equations)
+        self.register_buffer("k1_axis", torch.eye(9)[8], persistent=False)
 
     def _image(self, x: torch.Tensor) -> torch.Tensor:
         """RGB [N, 3, H, W] in [0, 1] -> blurred grey, d/du, d/dv [N, 3, H, W]."""
@@ -145,19 +193,34 @@ class CheckerAlign(nn.Module):
         gv = 0.5 * (p[:, :, 2:, 1:-1] - p[:, :, :-2, 1:-1])
         return torch.cat([g, gu, gv], 1)
 
-    def _fit(
-        self, image: torch.Tensor, q: torch.Tensor
-    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Image [N, 3, H, W] (grey, gradients), corners [N, 4, 2] -> the image values minus
-        the fitted template r [N, P], the projected Jacobian J [N, 8, P], corr(g, T) [N],
-        the in-image mask [N, P]."""
-        n, h, w = image.shape[0], image.shape[2], image.shape[3]
-        eps = 0.05
+    def _points(
+        self, q: torch.Tensor, lens: Lens | None, k1: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Corners [N, 4, 2] (and k1 [N]) -> the board's points in the image [N, P, 2] and
+        their derivatives [N, 8 or 9, P, 2] by the 8 corner coordinates (and k1), by finite
+        differences."""
+        n, eps, eps_k1 = q.shape[0], 0.05, 0.01
         # the corners, then each of their 8 coordinates moved by eps: [N, 9, 4, 2]
         qe = torch.cat([q[:, None], q[:, None] + eps * self.basis[None]], 1)
-        uve = project(square_homography(qe.reshape(-1, 4, 2)), self.st).reshape(n, 9, -1, 2)
-        uv = uve[:, 0]  # [N, P, 2]
-        duv = (uve[:, 1:] - uv[:, None]) / eps  # [N, 8, P, 2]
+        if lens is None:
+            uve = project(square_homography(qe.reshape(-1, 4, 2)), self.st).reshape(n, 9, -1, 2)
+            return uve[:, 0], (uve[:, 1:] - uve[:, :1]) / eps
+        # ... and k1 moved by eps_k1: [N, 10, 4, 2], k1 per set [N, 10, 1, 1]
+        qe = torch.cat([qe, q[:, None]], 1)
+        ke = torch.cat([k1[:, None].expand(n, 9), k1[:, None] + eps_k1], 1)[:, :, None, None]
+        H = square_homography(lens.undistort(qe, ke).reshape(-1, 4, 2))
+        uve = lens.distort(project(H, self.st).reshape(n, 10, -1, 2), ke)
+        steps = torch.cat([torch.full((8,), eps), torch.full((1,), eps_k1)]).to(q)
+        return uve[:, 0], (uve[:, 1:] - uve[:, :1]) / steps[None, :, None, None]
+
+    def _fit(
+        self, image: torch.Tensor, q: torch.Tensor, lens: Lens | None, k1: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Image [N, 3, H, W] (grey, gradients), corners [N, 4, 2] (and k1 [N] with a `lens`)
+        -> the image values minus the fitted template r [N, P], the projected Jacobian J
+        [N, 8 or 9, P], corr(g, T) [N], the in-image mask [N, P]."""
+        h, w = image.shape[2], image.shape[3]
+        uv, duv = self._points(q, lens, k1)
         grid = ((uv + 0.5) * self.px_to_unit - 1.0).clamp(-2.0, 2.0)[:, None]  # [N, 1, P, 2]
         sampled = F.grid_sample(image, grid, align_corners=False, padding_mode="border")[:, :, 0]
         g, gu, gv = sampled[:, 0], sampled[:, 1], sampled[:, 2]  # [N, P]
@@ -169,32 +232,50 @@ class CheckerAlign(nn.Module):
         tt = (tc * tc).sum(1, keepdim=True).clamp_min(1e-9)
         gain = (tc * gc).sum(1, keepdim=True) / tt
         r = gc - gain * tc
-        J = gu[:, None] * duv[..., 0] + gv[:, None] * duv[..., 1]  # [N, 8, P]
+        J = gu[:, None] * duv[..., 0] + gv[:, None] * duv[..., 1]  # [N, 8 or 9, P]
         Jc = (J - (J * m[:, None]).sum(2, keepdim=True) / count[:, None]) * m[:, None]
         Jp = Jc - (Jc * tc[:, None]).sum(2, keepdim=True) / tt[:, None] * tc[:, None]
         gg = (gc * gc).sum(1) + 1e-6 * count[:, 0]  # a flat image correlates with nothing
         corr = (tc * gc).sum(1) / (tt[:, 0] * gg).sqrt()
         return r, Jp, corr, m
 
-    def forward(self, x: torch.Tensor, q: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """RGB [N, 3, H, W] in [0, 1] and corners [N, 4, 2] px (either half-turn order) ->
-        aligned corners [N, 4, 2] px (same order) and corr(image, checker) [N] at them
-        (> 0: the order is the true one)."""
+    def forward(
+        self, x: torch.Tensor, q: torch.Tensor, lens: Lens | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """RGB [N, 3, H, W] in [0, 1], corners [N, 4, 2] px (either half-turn order) and the
+        camera's `lens` (None: no distortion) -> aligned corners [N, 4, 2] px (same order),
+        corr(image, checker) [N] at them (> 0: the order is the true one) and the lens's k1
+        [N] (the prior where the image kept its corners; 0 without a lens)."""
         image = self._image(x)
-        r, J, corr0, _ = self._fit(image, q)
+        k0 = torch.zeros_like(q[:, 0, 0]) if lens is None else lens.k1 * torch.ones_like(q[:, 0, 0])
+        corr0 = self._fit(image, q, None, k0)[2]
+        # k1 is fitted only where the pattern is plain to start with; elsewhere (a blurred or
+        # tiny board) the corners align without distortion and the lens keeps its prior
+        fitted = (corr0.abs() > self.k1_min_corr).to(q.dtype)
+        k1 = k0 * fitted
         start = q
-        eye = torch.eye(8, dtype=q.dtype)[None]
-        for step in range(self.steps):
-            if step:
-                r, J, _, _ = self._fit(image, q)
+        eye = torch.eye(8 if lens is None else 9, dtype=q.dtype)[None]
+        for _ in range(self.steps):
+            r, J, _, m = self._fit(image, q, lens, k1)
+            if lens is not None:  # k1's column only where it is fitted
+                J = J * (1 - (1 - fitted)[:, None] * self.k1_axis)[:, :, None]
             A = J @ J.transpose(1, 2)
             A = A + self.damping * A * eye + 1e-6 * eye
-            d = -solve_spd(A, (J * r[:, None]).sum(2))
-            q = q + d.clamp(-self.max_step, self.max_step).reshape(-1, 4, 2)
-        corr = self._fit(image, q)[2] if self.steps else corr0
+            b = (J * r[:, None]).sum(2)
+            if lens is not None:  # the prior N(k0, radial_sd^2), weighed by the residual variance
+                noise = (r * r).sum(1) / m.sum(1).clamp_min(1.0)
+                weight = (fitted * noise / self.radial_sd**2)[:, None]
+                A = A + weight[:, :, None] * self.k1_axis[:, None] * self.k1_axis
+                b = b + weight * (k1 - k0)[:, None] * self.k1_axis
+            d = -solve_spd(A, b)
+            q = q + d[:, :8].clamp(-self.max_step, self.max_step).reshape(-1, 4, 2)
+            if lens is not None:
+                k1 = (k1 + d[:, 8].clamp(-self.max_k1_step, self.max_k1_step)).clamp(*self.k1_range)
+        corr = self._fit(image, q, lens, k1)[2] if self.steps else corr0
         moved = (q - start).norm(dim=2).amax(1)
         keep = (moved <= self.max_move) & (corr.abs() > corr0.abs())
         return (
             torch.where(keep[:, None, None], q, start),
             torch.where(keep, corr, corr0),
+            torch.where(keep & (fitted > 0), k1, k0),
         )

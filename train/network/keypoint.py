@@ -49,7 +49,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from train.geometry import intrinsics
-from train.network.align import CheckerAlign, square_homography
+from train.network.align import CheckerAlign, Lens, square_homography
 from train.network.convnet import _conv
 from train.network.model import NormalisedNet
 
@@ -79,6 +79,7 @@ class Observation(NamedTuple):
     parity: torch.Tensor  # [N] in [-1, 1], > 0 when that order is the object's
     present: torch.Tensor  # [N] P(present): the presence logit or'ed with `pattern`
     pattern: torch.Tensor  # [N] P(present) from the checker pattern at the corners alone
+    k1: torch.Tensor  # [N] the lens's radial distortion the alignment fitted (`lens`)
 
 
 def _block(cin: int, cout: int) -> nn.Sequential:
@@ -233,14 +234,25 @@ class KeypointNet(NormalisedNet):
         """Pixel aspect [N] -> the (u, v) scale [N, 2] to square pixels of the input's width."""
         return torch.stack([torch.ones_like(pixel_aspect), 1 / pixel_aspect], 1)
 
-    def undistorted(self, q: torch.Tensor, pixel_aspect: torch.Tensor) -> torch.Tensor:
-        """Corners [N, 4, 2] px -> the same corners without the radial distortion k1 =
-        `radial_prior` of the prior camera (first-order inverse x_u = x_d / (1 + k1 r_d^2),
-        normalised coordinates of the prior focal length, square pixels)."""
-        scale = (self._to_square(pixel_aspect) / self.focal)[:, None, :]  # [N, 1, 2]
-        xd = (q - self.principal) * scale
-        r2 = (xd * xd).sum(2, keepdim=True)
-        return xd / (1 + self.radial_prior * r2) / scale + self.principal
+    def lens(self, pixel_aspect: torch.Tensor, view: torch.Tensor | None = None) -> Lens:
+        """The prior camera's radial lens (`radial_prior`, normalised coordinates of the prior
+        focal length, square pixels) in pixels of the input: the frame's, or (`view` [N, 3],
+        `answer`) those of the crop of the frame the input is."""
+        centre = self.principal.expand(pixel_aspect.shape[0], 2)
+        scale = self._to_square(pixel_aspect) / self.focal
+        if view is not None:
+            centre = (centre - view[:, :2] + 0.5) / view[:, 2:] - 0.5
+            scale = scale * view[:, 2:]
+        return Lens(centre, scale, self.radial_prior * torch.ones_like(pixel_aspect))
+
+    def undistorted(
+        self, q: torch.Tensor, pixel_aspect: torch.Tensor, k1: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        """Corners [N, 4, 2] px -> the same corners without the lens's radial distortion:
+        `k1` [N] (fitted by the alignment, `observe`; None: the prior `radial_prior`), in
+        normalised coordinates of the prior focal length (`lens`)."""
+        lens = self.lens(pixel_aspect)
+        return lens.undistort(q, (lens.k1 if k1 is None else k1)[:, None, None])
 
     def centred_homography(self, H_unit: torch.Tensor, pixel_aspect: torch.Tensor) -> torch.Tensor:
         """Unit-square homography [N, 3, 3] and pixel aspect [N] -> the object-plane (cm)
@@ -318,15 +330,16 @@ class KeypointNet(NormalisedNet):
         parity: torch.Tensor,
         pixel_aspect: torch.Tensor | None,
         focal: torch.Tensor | None = None,
+        k1: torch.Tensor | None = None,
     ) -> torch.Tensor:
         """Corners [N, 4, 2] px, their parity [N], the pixel aspect [N] (None: square
-        pixels) and the known focal length [N] (px of the input's width, 0 or None: unknown,
-        `focal_length`) -> P(class 1..8 | object present) [N, 8] (camera centre of the
-        undistorted corners, mixed over the two half-turn readings)."""
+        pixels), the known focal length [N] (px of the input's width, 0 or None: unknown,
+        `focal_length`) and the lens's k1 [N] (None: the prior, `undistorted`) -> P(class
+        1..8 | object present) [N, 8] (camera centre of the undistorted corners, mixed over
+        the two half-turn readings)."""
         order_ok = torch.sigmoid(self.parity_gain * parity)
-        # [N] from [N] or [1] (the exported graph's default)
-        aspect = torch.ones_like(parity) * (1.0 if pixel_aspect is None else pixel_aspect)
-        H = square_homography(self.undistorted(q, aspect))
+        aspect = self._aspect(parity, pixel_aspect)
+        H = square_homography(self.undistorted(q, aspect, k1))
         return self.class_probabilities(self.camera_centre(H, aspect, focal), order_ok)
 
     def _classes_if_present(
@@ -336,15 +349,28 @@ class KeypointNet(NormalisedNet):
         P(class 1..8 | object present) [N, 8] (`pose_classes` with the corners' parity)."""
         return self.pose_classes(q, self.parity(x, square_homography(q)), pixel_aspect)
 
-    def observe(self, x: torch.Tensor) -> Observation:
-        """RGB [N, 3, H, W] in [0, 1] -> what the image says before the camera model
-        (`Observation`)."""
+    @staticmethod
+    def _aspect(like: torch.Tensor, pixel_aspect: torch.Tensor | None) -> torch.Tensor:
+        """The pixel aspect [N] from [N], [1] (the exported graph's default) or None (1)."""
+        return torch.ones_like(like) * (1.0 if pixel_aspect is None else pixel_aspect)
+
+    def observe(
+        self,
+        x: torch.Tensor,
+        pixel_aspect: torch.Tensor | None = None,
+        view: torch.Tensor | None = None,
+    ) -> Observation:
+        """RGB [N, 3, H, W] in [0, 1], its pixel aspect [N] and where it lies in the frame
+        (`view`, as `answer`) -> what the image says before the pose (`Observation`; corners
+        in input pixels)."""
         heat, presence = self._encode((x - self.mean) / self.std)
-        q, corr = self.align(x, self._soft_argmax(heat))
+        lens = self.lens(self._aspect(x[:, 0, 0, 0], pixel_aspect), view)
+        q, corr, k1 = self.align(x, self._soft_argmax(heat), lens)
         parity = self.parity(x, square_homography(q))
         # the checker pattern found at the corners is evidence of the board on its own
         pattern = torch.sigmoid(PATTERN_SLOPE * (corr.abs() - PATTERN_CORR))
-        return Observation(q, parity, 1 - (1 - torch.sigmoid(presence)) * (1 - pattern), pattern)
+        present = 1 - (1 - torch.sigmoid(presence)) * (1 - pattern)
+        return Observation(q, parity, present, pattern, k1)
 
     def answer(
         self,
@@ -363,11 +389,11 @@ class KeypointNet(NormalisedNet):
         back), the aligned corners [N, 4, 2] in frame pixels, in the object's order (-X,-Y),
         (+X,-Y), (+X,+Y), (-X,+Y) as the parity reads it (meaningless where the object is
         not in view), and P(present) [N] from the checker pattern alone (`Observation`)."""
-        seen = self.observe(x)
+        seen = self.observe(x, pixel_aspect, view)
         q = seen.corners
         if view is not None:
             q = view[:, None, :2] + (q + 0.5) * view[:, None, 2:] - 0.5
-        pk = self.pose_classes(q, seen.parity, pixel_aspect, focal)
+        pk = self.pose_classes(q, seen.parity, pixel_aspect, focal, seen.k1)
         present = seen.present[:, None]
         log_p = torch.log(torch.cat([1 - present, present * pk], 1).clamp_min(1e-7))
         corners = torch.where(seen.parity[:, None, None] >= 0, q, torch.roll(q, 2, 1))

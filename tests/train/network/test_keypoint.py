@@ -178,13 +178,16 @@ def test_the_exported_graph_decodes_like_torch(stride):
     with torch.no_grad():
         want = net(torch.from_numpy(x)).exp().numpy()
         q = net.corners(torch.from_numpy(x)).numpy()
-    assert np.abs(q[0] - corners).max() < 0.5  # the peaks, aligned
+    # the peaks, aligned (with the lens fit, which the prior k1 of -0.2 draws a little away
+    # from this undistorted image's 0)
+    assert np.abs(q[0] - corners).max() < 0.6
     session = ort.InferenceSession(onnx_bytes(net), providers=["CPUExecutionProvider"])
     assert [o.name for o in session.get_outputs()] == ["probabilities", "corners", "pattern"]
     got, got_corners, pattern = session.run(None, {"image": x})
     assert pattern.shape == (3,) and pattern.min() > 0.5  # the checker is found
     assert np.abs(got - want).max() < 1e-4
-    assert got_corners.shape == (3, 4, 2) and np.abs(got_corners - q).max() < 1e-3
+    # (float32 rounding of two runtimes, through the Gauss-Newton steps: 1.4e-3 px seen)
+    assert got_corners.shape == (3, 4, 2) and np.abs(got_corners - q).max() < 5e-3
     assert got.shape == (3, 9) and np.allclose(got.sum(1), 1.0, atol=1e-5)
     present = got[0, 1:] / got[0, 1:].sum()
     assert int(present.argmax()) + 1 == 4  # near, x+, y-
@@ -207,7 +210,8 @@ def test_the_exported_graph_decodes_like_torch(stride):
     view = np.tile(np.array([[40.0, 30.0, 0.5]], np.float32), (3, 1))
     tiled, tiled_corners, _ = session.run(None, {"image": x, "view": view})
     origin = np.array([40.0, 30.0], np.float32)  # (u0, v0): x from u0, y from v0
-    assert np.abs(tiled_corners - (origin + (got_corners + 0.5) * 0.5 - 0.5)).max() < 1e-3
+    # (up to the lens fit, whose distortion is about the frame's centre, not the tile's)
+    assert np.abs(tiled_corners - (origin + (got_corners + 0.5) * 0.5 - 0.5)).max() < 0.05
     assert np.abs(tiled - got).max() > 1e-3
     with torch.no_grad():
         log_p, want_corners, _ = net.answer(torch.from_numpy(x), None, torch.from_numpy(view))
@@ -293,19 +297,38 @@ def test_alignment_moves_the_corners_onto_the_board(blur):
     off = torch.tensor([[1.8, -1.2], [-1.5, -1.6], [-1.0, 1.9], [1.7, 1.1]])
     q = torch.from_numpy(corners).float()[None] + off
     align = CheckerAlign((160, 120))
-    got, corr = align(x, q)
+    got, corr, _ = align(x, q)
     assert (got[0] - torch.from_numpy(corners).float()).norm(dim=1).max() < 0.4
     assert float(corr) > 0.7
     # the half-turned order aligns too, and its correlation tells the half turn
-    got_turned, corr_turned = align(x, torch.roll(q, 2, 1))
+    got_turned, corr_turned, _ = align(x, torch.roll(q, 2, 1))
     assert torch.allclose(got_turned, torch.roll(got, 2, 1), atol=0.05)
     assert float(corr_turned) < -0.7
 
 
+@pytest.mark.parametrize("k1", [-0.45, 0.0, 0.2])
+def test_alignment_fits_the_lens_distortion(k1):
+    """A board seen through a lens of radial distortion k1: the fit (started at the prior
+    -0.2) finds k1, and its corners are where the image shows them."""
+    net = KeypointNet()
+    corners = _view(net, (14.0, -10.0, 38.0), 20.0)
+    lens = net.lens(torch.ones(1))
+    # the image: every pixel shows the undistorted board where `Lens.undistort` sends it
+    v, u = np.mgrid[0:120, 0:160].astype(np.float32)
+    grid = torch.from_numpy(np.stack([u, v], -1))[None]
+    source = lens.undistort(grid, torch.tensor(k1)).numpy()[0]
+    image = cv2.remap(_board_image(corners), source[..., 0], source[..., 1], cv2.INTER_LINEAR)
+    truth = lens.distort(torch.from_numpy(corners).float()[None], torch.tensor(k1))
+    off = torch.tensor([[1.2, -0.8], [-1.0, -1.1], [-0.7, 1.3], [1.1, 0.8]])
+    got, corr, fitted = net.align(_input(image), truth + off, lens)
+    assert abs(float(fitted) - k1) < 0.1
+    assert (got[0] - truth[0]).norm(dim=1).max() < 0.8 and float(corr) > 0.7
+
+
 def test_alignment_gives_back_the_corners_without_a_board():
     q = torch.tensor([[[40.0, 30.0], [120.0, 32.0], [118.0, 90.0], [42.0, 88.0]]])
-    got, corr = CheckerAlign((160, 120))(torch.full((1, 3, 120, 160), 0.5), q)
-    assert torch.equal(got, q) and abs(float(corr)) < 1e-3
+    got, corr, k1 = CheckerAlign((160, 120))(torch.full((1, 3, 120, 160), 0.5), q)
+    assert torch.equal(got, q) and abs(float(corr)) < 1e-3 and float(k1) == 0.0
 
 
 def test_the_corners_come_in_the_object_order_whatever_the_heat_maps_say():
