@@ -69,27 +69,35 @@ SPLIT_HEADER = [
 
 
 class Cached:
-    """The network's part of the answer on one data set split (`KeypointNet.observe`):
-    aligned corners [N, 4, 2], their parity [N], P(present) [N]; pixel aspect [N], labels [N]
-    and the labels.csv rows."""
+    """The network's part of the answer on one data set split (`KeypointNet.observe`, with
+    each image's pixel aspect): aligned corners [N, 4, 2], their parity [N], P(present) [N],
+    the lens's k1 the alignment fitted [N]; pixel aspect [N], labels [N] and the labels.csv
+    rows."""
 
     def __init__(self, net: KeypointNet, data: LoadedDataset) -> None:
         x = to_input(data.images)
-        with torch.no_grad():
-            parts = [net.observe(x[i : i + 128]) for i in range(0, len(x), 128)]
-        self.q, self.parity, self.present = (
-            torch.cat([getattr(p, f) for p in parts]) for f in ("corners", "parity", "present")
-        )
         self.aspect = torch.from_numpy(data.pixel_aspect())
+        with torch.no_grad():
+            parts = [
+                net.observe(x[i : i + 128], self.aspect[i : i + 128]) for i in range(0, len(x), 128)
+            ]
+        self.q, self.parity, self.present, self.k1 = (
+            torch.cat([getattr(p, f) for p in parts])
+            for f in ("corners", "parity", "present", "k1")
+        )
         self.labels = data.labels
         self.rows = data.rows
 
-    def accuracy(self, net: KeypointNet, use_aspect: bool, k1: float) -> float:
-        """Class accuracy (%) with the camera model (pixel aspect or square pixels, k1)."""
-        net.radial_prior.fill_(k1)
+    def accuracy(self, net: KeypointNet, use_aspect: bool, k1: float | None = None) -> float:
+        """Class accuracy (%) with the camera model (pixel aspect or square pixels; k1 fixed,
+        or None: each image's fitted k1, the code's)."""
+        if k1 is not None:
+            net.radial_prior.fill_(k1)
         aspect = self.aspect if use_aspect else torch.ones_like(self.aspect)
         with torch.no_grad():
-            pk = net.pose_classes(self.q, self.parity, aspect)
+            fitted = self.k1 if k1 is None else None
+            pk = net.pose_classes(self.q, self.parity, aspect, None, fitted)
+        net.radial_prior.fill_(RADIAL_PRIOR)
         return self._percent(pk)
 
     def _percent(self, pk: torch.Tensor) -> float:
@@ -100,9 +108,9 @@ class Cached:
 
     def accuracy_from(self, net: KeypointNet, labelled: bool, calibrated: bool) -> float:
         """Class accuracy (%) from the network's corners or (`labelled`) the labelled ones
-        in the object's order, with the code's self-calibrated camera or (`calibrated`) each
-        photo's calibrated one (labels.csv: fx, fy, cx, cy, k1 in network pixels; the
-        self-calibrated one where a row has none)."""
+        in the object's order, with the code's self-calibrated camera (and the k1 the
+        alignment fitted) or (`calibrated`) each photo's calibrated one (labels.csv: fx, fy,
+        cx, cy, k1 in network pixels; the self-calibrated one where a row has none)."""
         corners = torch.from_numpy(_corners(self.rows).reshape(-1, 4, 2))
         pk = torch.zeros(len(self.rows), 8)
         code = _camera(net)
@@ -110,16 +118,16 @@ class Cached:
             q, parity = self.q[i : i + 1], self.parity[i : i + 1]
             if labelled and bool(torch.isfinite(corners[i]).all()):
                 q, parity = corners[i : i + 1], torch.ones(1)
-            aspect = self.aspect[i : i + 1]
+            aspect, k1 = self.aspect[i : i + 1], self.k1[i : i + 1]
             if calibrated and row.get("fx"):
                 fx, fy = float(row["fx"]), float(row["fy"])
                 net.self_calibrate.fill_(0.0)
                 net.focal.fill_(fx)
                 net.principal.copy_(torch.tensor([float(row["cx"]), float(row["cy"])]))
                 net.radial_prior.fill_(float(row.get("k1") or 0.0))
-                aspect = torch.tensor([fy / fx])
+                aspect, k1 = torch.tensor([fy / fx]), None
             with torch.no_grad():
-                pk[i] = net.pose_classes(q, parity, aspect)[0]
+                pk[i] = net.pose_classes(q, parity, aspect, None, k1)[0]
             _set_camera(net, code)
         return self._percent(pk)
 
@@ -169,7 +177,8 @@ def accuracy_table(net: KeypointNet, cache: dict[tuple[str, int], Cached]) -> li
         for k1 in RADIAL:
             name = ("pixel aspect" if use_aspect else "square pixels") + f", k1 = {k1:g}"
             rows.append([name, *_cells(cache, lambda c, a=use_aspect, k=k1: c.accuracy(net, a, k))])
-    net.radial_prior.fill_(keypoint.RADIAL_PRIOR)
+    fitted = "pixel aspect, k1 fitted per image (the code's)"
+    rows.append([fitted, *_cells(cache, lambda c: c.accuracy(net, True))])
     return rows
 
 
@@ -183,7 +192,7 @@ def focal_prior_table(net: KeypointNet, cache: dict[tuple[str, int], Cached]) ->
             net.focal.fill_(spec_f * prior)
             keypoint.FOCAL_PRIOR_WEIGHT = weight  # read by `focal_length` at each call
             name = f"{prior:g} x SPEC, weight {weight:g}"
-            rows.append([name, *_cells(cache, lambda c: c.accuracy(net, True, RADIAL_PRIOR))])
+            rows.append([name, *_cells(cache, lambda c: c.accuracy(net, True))])
     keypoint.FOCAL_PRIOR_WEIGHT = DEFAULT_PRIOR_WEIGHT
     _set_camera(net, code)
     return rows
@@ -201,7 +210,7 @@ def principal_point_table(
         ("the SPEC camera's", torch.from_numpy(intrinsics(net.size)[:2, 2]).float()),
     ):
         net.principal.copy_(point)
-        rows.append([name, *_cells(cache, lambda c: c.accuracy(net, True, RADIAL_PRIOR))])
+        rows.append([name, *_cells(cache, lambda c: c.accuracy(net, True))])
     _set_camera(net, code)
     return rows
 
@@ -215,7 +224,7 @@ def focal_bounds_table(net: KeypointNet, cache: dict[tuple[str, int], Cached]) -
     for upper in FOCAL_UPPER:
         net.focal_bounds[1] = spec_f * upper
         name = f"{keypoint.FOCAL_BOUNDS[0]:g}-{upper:g} x SPEC"
-        rows.append([name, *_cells(cache, lambda c: c.accuracy(net, True, RADIAL_PRIOR))])
+        rows.append([name, *_cells(cache, lambda c: c.accuracy(net, True))])
     net.focal_bounds.copy_(code)
     return rows
 
@@ -351,8 +360,10 @@ def main() -> None:
         "",
         written_by(f"python scripts/camera_model_choices.py {args.checkpoint} {args.data}")
         + " The constants are in `train/network/keypoint.py` (`FOCAL_PRIOR`, "
-        f"`RADIAL_PRIOR` = {keypoint.RADIAL_PRIOR:g}) and `service/preprocess.py` "
-        "(`NetworkFrame`); docs/training.md says why.",
+        f"`RADIAL_PRIOR` = {keypoint.RADIAL_PRIOR:g}: the prior of the k1 the corner "
+        "alignment fits per image, `train/network/align.py`) and `service/preprocess.py` "
+        "(`NetworkFrame`); docs/training.md says why. The rows with a fixed k1 pose every "
+        "image with it (the corners aligned as the code does).",
         "",
         "## Class accuracy (%) at blur 0 / 1 / 2 / 3",
         "",

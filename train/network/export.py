@@ -134,12 +134,20 @@ def _camera_card() -> dict[str, Any]:
     """The keypoint graph's camera model (`train.network.keypoint`): constants of the geometry
     after the corners, baked into the graph when it is exported (docs/camera_model.md)."""
     from train.network import keypoint
+    from train.network.align import CheckerAlign
 
+    align = CheckerAlign(keypoint.SIZE)
     return {
         "focal_prior_x_spec": keypoint.FOCAL_PRIOR,
         "focal_prior_weight": keypoint.FOCAL_PRIOR_WEIGHT,
         "focal_bounds_x_spec": list(keypoint.FOCAL_BOUNDS),
         "radial_k1": keypoint.RADIAL_PRIOR,
+        # k1 fitted per image by the corner alignment around that prior (train/network/align.py)
+        "radial_fit": {
+            "prior_sd": align.radial_sd,
+            "range": list(align.k1_range),
+            "min_pattern_corr": align.k1_min_corr,
+        },
         "principal_point": "image centre",
     }
 
