@@ -11,11 +11,13 @@ and the class follows from them as the SPEC labels define it:
               to 40x30 (or, `stride` 2, to 80x60 with the stem's features); 4 heat maps
               [N, 4, 30, 40] (or [N, 4, 60, 80]), soft-argmax -> corners [N, 4, 2] px
     align     the corners moved to sub-pixel accuracy by aligning the checker pattern to the
-              image (`train.network.align`: Gauss-Newton, no weights; not in training, where
-              the class loss does not depend on them)
-    pose      homography of the board rectangle onto the corners undistorted with a prior
-              radial distortion (closed form), pose with a pinhole camera (principal point
-              at the image centre, pixels of the given aspect, the focal length that makes
+              image, and the lens's radial distortion k1 fitted with them where the pattern
+              is plain (`train.network.align`: Gauss-Newton, no weights; not in training,
+              where the class loss does not depend on them)
+    pose      homography of the board rectangle onto the corners undistorted with that k1
+              (the prior `RADIAL_PRIOR` where it was not fitted; closed form), pose with a
+              pinhole camera (principal point at the image centre, pixels of the given
+              aspect, the focal length that makes
               the board's axes orthogonal, drawn to a prior where the view says little,
               or the caller's own where it knows it: `focal`), camera centre c [N, 3] cm
               in the object frame
@@ -59,10 +61,11 @@ SIZE = (160, 120)
 # normalised constraints; chosen on the corpus's val and train sources with the SPEC-camera
 # and long-lens renders as second checks (docs/camera_model.md, docs/training.md).
 FOCAL_PRIOR, FOCAL_PRIOR_WEIGHT, FOCAL_BOUNDS = 0.8, 0.01, (0.4, 1.2)
-# The radial distortion k1 the corners are undistorted with before the pose (`undistorted`),
-# in normalised coordinates of the prior camera: the corpus's calibrated train and val
-# cameras range from -0.55 to +0.22 (median -0.29, mean -0.16), the renders draw it from
-# -0.45..0.05; chosen on the val sources (docs/camera_model.md)
+# The prior of the radial distortion k1 the corner alignment fits per image and the corners
+# are undistorted with before the pose (`lens`, `undistorted`), in normalised coordinates of
+# the prior camera: the corpus's calibrated train and val cameras range from -0.55 to +0.22
+# (median -0.29, mean -0.16), the renders draw it from -0.45..0.05; chosen on the val
+# sources (docs/camera_model.md)
 RADIAL_PRIOR = -0.2
 STRIDES = (4, 2)  # input pixels per heat-map pixel: 40x30 maps, or 80x60 ("keypoint-s2")
 SQUARES = (10, 7)  # squares of the board along its width (x) and height (y)
