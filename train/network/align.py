@@ -29,6 +29,7 @@ equations are solved by 8 steps of conjugate gradients, `solve_spd`), so it expo
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
@@ -57,11 +58,16 @@ def square_homography(q: torch.Tensor) -> torch.Tensor:
     return torch.stack(rows, 1)
 
 
-def project(H: torch.Tensor, st: torch.Tensor) -> torch.Tensor:
-    """Homographies [..., 3, 3] and points [P, 2] -> image points [..., P, 2]."""
+def project_uv(H: torch.Tensor, st: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Homographies [..., 3, 3] and points [P, 2] -> image coordinates u, v [..., P]."""
     p = H[..., :, :2] @ st.T + H[..., :, 2:]  # [..., 3, P]
     w = torch.where(p[..., 2, :].abs() < 1e-6, torch.full_like(p[..., 2, :], 1e-6), p[..., 2, :])
-    return torch.stack([p[..., 0, :] / w, p[..., 1, :] / w], -1)
+    return p[..., 0, :] / w, p[..., 1, :] / w
+
+
+def project(H: torch.Tensor, st: torch.Tensor) -> torch.Tensor:
+    """Homographies [..., 3, 3] and points [P, 2] -> image points [..., P, 2]."""
+    return torch.stack(project_uv(H, st), -1)
 
 
 def solve_spd(A: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
@@ -87,34 +93,49 @@ def solve_spd(A: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
 
 
 class Lens(NamedTuple):
-    """One radial coefficient k1 about a principal point, in an image's pixels. Point p
-    [..., 2] px has normalised coordinates x = (p - centre) * scale (square pixels over the
-    focal length); an image point x_d is undistorted to x_u = x_d / (1 + k1 |x_d|^2) (the map
-    the pose uses, `KeypointNet.undistorted`), and `distort` is its exact inverse. Tensors are
-    per image [N, ...]; points [N, ..., 2] and k1 broadcastable to the points' [N, ..., 1]."""
+    """One radial coefficient k1 about a principal point, in an image's pixels. Point (u, v)
+    px has normalised coordinates x = ((u, v) - centre) * scale (square pixels over the focal
+    length); an image point x_d is undistorted to x_u = x_d / (1 + k1 |x_d|^2) (the map the
+    pose uses, `KeypointNet.undistorted`), and `distort` is its exact inverse. Tensors are
+    per image [N, ...]; coordinates u, v [N, ...] and k1 broadcastable to them. The maps work
+    on u and v apart: onnxruntime is slow on broadcasts over a last axis of 2."""
 
     centre: torch.Tensor  # [N, 2] px: the principal point
     scale: torch.Tensor  # [N, 2] px -> normalised coordinates along u and v
     k1: torch.Tensor  # [N] the prior: where a fit starts and what it is drawn to
 
-    def _frame(self, p: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        shape = (p.shape[0],) + (1,) * (p.dim() - 2) + (2,)
-        return self.centre.reshape(shape), self.scale.reshape(shape)
+    def _radial(
+        self, u: torch.Tensor, v: torch.Tensor, factor: Callable[[torch.Tensor], torch.Tensor]
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """u, v [N, ...] px -> the points moved about the centre by `factor(|x|^2)`."""
+        shape = (u.shape[0],) + (1,) * (u.dim() - 1)
+        cu, cv = self.centre[:, 0].reshape(shape), self.centre[:, 1].reshape(shape)
+        x = (u - cu) * self.scale[:, 0].reshape(shape)
+        y = (v - cv) * self.scale[:, 1].reshape(shape)
+        f = factor(x * x + y * y)
+        return cu + (u - cu) * f, cv + (v - cv) * f
 
-    def distort(self, p: torch.Tensor, k1: torch.Tensor) -> torch.Tensor:
-        """Undistorted points [N, ..., 2] px -> where the image shows them: x_d = x_u 2 / (1 +
+    def distort_uv(
+        self, u: torch.Tensor, v: torch.Tensor, k1: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Undistorted u, v [N, ...] px -> where the image shows them: x_d = x_u 2 / (1 +
         sqrt(1 - 4 k1 |x_u|^2)), the root of |x_u| = |x_d| / (1 + k1 |x_d|^2) that is |x_u|
         near the centre (clamped where a pincushion lens has none)."""
-        c, s = self._frame(p)
-        x = (p - c) * s
-        root = (1 - 4 * k1 * (x * x).sum(-1, keepdim=True)).clamp_min(0.0).sqrt()
-        return x * 2 / (1 + root) / s + c
+        return self._radial(u, v, lambda r2: 2 / (1 + (1 - 4 * k1 * r2).clamp_min(0.0).sqrt()))
+
+    def undistort_uv(
+        self, u: torch.Tensor, v: torch.Tensor, k1: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Image u, v [N, ...] px -> undistorted, x_d / (1 + k1 |x_d|^2)."""
+        return self._radial(u, v, lambda r2: 1 / (1 + k1 * r2))
+
+    def distort(self, p: torch.Tensor, k1: torch.Tensor) -> torch.Tensor:
+        """Undistorted points [N, ..., 2] px (k1 broadcastable to [N, ...]) -> image points."""
+        return torch.stack(self.distort_uv(p[..., 0], p[..., 1], k1), -1)
 
     def undistort(self, p: torch.Tensor, k1: torch.Tensor) -> torch.Tensor:
-        """Image points [N, ..., 2] px -> undistorted, x_d / (1 + k1 |x_d|^2)."""
-        c, s = self._frame(p)
-        x = (p - c) * s
-        return x / (1 + k1 * (x * x).sum(-1, keepdim=True)) / s + c
+        """Image points [N, ..., 2] px (k1 broadcastable to [N, ...]) -> undistorted."""
+        return torch.stack(self.undistort_uv(p[..., 0], p[..., 1], k1), -1)
 
 
 def _blurred_wave(u: np.ndarray, sigma: float) -> np.ndarray:
@@ -195,23 +216,26 @@ class CheckerAlign(nn.Module):
 
     def _points(
         self, q: torch.Tensor, lens: Lens | None, k1: torch.Tensor
-    ) -> tuple[torch.Tensor, torch.Tensor]:
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Corners [N, 4, 2] (and k1 [N]) -> the board's points in the image [N, P, 2] and
-        their derivatives [N, 8 or 9, P, 2] by the 8 corner coordinates (and k1), by finite
-        differences."""
+        the derivatives of their u and v [N, 8 or 9, P] by the 8 corner coordinates (and k1),
+        by finite differences."""
         n, eps, eps_k1 = q.shape[0], 0.05, 0.01
         # the corners, then each of their 8 coordinates moved by eps: [N, 9, 4, 2]
         qe = torch.cat([q[:, None], q[:, None] + eps * self.basis[None]], 1)
         if lens is None:
-            uve = project(square_homography(qe.reshape(-1, 4, 2)), self.st).reshape(n, 9, -1, 2)
-            return uve[:, 0], (uve[:, 1:] - uve[:, :1]) / eps
-        # ... and k1 moved by eps_k1: [N, 10, 4, 2], k1 per set [N, 10, 1, 1]
-        qe = torch.cat([qe, q[:, None]], 1)
-        ke = torch.cat([k1[:, None].expand(n, 9), k1[:, None] + eps_k1], 1)[:, :, None, None]
-        H = square_homography(lens.undistort(qe, ke).reshape(-1, 4, 2))
-        uve = lens.distort(project(H, self.st).reshape(n, 10, -1, 2), ke)
-        steps = torch.cat([torch.full((8,), eps), torch.full((1,), eps_k1)]).to(q)
-        return uve[:, 0], (uve[:, 1:] - uve[:, :1]) / steps[None, :, None, None]
+            u, v = project_uv(square_homography(qe.reshape(-1, 4, 2)), self.st)
+            u, v = u.reshape(n, 9, -1), v.reshape(n, 9, -1)
+            steps = torch.full((8,), eps).to(q)
+        else:  # ... and k1 moved by eps_k1: [N, 10, 4, 2], k1 per set [N, 10, 1]
+            qe = torch.cat([qe, q[:, None]], 1)
+            ke = torch.cat([k1[:, None].expand(n, 9), k1[:, None] + eps_k1], 1)[:, :, None]
+            u, v = project_uv(square_homography(lens.undistort(qe, ke).reshape(-1, 4, 2)), self.st)
+            u, v = lens.distort_uv(u.reshape(n, 10, -1), v.reshape(n, 10, -1), ke)
+            steps = torch.cat([torch.full((8,), eps), torch.full((1,), eps_k1)]).to(q)
+        du = (u[:, 1:] - u[:, :1]) / steps[None, :, None]
+        dv = (v[:, 1:] - v[:, :1]) / steps[None, :, None]
+        return torch.stack([u[:, 0], v[:, 0]], -1), du, dv
 
     def _fit(
         self, image: torch.Tensor, q: torch.Tensor, lens: Lens | None, k1: torch.Tensor
@@ -220,7 +244,7 @@ class CheckerAlign(nn.Module):
         -> the image values minus the fitted template r [N, P], the projected Jacobian J
         [N, 8 or 9, P], corr(g, T) [N], the in-image mask [N, P]."""
         h, w = image.shape[2], image.shape[3]
-        uv, duv = self._points(q, lens, k1)
+        uv, du, dv = self._points(q, lens, k1)
         grid = ((uv + 0.5) * self.px_to_unit - 1.0).clamp(-2.0, 2.0)[:, None]  # [N, 1, P, 2]
         sampled = F.grid_sample(image, grid, align_corners=False, padding_mode="border")[:, :, 0]
         g, gu, gv = sampled[:, 0], sampled[:, 1], sampled[:, 2]  # [N, P]
@@ -232,7 +256,7 @@ class CheckerAlign(nn.Module):
         tt = (tc * tc).sum(1, keepdim=True).clamp_min(1e-9)
         gain = (tc * gc).sum(1, keepdim=True) / tt
         r = gc - gain * tc
-        J = gu[:, None] * duv[..., 0] + gv[:, None] * duv[..., 1]  # [N, 8 or 9, P]
+        J = gu[:, None] * du + gv[:, None] * dv  # [N, 8 or 9, P]
         Jc = (J - (J * m[:, None]).sum(2, keepdim=True) / count[:, None]) * m[:, None]
         Jp = Jc - (Jc * tc[:, None]).sum(2, keepdim=True) / tt[:, None] * tc[:, None]
         gg = (gc * gc).sum(1) + 1e-6 * count[:, 0]  # a flat image correlates with nothing

@@ -255,7 +255,7 @@ class KeypointNet(NormalisedNet):
         `k1` [N] (fitted by the alignment, `observe`; None: the prior `radial_prior`), in
         normalised coordinates of the prior focal length (`lens`)."""
         lens = self.lens(pixel_aspect)
-        return lens.undistort(q, (lens.k1 if k1 is None else k1)[:, None, None])
+        return lens.undistort(q, (lens.k1 if k1 is None else k1)[:, None])
 
     def centred_homography(self, H_unit: torch.Tensor, pixel_aspect: torch.Tensor) -> torch.Tensor:
         """Unit-square homography [N, 3, 3] and pixel aspect [N] -> the object-plane (cm)
