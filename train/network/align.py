@@ -23,7 +23,8 @@ equations are solved by 8 steps of conjugate gradients, `solve_spd`), so it expo
              projects are distorted again (`Lens.distort`), so the bend of the board's
              lines in the image tells k1; a normal prior around the lens's k1 (sd
              `radial_sd`, weighed against the fit's residual variance) holds it where the
-             image says little (a small or blurred board)
+             image says little, and where the pattern correlates at most `k1_min_corr` at
+             the start (a small or blurred board) k1 is not fitted at all
 """
 
 from __future__ import annotations
