@@ -66,11 +66,6 @@ def project_uv(H: torch.Tensor, st: torch.Tensor) -> tuple[torch.Tensor, torch.T
     return p[..., 0, :] / w, p[..., 1, :] / w
 
 
-def project(H: torch.Tensor, st: torch.Tensor) -> torch.Tensor:
-    """Homographies [..., 3, 3] and points [P, 2] -> image points [..., P, 2]."""
-    return torch.stack(project_uv(H, st), -1)
-
-
 def solve_spd(A: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     """Solve A x = b for symmetric positive definite A [N, n, n], b [N, n] -> x [N, n]:
     n steps of conjugate gradients with a Jacobi preconditioner (exact in exact arithmetic;
