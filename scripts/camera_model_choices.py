@@ -18,6 +18,8 @@ per variant:
 * the val board photos turned to portrait, squashed to 160x120 or turned back first
   (`service.preprocess.NetworkFrame`);
 * the focal-length prior and its weight; the bounds of the estimate; the principal point;
+* the focal-length prior shortened by a strong barrel distortion (`keypoint.BARREL_LIMIT`),
+  with the alignment's k1 range as the code has it and as it was before (down to -0.6);
 * what limits the answer: the network's corners or the labelled ones, each with the
   self-calibrated camera or with the photo's calibrated one (focal length, principal point,
   k1, pixel aspect from labels.csv), presence from the network.
@@ -57,6 +59,8 @@ DEFAULT_PRIOR_WEIGHT, RADIAL_PRIOR = keypoint.FOCAL_PRIOR_WEIGHT, keypoint.RADIA
 FOCAL_PRIORS = (0.6, 0.7, 0.8, 0.85, 0.9, 0.95, 1.0, 1.1)  # x the SPEC camera's focal length
 PRIOR_WEIGHTS = (0.001, 0.003, 0.01, 0.1)
 FOCAL_UPPER = (1.2, 1.5, 2.0)  # upper bounds of the estimate tried, x the SPEC camera's
+BARREL_LIMITS = (-0.3, -0.35, -0.4, -0.45, -0.5, -0.6)  # `keypoint.BARREL_LIMIT` tried
+K1_LOWER = -0.6  # the lower end of the alignment's k1 range before 3.8.0
 CORPUS = REPO_ROOT / "train/assets/real/corpus"
 # `_caches`: real val and train sources, SPEC-camera and long-lens renders
 SPLITS = ("val", "train", "spec", "tele")
@@ -229,6 +233,26 @@ def focal_bounds_table(net: KeypointNet, cache: dict[tuple[str, int], Cached]) -
     return rows
 
 
+def barrel_limit_table(
+    net: KeypointNet, cache: dict[tuple[str, int], Cached], narrow: dict[tuple[str, int], Cached]
+) -> list[list[str]]:
+    """Class accuracy with no barrel limit and at each of `BARREL_LIMITS`, from the corners
+    and k1 aligned with the code's k1 range (`cache`) and with the range down to `K1_LOWER`
+    only (`narrow`)."""
+    code = keypoint.BARREL_LIMIT
+    lo, hi = net.align.k1_range
+    rows = []
+    for caches, k1_range in ((narrow, f"{K1_LOWER:g}..{hi:g}"), (cache, f"{lo:g}..{hi:g}")):
+        for limit in (float("-inf"), *BARREL_LIMITS):
+            keypoint.BARREL_LIMIT = limit  # read by `prior_focal` at each call
+            name = f"k1 range {k1_range}, " + (
+                "no limit" if limit == float("-inf") else f"limit {limit:g}"
+            )
+            rows.append([name, *_cells(caches, lambda c: c.accuracy(net, True))])
+    keypoint.BARREL_LIMIT = code
+    return rows
+
+
 def limits_table(net: KeypointNet, cache: dict[tuple[str, int], Cached]) -> list[list[str]]:
     """Class accuracy (%) per split and blur level from the network's or the labelled
     corners, with the self-calibrated or the calibrated camera; and the board photos the
@@ -355,6 +379,10 @@ def main() -> None:
         sys.exit(f"error: {args.checkpoint} is not a keypoint network")
     net.eval()
     cache = _caches(net, args.data)
+    code_range = net.align.k1_range
+    net.align.k1_range = (K1_LOWER, code_range[1])
+    narrow = _caches(net, args.data)
+    net.align.k1_range = code_range
     lines = [
         "# The keypoint network's camera model, measured on the real val and train sources",
         "",
@@ -394,6 +422,16 @@ def main() -> None:
         f"The code's: {keypoint.FOCAL_BOUNDS[0]:g}-{keypoint.FOCAL_BOUNDS[1]:g} x SPEC.",
         "",
         *table(["focal-length bounds", *SPLIT_HEADER], focal_bounds_table(net, cache)),
+        "",
+        "## The focal-length prior shortened by a strong barrel distortion: class accuracy "
+        "(%) at blur 0 / 1 / 2 / 3",
+        "",
+        f"The code's: limit {keypoint.BARREL_LIMIT:g}, k1 range "
+        f"{code_range[0]:g}..{code_range[1]:g}. A k1 fitted beyond the limit (in the prior "
+        "camera's coordinates) shortens the prior focal length f0 to f0 sqrt(limit / k1): "
+        "a lens's own barrel rarely goes further (`keypoint.BARREL_LIMIT`).",
+        "",
+        *table(["k1 range, barrel limit", *SPLIT_HEADER], barrel_limit_table(net, cache, narrow)),
         "",
         "## The principal point (the code's focal prior and k1): class accuracy (%) at blur "
         "0 / 1 / 2 / 3",

@@ -170,7 +170,7 @@ class CheckerAlign(nn.Module):
         max_move: float = 8.0,
         damping: float = 1e-2,
         radial_sd: float = 0.1,
-        k1_range: tuple[float, float] = (-0.6, 0.3),
+        k1_range: tuple[float, float] = (-1.2, 0.3),
         max_k1_step: float = 0.1,
         k1_min_corr: float = 0.3,
     ) -> None:

@@ -67,6 +67,12 @@ FOCAL_PRIOR, FOCAL_PRIOR_WEIGHT, FOCAL_BOUNDS = 0.8, 0.01, (0.4, 1.2)
 # (median -0.29, mean -0.16), the renders draw it from -0.45..0.05; chosen on the val
 # sources (docs/camera_model.md)
 RADIAL_PRIOR = -0.2
+# The strongest barrel distortion taken for a lens's own (k1 in normalised coordinates of its
+# own focal length f; the corpus's calibrated cameras reach -0.55). The fitted k1 is in the
+# prior camera's coordinates, k1 (f0 / f)^2, so one beyond this limit says the focal length is
+# shorter than the prior f0: the prior becomes f0 sqrt(BARREL_LIMIT / k1) (`prior_focal`).
+# Chosen on the val sources, with the train sources as the second check (docs/camera_model.md)
+BARREL_LIMIT = -0.45
 STRIDES = (4, 2)  # input pixels per heat-map pixel: 40x30 maps, or 80x60 ("keypoint-s2")
 SQUARES = (10, 7)  # squares of the board along its width (x) and height (y)
 # |corr(image, checker)| at the aligned corners above which the board is taken as present
@@ -197,20 +203,29 @@ class KeypointNet(NormalisedNet):
         return torch.stack([u, v], 2)
 
     # -- geometry ------------------------------------------------------------------------------
-    def focal_length(self, Hc: torch.Tensor, known: torch.Tensor | None = None) -> torch.Tensor:
+    def prior_focal(self, k1: torch.Tensor) -> torch.Tensor:
+        """The lens's fitted k1 [N] (`lens`) -> the prior focal length [N] px: `focal`, shorter
+        where k1 is a stronger barrel than `BARREL_LIMIT` (f0 sqrt(BARREL_LIMIT / k1))."""
+        ratio = torch.where(k1 < BARREL_LIMIT, BARREL_LIMIT / k1, torch.ones_like(k1))
+        return self.focal * ratio.sqrt()
+
+    def focal_length(
+        self, Hc: torch.Tensor, known: torch.Tensor | None = None, k1: torch.Tensor | None = None
+    ) -> torch.Tensor:
         """Focal length [N] px for centred object-plane homographies Hc [N, 3, 3] in square
         pixels: `known` [N] where it is > 0 (the caller's calibration, px of the input's width;
         None: unknown everywhere), else the prior `focal`, or (self_calibrate) the one that
         best makes the images of the board's x and y axes orthogonal and of equal length
-        (Zhang's constraints), with the prior as one more constraint of weight
-        `FOCAL_PRIOR_WEIGHT`, within `focal_bounds`.
+        (Zhang's constraints), with the prior (`prior_focal` of the lens's fitted `k1` [N];
+        None: `focal`) as one more constraint of weight `FOCAL_PRIOR_WEIGHT`, within
+        `focal_bounds`.
 
         Unknown z = (f0 / f)^2 with f0 the prior; in pixel units of f0, with Hc scaled to unit
         norm of its first two columns, the constraints are a_i z + b_i = 0 (i = 1, 2) and the
         prior z = 1: z = (kappa - sum a_i b_i) / (kappa + sum a_i^2). A near-frontal view has
         a_i ~ 0 and keeps the prior; an oblique one decides."""
-        f0 = self.focal
-        Hn = torch.cat([Hc[:, :2, :] / f0, Hc[:, 2:, :]], 1)
+        f0 = self.focal * torch.ones_like(Hc[:, 0, 0]) if k1 is None else self.prior_focal(k1)
+        Hn = torch.cat([Hc[:, :2, :] / f0[:, None, None], Hc[:, 2:, :]], 1)
         Hn = Hn / Hn[:, :, :2].flatten(1).norm(dim=1).clamp_min(1e-12)[:, None, None]
         h1, h2 = Hn[:, :, 0], Hn[:, :, 1]
         a1 = h1[:, 0] * h2[:, 0] + h1[:, 1] * h2[:, 1]
@@ -220,7 +235,7 @@ class KeypointNet(NormalisedNet):
         kappa = FOCAL_PRIOR_WEIGHT
         z = (kappa - (a1 * b1 + a2 * b2)) / (kappa + a1 * a1 + a2 * a2)
         f = (f0 * z.clamp_min(1e-6).rsqrt()).clamp(self.focal_bounds[0], self.focal_bounds[1])
-        f = torch.where(self.self_calibrate > 0.5, f, f0.expand_as(f))
+        f = torch.where(self.self_calibrate > 0.5, f, self.focal.expand_as(f))
         return f if known is None else torch.where(known > 0, known * torch.ones_like(f), f)
 
     def _load_from_state_dict(
@@ -267,18 +282,22 @@ class KeypointNet(NormalisedNet):
         return torch.cat([centred * self._to_square(pixel_aspect)[:, :, None], w], 1)
 
     def camera_centre(
-        self, H_unit: torch.Tensor, pixel_aspect: torch.Tensor, focal: torch.Tensor | None = None
+        self,
+        H_unit: torch.Tensor,
+        pixel_aspect: torch.Tensor,
+        focal: torch.Tensor | None = None,
+        k1: torch.Tensor | None = None,
     ) -> torch.Tensor:
         """Unit-square homography [N, 3, 3] -> camera centre [N, 3] cm in the object frame
-        (M = A^-1 H = lambda [r1 r2 t], c = -R^T t), with the camera of `focal_length` (and
-        its `known` focal length `focal` [N]).
+        (M = A^-1 H = lambda [r1 r2 t], c = -R^T t), with the camera of `focal_length` (its
+        `known` focal length `focal` [N], its lens's fitted `k1` [N]).
 
         `pixel_aspect` [N] is the height over the width of an input pixel in the scene (fy /
         fx): 1 for a 4:3 photo, 0.75 W / H for a landscape W x H photo resized to 160x120
         (16:9: 4/3; `service.preprocess.NetworkFrame`, which turns portraits to landscape).
         The rows are brought to square pixels of the input's width first."""
         Hc = self.centred_homography(H_unit, pixel_aspect)
-        f = self.focal_length(Hc, focal)
+        f = self.focal_length(Hc, focal, k1)
         M = torch.cat([Hc[:, :2, :] / f[:, None, None], Hc[:, 2:, :]], 1)
         m1, m2, m3 = M[:, :, 0], M[:, :, 1], M[:, :, 2]
         lam = 2.0 / (m1.norm(dim=1) + m2.norm(dim=1) + 1e-9)
@@ -343,7 +362,7 @@ class KeypointNet(NormalisedNet):
         order_ok = torch.sigmoid(self.parity_gain * parity)
         aspect = self._aspect(parity, pixel_aspect)
         H = square_homography(self.undistorted(q, aspect, k1))
-        return self.class_probabilities(self.camera_centre(H, aspect, focal), order_ok)
+        return self.class_probabilities(self.camera_centre(H, aspect, focal, k1), order_ok)
 
     def _classes_if_present(
         self, x: torch.Tensor, q: torch.Tensor, pixel_aspect: torch.Tensor | None

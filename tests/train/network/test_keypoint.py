@@ -3,6 +3,8 @@ training-mode outputs and the ONNX export of the whole decode."""
 
 from __future__ import annotations
 
+import math
+
 import cv2
 import numpy as np
 import onnxruntime as ort
@@ -11,6 +13,7 @@ import torch
 from torch import nn
 
 from train.geometry import intrinsics, look_at, pose_class, project_points, translation
+from train.network import keypoint
 from train.network.align import CheckerAlign, solve_spd, square_homography
 from train.network.export import onnx_bytes
 from train.network.fit import FitConfig, _grown, fit, load_network
@@ -128,6 +131,25 @@ def test_a_near_frontal_view_keeps_the_prior_focal_length():
     for f_true in (0.5 * f0 / 0.6, 0.9 * f0 / 0.6):  # the view says little about either
         q = torch.from_numpy(_view(net, (1.0, -0.5, 50.0), 30.0, f_true)).float()[None]
         assert abs(_focal_estimate(net, q) - f0) < 0.1 * f0
+
+
+def test_a_strong_barrel_shortens_the_prior_focal_length():
+    net = KeypointNet()
+    f0 = float(net.focal)
+    q = torch.from_numpy(_view(net, (1.0, -0.5, 50.0), 30.0, f0)).float()[None].expand(3, 4, 2)
+    Hc = net.centred_homography(square_homography(q), torch.ones(3))
+    limit = keypoint.BARREL_LIMIT
+    # a lens's own barrel at the prior focal length, then twice and three times as strong
+    k1 = torch.tensor([0.5 * limit, 2 * limit, 3 * limit])
+    f = net.focal_length(Hc, None, k1)  # a near-frontal view: the prior decides
+    expected = [f0, f0 / math.sqrt(2), f0 / math.sqrt(3)]
+    assert f.tolist() == pytest.approx(expected, rel=0.02)
+    assert float(net.focal_length(Hc[:1])[0]) == pytest.approx(f0, rel=0.02)  # no lens fitted
+    # the camera is closer by the same ratio: a barrel seen through a short lens
+    near = net.camera_centre(square_homography(q), torch.ones(3), None, k1)[:, 2]
+    assert (near[1:] / near[0]).tolist() == pytest.approx(
+        [1 / math.sqrt(2), 1 / math.sqrt(3)], rel=0.03
+    )
 
 
 def test_parity_tells_the_half_turn():
