@@ -217,14 +217,14 @@ class KeypointNet(NormalisedNet):
         None: unknown everywhere), else the prior `focal`, or (self_calibrate) the one that
         best makes the images of the board's x and y axes orthogonal and of equal length
         (Zhang's constraints), with the prior (`prior_focal` of the lens's fitted `k1` [N];
-        None: `focal`) as one more constraint of weight `FOCAL_PRIOR_WEIGHT`, within
-        `focal_bounds`.
+        None: of `radial_prior`, as `undistorted`) as one more constraint of weight
+        `FOCAL_PRIOR_WEIGHT`, within `focal_bounds`.
 
         Unknown z = (f0 / f)^2 with f0 the prior; in pixel units of f0, with Hc scaled to unit
         norm of its first two columns, the constraints are a_i z + b_i = 0 (i = 1, 2) and the
         prior z = 1: z = (kappa - sum a_i b_i) / (kappa + sum a_i^2). A near-frontal view has
         a_i ~ 0 and keeps the prior; an oblique one decides."""
-        f0 = self.focal * torch.ones_like(Hc[:, 0, 0]) if k1 is None else self.prior_focal(k1)
+        f0 = self.prior_focal(self.radial_prior.expand_as(Hc[:, 0, 0]) if k1 is None else k1)
         Hn = torch.cat([Hc[:, :2, :] / f0[:, None, None], Hc[:, 2:, :]], 1)
         Hn = Hn / Hn[:, :, :2].flatten(1).norm(dim=1).clamp_min(1e-12)[:, None, None]
         h1, h2 = Hn[:, :, 0], Hn[:, :, 1]
