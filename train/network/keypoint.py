@@ -19,6 +19,7 @@ and the class follows from them as the SPEC labels define it:
               pinhole camera (principal point at the image centre, pixels of the given
               aspect, the focal length that makes
               the board's axes orthogonal, drawn to a prior where the view says little,
+              shorter where the fitted k1 is a stronger barrel than a lens's own,
               or the caller's own where it knows it: `focal`), camera centre c [N, 3] cm
               in the object frame
     parity    the image sampled at the 70 square centres through the homography, correlated
