@@ -141,6 +141,8 @@ def _camera_card() -> dict[str, Any]:
         "focal_prior_x_spec": keypoint.FOCAL_PRIOR,
         "focal_prior_weight": keypoint.FOCAL_PRIOR_WEIGHT,
         "focal_bounds_x_spec": list(keypoint.FOCAL_BOUNDS),
+        # a fitted k1 below it shortens the focal prior (`KeypointNet.prior_focal`)
+        "focal_prior_barrel_limit": keypoint.BARREL_LIMIT,
         "radial_k1": keypoint.RADIAL_PRIOR,
         # k1 fitted per image by the corner alignment around that prior (train/network/align.py)
         "radial_fit": {

@@ -173,6 +173,7 @@ def test_a_keypoint_graph_is_regraphed_with_the_zoom_inputs(tmp_path):
         "focal",
     ]
     assert card["camera_model"]["focal_prior_x_spec"] == keypoint.FOCAL_PRIOR
+    assert card["camera_model"]["focal_prior_barrel_limit"] == keypoint.BARREL_LIMIT
     photos = sorted(REAL.glob("*.jpg"))[:4]
     x = np.stack([to_network_input(read_rgb(p), (160, 120)) for p in photos])
     # the weights answer as the network read back from the old graph does with this version's
