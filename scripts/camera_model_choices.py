@@ -20,9 +20,10 @@ per variant:
 * the focal-length prior and its weight; the bounds of the estimate; the principal point;
 * the focal-length prior shortened by a strong barrel distortion (`keypoint.BARREL_LIMIT`),
   with the alignment's k1 range as the code has it and as it was before (down to -0.6);
-* what limits the answer: the network's corners or the labelled ones, each with the
-  self-calibrated camera or with the photo's calibrated one (focal length, principal point,
-  k1, pixel aspect from labels.csv), presence from the network.
+* what limits the answer: the network's corners, the labelled ones or the chessboard
+  detector's (the comparison's peer), each with the self-calibrated camera or with the
+  photo's calibrated one (focal length, principal point, k1, pixel aspect from labels.csv),
+  presence from the network.
 
 Usage (after `scripts/train_default.sh`, which makes the run and the data sets; a shipped
 model's ONNX graph works too, e.g. models/default.onnx, with the data sets of its step 1):
@@ -44,14 +45,17 @@ import torch
 
 from service.preprocess import NetworkFrame, to_network_input
 from train import REPO_ROOT
+from train.compare.chessboard_peer import ENLARGE
 from train.dataset import LoadedDataset, load_dataset
 from train.geometry import intrinsics, pose_class
 from train.markdown import table, written_by
 from train.network import keypoint
 from train.network.align import square_homography
 from train.network.fit import _corners, load_network, to_input
-from train.network.keypoint import KeypointNet
+from train.network.keypoint import SQUARES, KeypointNet
 from train.network.onnx_weights import keypoint_from_onnx
+from train.real.corners import ChessboardPattern, find_grid, orient_grid, to_grey
+from train.real.label import CHESSBOARD_INNER
 from train.real.realset import read_rgb, read_splits
 
 RADIAL = (0.0, -0.1, -0.2, -0.25, -0.3, -0.4)
@@ -61,6 +65,12 @@ PRIOR_WEIGHTS = (0.001, 0.003, 0.01, 0.1)
 FOCAL_UPPER = (1.2, 1.5, 2.0)  # upper bounds of the estimate tried, x the SPEC camera's
 BARREL_LIMITS = (-0.3, -0.35, -0.4, -0.45, -0.5, -0.6)  # `keypoint.BARREL_LIMIT` tried
 K1_LOWER = -0.6  # the lower end of the alignment's k1 range before 3.8.0
+# `limits_table`: where the corners come from
+CORNER_SOURCES = {
+    "network": "network corners",
+    "labelled": "labelled corners",
+    "detector": "detector's corners (4x, else the network's)",
+}
 CORPUS = REPO_ROOT / "train/assets/real/corpus"
 # `_caches`: real val and train sources, SPEC-camera and long-lens renders
 SPLITS = ("val", "train", "spec", "tele")
@@ -91,6 +101,8 @@ class Cached:
         )
         self.labels = data.labels
         self.rows = data.rows
+        self.images = data.images
+        self._detected: torch.Tensor | None = None
 
     def accuracy(self, net: KeypointNet, use_aspect: bool, k1: float | None = None) -> float:
         """Class accuracy (%) with the camera model (pixel aspect or square pixels; k1 fixed,
@@ -110,18 +122,55 @@ class Cached:
         predicted = torch.cat([1 - pr, pr * pk], 1).argmax(1).numpy()
         return 100.0 * float(np.mean(predicted == self.labels))
 
-    def accuracy_from(self, net: KeypointNet, labelled: bool, calibrated: bool) -> float:
-        """Class accuracy (%) from the network's corners or (`labelled`) the labelled ones
-        in the object's order, with the code's self-calibrated camera (and the k1 the
-        alignment fitted) or (`calibrated`) each photo's calibrated one (labels.csv: fx, fy,
-        cx, cy, k1 in network pixels; the self-calibrated one where a row has none)."""
-        corners = torch.from_numpy(_corners(self.rows).reshape(-1, 4, 2))
+    def detector_corners(self, net: KeypointNet) -> torch.Tensor:
+        """The board's four corners [N, 4, 2] px in the object's order as OpenCV's chessboard
+        detector sees them, NaN where it finds no board: the comparison's peer (the image
+        enlarged 4x, cubic; `find_grid`, `orient_grid`), the outline through the homography
+        of its inner-corner grid. Computed once."""
+        if self._detected is None:
+            unit = torch.tensor([[0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]], dtype=torch.float64)
+            outline = (torch.linalg.inv(net.to_unit.double()) @ unit.T).T
+            outline_cm = (outline[:, :2] / outline[:, 2:]).numpy()
+            square_cm = float(np.ptp(outline_cm[:, 0])) / SQUARES[0]
+            pattern = ChessboardPattern(*CHESSBOARD_INNER, square_cm)
+            outline_cm = outline_cm.reshape(-1, 1, 2)
+            f, (cu, cv) = float(net.focal) * ENLARGE, (net.principal.double().numpy() + 0.5)
+            A = np.array([[f, 0.0, cu * ENLARGE - 0.5], [0.0, f, cv * ENLARGE - 0.5], [0, 0, 1]])
+            found = torch.full((len(self.images), 4, 2), float("nan"))
+            for i, rgb in enumerate(self.images):
+                grey = to_grey(rgb)
+                big = (grey.shape[1] * ENLARGE, grey.shape[0] * ENLARGE)
+                grey = cv2.resize(grey, big, interpolation=cv2.INTER_CUBIC)
+                grid = find_grid(grey, pattern)
+                if grid is None:
+                    continue
+                object_xy, _ = orient_grid(grey, grid, pattern, lambda p: p, A)
+                H, _ = cv2.findHomography(object_xy, grid)
+                if H is None:
+                    continue
+                outline_px = cv2.perspectiveTransform(outline_cm, H).reshape(4, 2)
+                found[i] = torch.from_numpy((outline_px + 0.5) / ENLARGE - 0.5)
+            self._detected = found
+        return self._detected
+
+    def accuracy_from(self, net: KeypointNet, corners: str, calibrated: bool) -> float:
+        """Class accuracy (%) from the network's `corners`, the labelled ones or those of the
+        chessboard detector (`detector_corners`; the network's where either has none), in the
+        object's order, with the code's self-calibrated camera (and the k1 the alignment
+        fitted) or (`calibrated`) each photo's calibrated one (labels.csv: fx, fy, cx, cy, k1
+        in network pixels; the self-calibrated one where a row has none)."""
+        if corners == "labelled":
+            given = torch.from_numpy(_corners(self.rows).reshape(-1, 4, 2))
+        elif corners == "detector":
+            given = self.detector_corners(net)
+        else:
+            given = torch.full((len(self.rows), 4, 2), float("nan"))
         pk = torch.zeros(len(self.rows), 8)
         code = _camera(net)
         for i, row in enumerate(self.rows):
             q, parity = self.q[i : i + 1], self.parity[i : i + 1]
-            if labelled and bool(torch.isfinite(corners[i]).all()):
-                q, parity = corners[i : i + 1], torch.ones(1)
+            if bool(torch.isfinite(given[i]).all()):
+                q, parity = given[i : i + 1].to(q.dtype), torch.ones(1)
             aspect, k1 = self.aspect[i : i + 1], self.k1[i : i + 1]
             if calibrated and row.get("fx"):
                 fx, fy = float(row["fx"]), float(row["fy"])
@@ -254,23 +303,23 @@ def barrel_limit_table(
 
 
 def limits_table(net: KeypointNet, cache: dict[tuple[str, int], Cached]) -> list[list[str]]:
-    """Class accuracy (%) per split and blur level from the network's or the labelled
-    corners, with the self-calibrated or the calibrated camera; and the board photos the
-    network's presence misses."""
+    """Class accuracy (%) per split and blur level from the network's, the labelled or the
+    chessboard detector's corners, with the self-calibrated or the calibrated camera; and
+    the board photos the network's presence misses."""
     rows = []
     for split in ("val", "train"):
         found: dict[str, list[float]] = {}
         missed = []
         for b in range(4):
             cached = cache[(split, b)]
-            for labelled in (False, True):
+            for corners in ("network", "labelled", "detector"):
                 for calibrated in (False, True):
                     name = (
-                        f"{'labelled' if labelled else 'network'} corners, "
+                        f"{CORNER_SOURCES[corners]}, "
                         f"{'calibrated' if calibrated else 'self-calibrated'} camera"
                     )
                     found.setdefault(name, []).append(
-                        cached.accuracy_from(net, labelled, calibrated)
+                        cached.accuracy_from(net, corners, calibrated)
                     )
             board = cached.labels > 0
             missed.append(
@@ -440,8 +489,12 @@ def main() -> None:
         "",
         "## What limits the answer: class accuracy (%) at blur 0 / 1 / 2 / 3",
         "",
-        "The network's corners or the labelled ones; the self-calibrated camera (the code's "
-        "model) or each photo's calibrated one (labels.csv); presence from the network in all.",
+        "The network's corners, the labelled ones or those of OpenCV's chessboard detector "
+        "as `planar-pose compare` runs it (the 160x120 image enlarged 4x; the network's "
+        "corners where it finds no board); the self-calibrated camera (the code's model) or "
+        "each photo's calibrated one (labels.csv); presence from the network in all. The "
+        "detector's rows show whether its lead in docs/comparison.md, where it is given each "
+        "photo's calibrated camera, comes from its corners or from that camera.",
         "",
         *table(["split", "corners, camera", "accuracy"], limits_table(net, cache)),
         "",
