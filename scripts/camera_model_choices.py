@@ -45,17 +45,18 @@ import torch
 
 from service.preprocess import NetworkFrame, to_network_input
 from train import REPO_ROOT
-from train.compare.chessboard_peer import ENLARGE
+from train.compare.chessboard_peer import ENLARGE, enlarged_grey
 from train.dataset import LoadedDataset, load_dataset
 from train.geometry import intrinsics, pose_class
 from train.markdown import table, written_by
 from train.network import keypoint
 from train.network.align import square_homography
 from train.network.fit import _corners, load_network, to_input
-from train.network.keypoint import SQUARES, KeypointNet
+from train.network.keypoint import KeypointNet
 from train.network.onnx_weights import keypoint_from_onnx
-from train.real.corners import ChessboardPattern, find_grid, orient_grid, to_grey
-from train.real.label import CHESSBOARD_INNER
+from train.profile import load_profile
+from train.real.corners import detect_chessboard
+from train.real.label import ObjectFinder
 from train.real.realset import read_rgb, read_splits
 
 RADIAL = (0.0, -0.1, -0.2, -0.25, -0.3, -0.4)
@@ -125,27 +126,21 @@ class Cached:
     def detector_corners(self, net: KeypointNet) -> torch.Tensor:
         """The board's four corners [N, 4, 2] px in the object's order as OpenCV's chessboard
         detector sees them, NaN where it finds no board: the comparison's peer (the image
-        enlarged 4x, cubic; `find_grid`, `orient_grid`), the outline through the homography
-        of its inner-corner grid. Computed once."""
+        enlarged 4x, cubic; `detect_chessboard`), the outline (`ObjectFinder.corners_xy`, the
+        labels' order) through the homography of its inner-corner grid. Computed once."""
         if self._detected is None:
-            unit = torch.tensor([[0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]], dtype=torch.float64)
-            outline = (torch.linalg.inv(net.to_unit.double()) @ unit.T).T
-            outline_cm = (outline[:, :2] / outline[:, 2:]).numpy()
-            square_cm = float(np.ptp(outline_cm[:, 0])) / SQUARES[0]
-            pattern = ChessboardPattern(*CHESSBOARD_INNER, square_cm)
-            outline_cm = outline_cm.reshape(-1, 1, 2)
+            finder = ObjectFinder(load_profile("chessboard"))
+            assert finder.pattern is not None  # the chessboard profile has one
+            outline_cm = finder.corners_xy().reshape(-1, 1, 2)
             f, (cu, cv) = float(net.focal) * ENLARGE, (net.principal.double().numpy() + 0.5)
             A = np.array([[f, 0.0, cu * ENLARGE - 0.5], [0.0, f, cv * ENLARGE - 0.5], [0, 0, 1]])
             found = torch.full((len(self.images), 4, 2), float("nan"))
             for i, rgb in enumerate(self.images):
-                grey = to_grey(rgb)
-                big = (grey.shape[1] * ENLARGE, grey.shape[0] * ENLARGE)
-                grey = cv2.resize(grey, big, interpolation=cv2.INTER_CUBIC)
-                grid = find_grid(grey, pattern)
+                grey = enlarged_grey(rgb, ENLARGE)
+                grid = detect_chessboard(grey, finder.pattern, lambda p: p, A)
                 if grid is None:
                     continue
-                object_xy, _ = orient_grid(grey, grid, pattern, lambda p: p, A)
-                H, _ = cv2.findHomography(object_xy, grid)
+                H, _ = cv2.findHomography(grid.object_xy, grid.image_uv)
                 if H is None:
                     continue
                 outline_px = cv2.perspectiveTransform(outline_cm, H).reshape(4, 2)

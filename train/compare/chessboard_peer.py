@@ -46,6 +46,16 @@ def enlarge_camera(camera: Camera, factor: float, size: tuple[int, int]) -> Came
     return Camera(K, np.asarray(camera.dist, np.float64), new, camera.images)
 
 
+def enlarged_grey(rgb: np.ndarray, factor: float) -> np.ndarray:
+    """RGB uint8 [H, W, 3] -> grey uint8 enlarged `factor` times (cubic; 1: as given)."""
+    grey = to_grey(rgb)
+    if factor == 1:
+        return grey
+    h, w = grey.shape
+    size = (round(w * factor), round(h * factor))
+    return cv2.resize(grey, size, interpolation=cv2.INTER_CUBIC)
+
+
 class ChessboardPeer:
     """OpenCV's chessboard detector + IPPE PnP + the region rule for one chessboard profile.
 
@@ -64,10 +74,7 @@ class ChessboardPeer:
         """Class of one RGB uint8 [H, W, 3] image whose intrinsics are `camera` (at H x W)."""
         h, w = rgb.shape[:2]
         cam = enlarge_camera(camera, self.enlarge, (w, h))
-        grey = to_grey(rgb)
-        if self.enlarge != 1:
-            size = (round(w * self.enlarge), round(h * self.enlarge))
-            grey = cv2.resize(grey, size, interpolation=cv2.INTER_CUBIC)
+        grey = enlarged_grey(rgb, self.enlarge)
         raw = find_grid(grey, self.pattern)
         if raw is None:
             return BaselinePrediction(0, None, NOT_FOUND, "", 0)
