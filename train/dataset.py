@@ -86,6 +86,17 @@ class LoadedDataset:
         empty (renders)."""
         return np.array([float(r.get("pixel_aspect") or 1.0) for r in self.rows], np.float32)
 
+    def board_cut(self) -> np.ndarray:
+        """float [N]: 1 where the frame cuts the object (a labelled corner lies outside the
+        image), 0 where all four corners are in it, nan for rows without corners (class 0)."""
+        w, h = self.size
+        out = np.full(len(self.rows), np.nan)
+        for i, row in enumerate(self.rows):
+            if row.get(CORNER_COLUMNS[0]):
+                uv = np.array([float(row[c]) for c in CORNER_COLUMNS]).reshape(4, 2)
+                out[i] = float(not ((uv >= 0) & (uv <= (w, h))).all())
+        return out
+
     def boundary_margin_cm(self) -> np.ndarray:
         """float [N]: how far (cm) each image's camera centre is from the nearest region
         boundary (the planes x = 0, y = 0, z = z_split of the object frame, SPEC section 3);

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from train.markdown import pct, table
-from train.network.report import margin_line, source_table
+from train.network.report import framing_line, margin_line, source_table
 
 INTRO = """# Shipped models
 
@@ -75,8 +75,11 @@ def write_catalog(models_dir: Path) -> Path:
         }
         for key, sources in by_source.items():
             lines += [f"Real test sources, `{key}`:", "", *source_table(sources), ""]
-            if line := margin_line(card["accuracy"][key].get("by_margin")):
-                lines += [line, ""]
+            for line in (
+                margin_line(card["accuracy"][key].get("by_margin")),
+                framing_line(card["accuracy"][key].get("by_framing")),
+            ):
+                lines += [line, ""] if line else []
     stamp = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
     lines.append(f"Written {stamp} on {platform.node()} by `planar-pose catalog`.")
     out = models_dir / "README.md"

@@ -11,7 +11,7 @@ import math
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -56,6 +56,7 @@ def compute_metrics(
     y_pred: np.ndarray,
     ms_per_image: float,
     margin_cm: np.ndarray | None = None,
+    cut: np.ndarray | None = None,
 ) -> dict:
     """SPEC 10 metrics of predicted classes `y_pred` against `y_true` (both int [N], 0..8).
 
@@ -70,7 +71,9 @@ def compute_metrics(
     With `margin_cm` (float [N], `LoadedDataset.boundary_margin_cm`: the camera centre's
     distance from the nearest region boundary, nan for class 0), `by_margin` lists per band
     of `MARGIN_BANDS_CM` the object images in it and the share classified right: how close
-    to a boundary the errors are.
+    to a boundary the errors are. With `cut` (float [N], `LoadedDataset.board_cut`: 1 where
+    the frame cuts the object, 0 where it is whole in view, nan otherwise), `by_framing` has
+    the `whole` and `cut` object images, each as `count` and `accuracy`.
     """
     cm = confusion_matrix(y_true, y_pred)
     total = int(cm.sum())
@@ -82,7 +85,7 @@ def compute_metrics(
     precision = [_ratio(diag[k], cols[k]) for k in range(NUM_CLASSES)]
     # F1 = 2 TP / (2 TP + FP + FN): 0 when the class is missed or only wrongly predicted.
     f1 = [_ratio(2 * diag[k], rows[k] + cols[k]) for k in range(NUM_CLASSES)]
-    return {
+    metrics: dict[str, Any] = {
         "count": total,
         "accuracy": float(diag.sum()) / total,
         "per_class_accuracy": recall,
@@ -92,7 +95,25 @@ def compute_metrics(
         "confusion": cm.tolist(),
         "ms_per_image": float(ms_per_image),
         "regions": region_breakdown(cm),
-    } | ({} if margin_cm is None else {"by_margin": margin_breakdown(y_true, y_pred, margin_cm)})
+    }
+    if margin_cm is not None:
+        metrics["by_margin"] = margin_breakdown(y_true, y_pred, margin_cm)
+    if cut is not None:
+        metrics["by_framing"] = framing_breakdown(y_true, y_pred, cut)
+    return metrics
+
+
+def framing_breakdown(
+    y_true: np.ndarray, y_pred: np.ndarray, cut: np.ndarray
+) -> dict[str, dict[str, float | int | None]]:
+    """`whole` and `cut` (`compute_metrics`): the object images the frame shows whole or cuts
+    (`count`) and the share of them classified right (`accuracy`, None when there are none)."""
+    out = {}
+    for name, value in (("whole", 0.0), ("cut", 1.0)):
+        these = cut == value
+        right = float((y_true[these] == y_pred[these]).sum())
+        out[name] = {"count": int(these.sum()), "accuracy": _ratio(right, these.sum())}
+    return out
 
 
 def margin_breakdown(
@@ -272,7 +293,9 @@ def evaluate_predictor(
         predict, data.images, data.pixel_aspect(), progress=progress, focal=focal
     )
     predicted = probs.argmax(axis=1)
-    metrics = compute_metrics(data.labels, predicted, ms, data.boundary_margin_cm())
+    metrics = compute_metrics(
+        data.labels, predicted, ms, data.boundary_margin_cm(), data.board_cut()
+    )
     if by_source := source_breakdown(data.labels, predicted, data.rows):
         metrics["by_source"] = by_source
     return metrics

@@ -253,9 +253,9 @@ def with_card(model_bytes: bytes, card: dict[str, Any]) -> bytes:
 
 
 def accuracy_on(predict: Any, datasets: list[Path], split: str) -> dict[str, dict[str, Any]]:
-    """{data set folder name: {accuracy, class0_accuracy, count, split, by_margin[,
-    by_source]}} of a predictor (`train.network.evaluate.margin_breakdown`; real sets:
-    `source_breakdown`)."""
+    """{data set folder name: {accuracy, class0_accuracy, count, split, by_margin,
+    by_framing[, by_source]}} of a predictor (`train.network.evaluate.compute_metrics`; real
+    sets: `source_breakdown`)."""
     from train.dataset import load_dataset
     from train.network.evaluate import compute_metrics, predict_all, source_breakdown
 
@@ -266,13 +266,14 @@ def accuracy_on(predict: Any, datasets: list[Path], split: str) -> dict[str, dic
             raise ValueError(f"{path} has no images in split {split!r}")
         probs, ms = predict_all(predict, data.images, data.pixel_aspect())
         predicted = probs.argmax(axis=1)
-        m = compute_metrics(data.labels, predicted, ms, data.boundary_margin_cm())
+        m = compute_metrics(data.labels, predicted, ms, data.boundary_margin_cm(), data.board_cut())
         out[path.name] = {
             "split": split,
             "count": m["count"],
             "accuracy": round(m["accuracy"], 4),
             "class0_accuracy": m["per_class_accuracy"][0],
             "by_margin": m["by_margin"],
+            "by_framing": m["by_framing"],
         }
         if by_source := source_breakdown(data.labels, predicted, data.rows):  # a real set
             out[path.name]["by_source"] = by_source

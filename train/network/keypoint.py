@@ -9,7 +9,10 @@ and the class follows from them as the SPEC labels define it:
 
     corners   U-Net: encoder 160x120 -> 10x7 (ReLU + batch norm + max pooling), decoder back
               to 40x30 (or, `stride` 2, to 80x60 with the stem's features); 4 heat maps
-              [N, 4, 30, 40] (or [N, 4, 60, 80]), soft-argmax -> corners [N, 4, 2] px
+              [N, 4, 30, 40] (or [N, 4, 60, 80]) and each cell's offset of each corner from
+              the cell [N, 8, ...] px, soft-argmax of cell + offset -> corners [N, 4, 2] px:
+              the offsets carry a corner beyond the frame (a board the frame cuts), where
+              the heat map alone cannot reach
     align     the corners moved to sub-pixel accuracy by aligning the checker pattern to the
               image, and the lens's radial distortion k1 fitted with them where the pattern
               is plain (`train.network.align`: Gauss-Newton, no weights; not in training,
@@ -138,6 +141,11 @@ class KeypointNet(NormalisedNet):
         self.presence = nn.Sequential(
             nn.Flatten(), nn.Linear(2 * 128, 64), nn.ReLU(), nn.Linear(64, 1)
         )
+        # the corners' offsets from the cells (`_soft_argmax`): zero to start with, as in the
+        # networks before them (`_load_from_state_dict`)
+        self.offset = nn.Conv2d(self.heat.in_channels, 8, 1)
+        nn.init.zeros_(self.offset.weight)
+        nn.init.zeros_(self.offset.bias)
         w, h = size[0] // stride, size[1] // stride
         self.register_buffer("grid_u", (torch.arange(w) * stride + (stride - 1) / 2).float())
         self.register_buffer("grid_v", (torch.arange(h) * stride + (stride - 1) / 2).float())
@@ -181,9 +189,10 @@ class KeypointNet(NormalisedNet):
         self.register_buffer("parity_gain", torch.tensor(8.0))
 
     # -- network -------------------------------------------------------------------------------
-    def _encode(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def _encode(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Normalised RGB [N, 3, 120, 160] -> heat-map logits [N, 4, 30, 40] (stride 2:
-        [N, 4, 60, 80]), presence [N]."""
+        [N, 4, 60, 80]), the corners' offsets from the cells [N, 8, 30, 40] px ((u, v) of
+        corner 0, ...; stride 2: [N, 8, 60, 80]), presence logit [N]."""
         s0 = self.stem(x)
         s1 = self.down1(F.max_pool2d(s0, 2))
         s2 = self.down2(F.max_pool2d(s1, 2))
@@ -193,14 +202,17 @@ class KeypointNet(NormalisedNet):
         if self.up0 is not None:
             u = self.up0(torch.cat([F.interpolate(u, size=s0.shape[2:]), s0], 1))
         pooled = torch.cat([s3.mean((2, 3)), s3.amax((2, 3))], 1)
-        return self.heat(u), self.presence(pooled)[:, 0]
+        return self.heat(u), self.offset(u), self.presence(pooled)[:, 0]
 
-    def _soft_argmax(self, heat: torch.Tensor) -> torch.Tensor:
-        """Heat-map logits [N, 4, h, w] -> expected corner positions [N, 4, 2] px (input image)."""
+    def _soft_argmax(self, heat: torch.Tensor, offset: torch.Tensor) -> torch.Tensor:
+        """Heat-map logits [N, 4, h, w] and offsets [N, 8, h, w] px (`_encode`) -> expected
+        corner positions [N, 4, 2] px (input image): the sum over the cells of P(cell) times
+        the cell's centre plus its offset."""
         n, k, h, w = heat.shape
         p = F.softmax(heat.reshape(n, k, h * w), dim=2).reshape(n, k, h, w)
-        u = (p.sum(2) * self.grid_u).sum(2)
-        v = (p.sum(3) * self.grid_v).sum(2)
+        offset = offset.reshape(n, k, 2, h, w)
+        u = (p * (self.grid_u + offset[:, :, 0])).sum((2, 3))
+        v = (p * (self.grid_v[:, None] + offset[:, :, 1])).sum((2, 3))
         return torch.stack([u, v], 2)
 
     # -- geometry ------------------------------------------------------------------------------
@@ -246,6 +258,9 @@ class KeypointNet(NormalisedNet):
         # renders' focal range): the camera model is the code's, not the checkpoint's
         state_dict.pop(prefix + "focal", None)
         state_dict.pop(prefix + "focal_bounds", None)
+        # networks before 3.9.0 have no corner offsets: theirs are zero
+        for name, value in self.offset.named_parameters():
+            state_dict.setdefault(f"{prefix}offset.{name}", torch.zeros_like(value))
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
     @staticmethod
@@ -386,9 +401,9 @@ class KeypointNet(NormalisedNet):
         """RGB [N, 3, H, W] in [0, 1], its pixel aspect [N] and where it lies in the frame
         (`view`, as `answer`) -> what the image says before the pose (`Observation`; corners
         in input pixels)."""
-        heat, presence = self._encode((x - self.mean) / self.std)
+        heat, offset, presence = self._encode((x - self.mean) / self.std)
         lens = self.lens(self._aspect(x[:, 0, 0, 0], pixel_aspect), view)
-        q, corr, k1 = self.align(x, self._soft_argmax(heat), lens)
+        q, corr, k1 = self.align(x, self._soft_argmax(heat, offset), lens)
         parity = self.parity(x, square_homography(q))
         # the checker pattern found at the corners is evidence of the board on its own
         pattern = torch.sigmoid(PATTERN_SLOPE * (corr.abs() - PATTERN_CORR))
@@ -439,13 +454,13 @@ class KeypointNet(NormalisedNet):
         `fit._corner_loss` trains."""
         if not self.training:
             return self.logits(x, pixel_aspect)
-        heat, presence = self._encode((x - self.mean) / self.std)
+        heat, offset, presence = self._encode((x - self.mean) / self.std)
         # under a bfloat16 training step (`FitConfig.bf16`) only the encoder runs in bfloat16:
         # the soft-argmax and the geometry need float32 (in bfloat16 a soft-argmax over
         # 80x60 positions is up to half a pixel off)
         with torch.autocast(x.device.type, enabled=False):
-            heat, presence = heat.float(), presence.float()
-            q = self._soft_argmax(heat)
+            heat, offset, presence = heat.float(), offset.float(), presence.float()
+            q = self._soft_argmax(heat, offset)
             # the class loss trains the presence logit only; the corners learn from theirs
             with torch.no_grad():
                 pk = self._classes_if_present(x, q, pixel_aspect)

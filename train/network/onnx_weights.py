@@ -24,6 +24,7 @@ from torch import nn
 from train.network.model import NormalisedNet, build_network
 
 PREFIX = "net."
+OPTIONAL = {"offset.weight", "offset.bias"}
 
 
 class OnnxWeightsError(ValueError):
@@ -89,7 +90,8 @@ def keypoint_from_onnx(path: Path) -> tuple[NormalisedNet, dict[str, Any]]:
         if PREFIX + key in inits:
             state[key] = inits[PREFIX + key].reshape(state[key].shape)
             read.add(key)
-    unread = [k for k, _ in net.named_parameters() if k not in read]
+    # graphs before 3.9.0 have no corner offsets (`KeypointNet.offset`): theirs are zero
+    unread = [k for k, _ in net.named_parameters() if k not in read | OPTIONAL]
     if unread:
         raise OnnxWeightsError(f"{path}: no weights in the graph for {', '.join(unread)}")
     net.load_state_dict(state)

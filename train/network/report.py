@@ -141,6 +141,18 @@ def margin_line(bands: list[dict] | None) -> str:
     )
 
 
+def framing_line(framing: dict | None) -> str:
+    """A `by_framing` breakdown as one sentence ('' without it or without cut boards)."""
+    if not framing or not framing["cut"]["count"]:
+        return ""
+    whole, cut = framing["whole"], framing["cut"]
+    return (
+        f"Boards the frame cuts (a labelled corner outside the image): "
+        f"{pct_cell(cut['accuracy'])} % of {cut['count']}; whole in view: "
+        f"{pct_cell(whole['accuracy'])} % of {whole['count']}."
+    )
+
+
 SOURCE_HEADER = [
     "source",
     "photos",
@@ -181,6 +193,7 @@ def cell_section(model: str, dataset: str, metrics: dict, image: str) -> list[st
         "",
         *_regions_line(metrics),
         *([line, ""] if (line := margin_line(metrics.get("by_margin"))) else []),
+        *([line, ""] if (line := framing_line(metrics.get("by_framing"))) else []),
         *(["By source:", "", *source_table(s), ""] if (s := metrics.get("by_source")) else []),
     ]
     keys = ("per_class_accuracy", "precision", "recall", "f1")

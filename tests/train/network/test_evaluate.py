@@ -19,7 +19,7 @@ from train.network.evaluate import (
     predict_all,
     source_breakdown,
 )
-from train.network.report import margin_line, write_report
+from train.network.report import framing_line, margin_line, write_report
 
 runner = CliRunner()
 
@@ -87,6 +87,23 @@ def test_accuracy_by_the_cameras_margin_from_a_region_boundary():
         "0-2 cm: 50.0 % of 2, 2-5 cm: 100.0 % of 1, 5-10 cm: - % of 0, >= 10 cm: 100.0 % of 2"
     )
     assert "by_margin" not in compute_metrics(y_true, y_pred, 1.0)
+
+
+def test_accuracy_on_boards_the_frame_cuts_and_on_whole_ones():
+    y_true = np.array([1, 1, 2, 5, 0])
+    y_pred = np.array([1, 2, 2, 6, 0])
+    cut = np.array([0.0, 1.0, 1.0, 1.0, np.nan])  # class 0 has no corners
+    framing = compute_metrics(y_true, y_pred, 1.0, cut=cut)["by_framing"]
+    assert framing == {
+        "whole": {"count": 1, "accuracy": 1.0}, "cut": {"count": 3, "accuracy": 1 / 3}
+    }  # fmt: skip
+    assert framing_line(framing) == (
+        "Boards the frame cuts (a labelled corner outside the image): 33.3 % of 3; "
+        "whole in view: 100.0 % of 1."
+    )
+    none_cut = compute_metrics(y_true, y_pred, 1.0, cut=np.where(cut > 0, 0.0, cut))
+    assert framing_line(none_cut["by_framing"]) == ""
+    assert "by_framing" not in compute_metrics(y_true, y_pred, 1.0)
 
 
 def test_breakdown_by_source_with_its_cameras_focal_length():

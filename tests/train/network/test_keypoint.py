@@ -251,6 +251,7 @@ def test_training_mode_outputs_and_build():
     assert torch.allclose(logp.exp().sum(1), torch.ones(2), atol=1e-5)
     (logp[:, 0].sum() + corners.sum()).backward()
     assert net.presence[-1].weight.grad is not None and net.heat.weight.grad is not None
+    assert net.offset.weight.grad.abs().max() > 0  # the corners' offsets learn from zero
     with pytest.raises(ValueError, match="unsupported input size 80x60"):
         KeypointNet((80, 60))
     with pytest.raises(ValueError, match="unsupported heat-map stride 3"):
@@ -383,3 +384,27 @@ def test_checkpoints_with_the_old_focal_bounds_still_load():
     assert "focal_bounds" not in state  # derived from FOCAL_BOUNDS, not stored
     state["focal_bounds"] = torch.tensor([1.0, 2.0])  # as checkpoints before 3.3.0 have it
     KeypointNet().load_state_dict(state)
+
+
+def test_the_offsets_carry_a_corner_beyond_the_frame():
+    net = KeypointNet(stride=2)
+    assert not net.offset.weight.any() and not net.offset.bias.any()  # zero to start with
+    heat = torch.full((1, 4, 60, 80), -50.0)
+    heat[0, :, 0, 0] = heat[0, :, 59, 79] = 50.0  # two cells, each half the mass
+    offset = torch.zeros(1, 8, 60, 80)
+    q = net._soft_argmax(heat, offset)
+    assert torch.allclose(q[0], torch.tensor([(0.5 + 158.5) / 2, (0.5 + 118.5) / 2]).expand(4, 2))
+    heat[0, :, 59, 79] = -50.0  # all the mass in the top left cell, centre (0.5, 0.5) px
+    offset[0, 0:2] = torch.tensor([-12.0, -7.0])[:, None, None]  # corner 0 out of the frame
+    q = net._soft_argmax(heat, offset)
+    assert torch.allclose(q[0, 0], torch.tensor([-11.5, -6.5])) and (q[0, 1:] == 0.5).all()
+
+
+def test_checkpoints_without_the_offsets_load_with_zero_offsets():
+    torch.manual_seed(0)
+    net = KeypointNet()
+    state = {k: v for k, v in net.state_dict().items() if not k.startswith("offset.")}
+    older = KeypointNet()
+    nn.init.ones_(older.offset.weight)
+    older.load_state_dict(state)  # as the checkpoints before 3.9.0
+    assert not older.offset.weight.any() and not older.offset.bias.any()

@@ -3,6 +3,8 @@ checkpoint."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import onnxruntime as ort
 import pytest
@@ -18,8 +20,12 @@ from train.synth.generate import DatasetSpec, make_dataset
 DEFAULT = REPO_ROOT / "models" / "default.onnx"
 
 
-def _graph_probabilities(x: torch.Tensor) -> np.ndarray:
-    session = ort.InferenceSession(str(DEFAULT), providers=["CPUExecutionProvider"])
+# a shipped graph of 3.4.0, before the corners' offsets (`KeypointNet.offset`)
+WITHOUT_OFFSETS = REPO_ROOT / "models" / "chessboard-keypoint-s2-real-160x120.onnx"
+
+
+def _graph_probabilities(x: torch.Tensor, path: Path = DEFAULT) -> np.ndarray:
+    session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
     return session.run(["probabilities"], {"image": x.numpy()})[0]
 
 
@@ -39,6 +45,15 @@ def test_the_read_back_network_answers_like_the_graph_before_and_after_recalibra
     assert isinstance(norm, nn.BatchNorm2d)
     assert torch.allclose(norm.running_var, torch.ones_like(norm.running_var), atol=1e-3)
     assert norm.running_mean.abs().max() > 0.01
+
+
+def test_a_graph_without_the_offsets_reads_back_with_zero_offsets():
+    x = torch.rand(4, 3, 120, 160, generator=torch.Generator().manual_seed(2))
+    net, _ = keypoint_from_onnx(WITHOUT_OFFSETS)
+    assert not net.offset.weight.any() and not net.offset.bias.any()
+    with torch.no_grad():
+        got = net.eval().logits(x).exp().numpy()
+    assert np.abs(got - _graph_probabilities(x, WITHOUT_OFFSETS)).max() < 1e-3
 
 
 def test_fine_tuning_from_the_graph_at_learning_rate_0_keeps_its_answers(tmp_path):

@@ -111,6 +111,12 @@ def test_loader_round_trip_and_cache(small_set, tmp_path):
     want = np.minimum(np.abs(centres[:, :2]).min(1), np.abs(centres[:, 2] - 60.0))
     shown = data.labels > 0
     assert np.isnan(margin[~shown]).all() and np.allclose(margin[shown], want[shown])
+    cut = data.board_cut()
+    corners = np.array(
+        [[float(r[f"corner_{a}{i}"] or "nan") for i in range(4) for a in "xy"] for r in rows]
+    )
+    outside = ((corners < 0) | (corners > np.tile([80, 60], 4))).any(1)
+    assert np.isnan(cut[~shown]).all() and np.array_equal(cut[shown], outside[shown])
 
 
 def test_cache_is_invalidated_when_labels_change(tmp_path):
