@@ -32,7 +32,7 @@ PP=${PP:-.venv/bin/planar-pose}
 D=runs/default/data   # the recipes name their data and run folders under runs/default
 R=runs/default/runs
 N_EVAL=${N_EVAL:-1000}  # images per synthetic evaluation set; its 20 % test split is evaluated
-VERSION=${VERSION:-3.8.0}
+VERSION=${VERSION:-3.9.0}
 mkdir -p "$D" "$R"
 
 make_set() {  # OUT VARIANT SIZE BLUR COUNT SEED [PROFILE]
@@ -89,7 +89,9 @@ Since 3.5.0 its graph serves the zoom pass (service/zoom.py), with which its acc
 since 3.6.0 it also takes the camera's focal length where the caller knows it (input focal; /v1/predict?fx=); \
 since 3.7.0 its corner alignment fits the lens's radial distortion per image (train/network/align.py); \
 since 3.8.0 a fitted barrel stronger than a lens's own (BARREL_LIMIT, train/network/keypoint.py) \
-shortens its focal-length prior."
+shortens its focal-length prior; \
+since 3.9.0 each heat-map cell also gives each corner's offset from the cell, so that a corner the \
+frame cuts off lies beyond the frame (train/network/keypoint.py)."
 remeasure chessboard-keypoint-s2-real-160x120 2 "The default of version 3.4.0: the weights of \
 recipes/chessboard-keypoint-s2-160x120-real.toml in the graph of 3.4.0 (no view input, no \
 pattern output), so answered without the zoom pass, kept to measure it."

@@ -54,7 +54,8 @@ class ImageResult(BaseModel):
         description="Whole mode, models with a corners output (the keypoint networks), object "
         "in view: the object's four corners [x, y] in pixels of the uploaded image (after "
         "EXIF orientation, pixel centres at integers), in the order (-X,-Y), (+X,-Y), "
-        "(+X,+Y), (-X,+Y) of the object frame; with the camera's intrinsics they give the "
+        "(+X,+Y), (-X,+Y) of the object frame (a corner the photo cuts off lies outside "
+        "the image); with the camera's intrinsics they give the "
         "full pose (e.g. cv2.solvePnP). Else null.",
     )
     fx: float | None = Field(
