@@ -87,8 +87,8 @@ class LoadedDataset:
         return np.array([float(r.get("pixel_aspect") or 1.0) for r in self.rows], np.float32)
 
     def board_cut(self) -> np.ndarray:
-        """float [N]: 1 where the frame cuts the object (a labelled corner lies outside the
-        image), 0 where all four corners are in it, nan for rows without corners (class 0)."""
+        """float [N]: 1 where the frame cuts the object (a labelled corner lies outside
+        [0, W] x [0, H] px), 0 where all four are in it, nan for rows without corners (class 0)."""
         w, h = self.size
         out = np.full(len(self.rows), np.nan)
         for i, row in enumerate(self.rows):
