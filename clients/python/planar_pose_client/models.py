@@ -63,7 +63,8 @@ class Prediction(_Answer):
     corners: list[tuple[float, float]] | None = Field(
         None,
         description="whole mode, models with corners, object in view: the object's four "
-        "corners (x, y) in image pixels, order (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y); else None",
+        "corners (x, y) in image pixels, order (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y) (a corner "
+        "the photo cuts off lies outside the image); else None",
     )
     fx: float | None = Field(
         None,
