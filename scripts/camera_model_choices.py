@@ -51,7 +51,7 @@ from train.geometry import intrinsics, pose_class
 from train.markdown import table, written_by
 from train.network import keypoint
 from train.network.align import square_homography
-from train.network.fit import _corners, load_network, to_input
+from train.network.fit import load_network, to_input
 from train.network.keypoint import KeypointNet
 from train.network.onnx_weights import keypoint_from_onnx
 from train.profile import load_profile
@@ -86,8 +86,8 @@ SPLIT_HEADER = [
 class Cached:
     """The network's part of the answer on one data set split (`KeypointNet.observe`, with
     each image's pixel aspect): aligned corners [N, 4, 2], their parity [N], P(present) [N],
-    the lens's k1 the alignment fitted [N]; pixel aspect [N], labels [N] and the labels.csv
-    rows."""
+    the lens's k1 the alignment fitted [N]; pixel aspect [N], labels [N], the labelled
+    corners [N, 4, 2] (nan where none) and the labels.csv rows."""
 
     def __init__(self, net: KeypointNet, data: LoadedDataset) -> None:
         x = to_input(data.images)
@@ -102,6 +102,7 @@ class Cached:
         )
         self.labels = data.labels
         self.rows = data.rows
+        self.labelled = torch.from_numpy(data.corners())
         self.images = data.images
         self._detected: torch.Tensor | None = None
 
@@ -155,7 +156,7 @@ class Cached:
         fitted) or (`calibrated`) each photo's calibrated one (labels.csv: fx, fy, cx, cy, k1
         in network pixels; the self-calibrated one where a row has none)."""
         if corners == "labelled":
-            given = torch.from_numpy(_corners(self.rows).reshape(-1, 4, 2))
+            given = self.labelled
         elif corners == "detector":
             given = self.detector_corners(net)
         else:
@@ -333,7 +334,7 @@ def labelled_corner_table(net: KeypointNet, data_dir: Path) -> list[list[str]]:
     for split in ("train", "val"):
         data = load_dataset(data_dir / "real-s2-b0", split=split)
         board = data.labels > 0
-        q = torch.from_numpy(_corners(data.rows)[board].reshape(-1, 4, 2))
+        q = torch.from_numpy(data.corners()[board])
         truth = np.array(
             [
                 [float(r[f"cam_{a}"]) for a in "xyz"]

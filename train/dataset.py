@@ -86,16 +86,21 @@ class LoadedDataset:
         empty (renders)."""
         return np.array([float(r.get("pixel_aspect") or 1.0) for r in self.rows], np.float32)
 
+    def corners(self) -> np.ndarray:
+        """float32 [N, 4, 2]: each image's labelled object corners (px, `CORNER_COLUMNS`); nan
+        for rows without them (class 0, photos without corners)."""
+        out = np.full((len(self.rows), 4, 2), np.nan, np.float32)
+        for i, row in enumerate(self.rows):
+            if row.get(CORNER_COLUMNS[0]):
+                out[i] = np.array([float(row[c]) for c in CORNER_COLUMNS]).reshape(4, 2)
+        return out
+
     def board_cut(self) -> np.ndarray:
         """float [N]: 1 where the frame cuts the object (a labelled corner lies outside
         [0, W] x [0, H] px), 0 where all four are in it, nan for rows without corners (class 0)."""
-        w, h = self.size
-        out = np.full(len(self.rows), np.nan)
-        for i, row in enumerate(self.rows):
-            if row.get(CORNER_COLUMNS[0]):
-                uv = np.array([float(row[c]) for c in CORNER_COLUMNS]).reshape(4, 2)
-                out[i] = float(not ((uv >= 0) & (uv <= (w, h))).all())
-        return out
+        uv = self.corners()
+        inside = ((uv >= 0) & (uv <= self.size)).all(axis=(1, 2))
+        return np.where(np.isnan(uv).any(axis=(1, 2)), np.nan, (~inside).astype(float))
 
     def boundary_margin_cm(self) -> np.ndarray:
         """float [N]: how far (cm) each image's camera centre is from the nearest region

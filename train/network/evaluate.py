@@ -108,12 +108,19 @@ def framing_breakdown(
 ) -> dict[str, dict[str, float | int | None]]:
     """`whole` and `cut` (`compute_metrics`): the object images the frame shows whole or cuts
     (`count`) and the share of them classified right (`accuracy`, None when there are none)."""
-    out = {}
-    for name, value in (("whole", 0.0), ("cut", 1.0)):
-        these = cut == value
-        right = float((y_true[these] == y_pred[these]).sum())
-        out[name] = {"count": int(these.sum()), "accuracy": _ratio(right, these.sum())}
-    return out
+    return {
+        name: _share_right(y_true, y_pred, cut == value)
+        for name, value in (("whole", 0), ("cut", 1))
+    }
+
+
+def _share_right(
+    y_true: np.ndarray, y_pred: np.ndarray, these: np.ndarray
+) -> dict[str, float | int | None]:
+    """`count` of the images `these` (bool [N]) and the share of them classified right
+    (`accuracy`, None when there are none)."""
+    right = float((y_true[these] == y_pred[these]).sum())
+    return {"count": int(these.sum()), "accuracy": _ratio(right, these.sum())}
 
 
 def margin_breakdown(
@@ -125,14 +132,8 @@ def margin_breakdown(
     bands = []
     for lo, hi in MARGIN_BANDS_CM:
         inside = (margin_cm >= lo) & (margin_cm < hi)
-        bands.append(
-            {
-                "lo_cm": lo,
-                "hi_cm": None if math.isinf(hi) else hi,
-                "count": int(inside.sum()),
-                "accuracy": _ratio(float((y_true[inside] == y_pred[inside]).sum()), inside.sum()),
-            }
-        )
+        bound = {"lo_cm": lo, "hi_cm": None if math.isinf(hi) else hi}
+        bands.append(bound | _share_right(y_true, y_pred, inside))
     return bands
 
 

@@ -29,7 +29,6 @@ import torch
 import torch.nn.functional as F
 from tqdm import tqdm
 
-from train.dataset import CORNER_COLUMNS
 from train.network.config import FitConfig
 from train.network.model import (
     NormalisedNet,
@@ -85,7 +84,7 @@ def load_split(paths: list[Path], split: str) -> tuple[Split, list[dict[str, Any
         images.append(data.images)
         labels.append(data.labels)
         blurs.append(np.full(len(data.labels), int(data.manifest.get("blur", 0))))
-        corners.append(_corners(data.rows))
+        corners.append(data.corners().reshape(-1, 8))
         aspects.append(data.pixel_aspect())
         # the manifest's own "count" is the whole set's: this split's count comes last
         infos.append(
@@ -103,15 +102,6 @@ def load_split(paths: list[Path], split: str) -> tuple[Split, list[dict[str, Any
         np.concatenate(aspects),
     )
     return out, infos
-
-
-def _corners(rows: list[dict[str, str]]) -> np.ndarray:
-    """Object corners float32 [N, 8] px from labels.csv rows; nan where a row has none."""
-    out = np.full((len(rows), len(CORNER_COLUMNS)), np.nan, np.float32)
-    for i, row in enumerate(rows):
-        if row.get(CORNER_COLUMNS[0]):
-            out[i] = [float(row[c]) for c in CORNER_COLUMNS]
-    return out
 
 
 def to_input(images: np.ndarray) -> torch.Tensor:

@@ -83,6 +83,9 @@ SQUARES = (10, 7)  # squares of the board along its width (x) and height (y)
 # whatever the presence logit says: real photos without a board stay under 0.16 (the
 # corpus's train and val sources), with one mostly over 0.6
 PATTERN_CORR, PATTERN_SLOPE = 0.4, 20.0
+# what the networks before 3.9.0 lack, the corner offsets: zero where a checkpoint or a graph
+# has none (`KeypointNet._load_from_state_dict`, `onnx_weights.keypoint_from_onnx`)
+ZERO_IF_ABSENT = ("offset.weight", "offset.bias")
 
 
 class Observation(NamedTuple):
@@ -258,9 +261,8 @@ class KeypointNet(NormalisedNet):
         # renders' focal range): the camera model is the code's, not the checkpoint's
         state_dict.pop(prefix + "focal", None)
         state_dict.pop(prefix + "focal_bounds", None)
-        # networks before 3.9.0 have no corner offsets: theirs are zero
-        for name, value in self.offset.named_parameters():
-            state_dict.setdefault(f"{prefix}offset.{name}", torch.zeros_like(value))
+        for key in ZERO_IF_ABSENT:
+            state_dict.setdefault(prefix + key, torch.zeros_like(self.get_parameter(key)))
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
     @staticmethod

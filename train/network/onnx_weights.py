@@ -21,10 +21,10 @@ from typing import Any
 import torch
 from torch import nn
 
+from train.network.keypoint import ZERO_IF_ABSENT
 from train.network.model import NormalisedNet, build_network
 
 PREFIX = "net."
-OPTIONAL = {"offset.weight", "offset.bias"}
 
 
 class OnnxWeightsError(ValueError):
@@ -90,8 +90,7 @@ def keypoint_from_onnx(path: Path) -> tuple[NormalisedNet, dict[str, Any]]:
         if PREFIX + key in inits:
             state[key] = inits[PREFIX + key].reshape(state[key].shape)
             read.add(key)
-    # graphs before 3.9.0 have no corner offsets (`KeypointNet.offset`): theirs are zero
-    unread = [k for k, _ in net.named_parameters() if k not in read | OPTIONAL]
+    unread = [k for k, _ in net.named_parameters() if k not in read and k not in ZERO_IF_ABSENT]
     if unread:
         raise OnnxWeightsError(f"{path}: no weights in the graph for {', '.join(unread)}")
     net.load_state_dict(state)
