@@ -32,7 +32,7 @@ PP=${PP:-.venv/bin/planar-pose}
 D=runs/default/data   # the recipes name their data and run folders under runs/default
 R=runs/default/runs
 N_EVAL=${N_EVAL:-1000}  # images per synthetic evaluation set; its 20 % test split is evaluated
-VERSION=${VERSION:-3.9.0}
+VERSION=${VERSION:-3.10.0}
 mkdir -p "$D" "$R"
 
 make_set() {  # OUT VARIANT SIZE BLUR COUNT SEED [PROFILE]
@@ -91,7 +91,9 @@ since 3.7.0 its corner alignment fits the lens's radial distortion per image (tr
 since 3.8.0 a fitted barrel stronger than a lens's own (BARREL_LIMIT, train/network/keypoint.py) \
 shortens its focal-length prior; \
 since 3.9.0 each heat-map cell also gives each corner's offset from the cell, so that a corner the \
-frame cuts off lies beyond the frame (train/network/keypoint.py)."
+frame cuts off lies beyond the frame (train/network/keypoint.py); \
+since 3.10.0 the half turn is also read against the checker blurred as the SPEC's heaviest blur \
+level blurs it, which inverts the pattern of squares under about 5 px (KeypointNet.parity)."
 remeasure chessboard-keypoint-s2-real-160x120 2 "The default of version 3.4.0: the weights of \
 recipes/chessboard-keypoint-s2-160x120-real.toml in the graph of 3.4.0 (no view input, no \
 pattern output), so answered without the zoom pass, kept to measure it."

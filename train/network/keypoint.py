@@ -27,7 +27,10 @@ and the class follows from them as the SPEC labels define it:
               in the object frame
     parity    the image sampled at the 70 square centres through the homography, correlated
               with the checker pattern: its sign says whether the corner order is the true one
-              or a half turn (which maps c to (-cx, -cy, cz))
+              or a half turn (which maps c to (-cx, -cy, cz)); also with the board rendered
+              through the homography and blurred by the SPEC's heaviest blur (and by that blur
+              on a tile enlarged 2x, the zoom pass's), which inverts the pattern of squares
+              under about 5 px: the template that correlates most answers
     presence  a logit from the pooled encoder: object in view or not (class 0), or'ed with the
               correlation of the image with the checker pattern at the aligned corners
     classes   P(cx >= 0), P(cy >= 0), P(cz < z_split) as normal CDFs of c with a spread that
@@ -58,6 +61,7 @@ from train.geometry import intrinsics
 from train.network.align import CheckerAlign, Lens, square_homography
 from train.network.convnet import _conv
 from train.network.model import NormalisedNet
+from train.synth.blur import KERNELS, gaussian_taps
 
 SIZE = (160, 120)
 # The focal length (`KeypointNet.focal_length`): Zhang's constraints with a prior. The prior
@@ -77,6 +81,13 @@ RADIAL_PRIOR = -0.2
 # shorter than the prior f0: the prior becomes f0 sqrt(BARREL_LIMIT / k1) (`prior_focal`).
 # Chosen on the val sources, with the train sources as the second check (docs/camera_model.md)
 BARREL_LIMIT = -0.45
+# The blurs the parity step also reads the pattern under (`parity`): SPEC blur level 3 at
+# 160x120 (k = 10 taps, sd 5 px, anchored as the data sets' `train.synth.blur`), whose nearly
+# box-shaped kernel inverts the checker of squares under about 5 px, on the input and on a
+# tile enlarged 2x (each tap spread over 2 px)
+PARITY_BLUR = KERNELS[2][3]
+_ANCHOR = (PARITY_BLUR[0] - 1) // 2  # cv2's filter anchor: the tap on the output pixel
+PARITY_PAD = (2 * _ANCHOR, 2 * (PARITY_BLUR[0] - 1 - _ANCHOR) + 1)  # taps before / after it, 2x
 STRIDES = (4, 2)  # input pixels per heat-map pixel: 40x30 maps, or 80x60 ("keypoint-s2")
 SQUARES = (10, 7)  # squares of the board along its width (x) and height (y)
 # |corr(image, checker)| at the aligned corners above which the board is taken as present
@@ -86,6 +97,18 @@ PATTERN_CORR, PATTERN_SLOPE = 0.4, 20.0
 # what the networks before 3.9.0 lack, the corner offsets: zero where a checkpoint or a graph
 # has none (`KeypointNet._load_from_state_dict`, `onnx_weights.keypoint_from_onnx`)
 ZERO_IF_ABSENT = ("offset.weight", "offset.bias")
+
+
+def _parity_blurs() -> torch.Tensor:
+    """The 1-D kernels of `PARITY_BLUR` on the input and on a tile enlarged 2x, [2, L] on the
+    same taps: tap j is the pixel j - `PARITY_PAD`[0] away (`KeypointNet.blurred_checker`)."""
+    k, sd = PARITY_BLUR
+    g = torch.tensor(gaussian_taps(k, sd), dtype=torch.float32)
+    out = torch.zeros(2, PARITY_PAD[0] + PARITY_PAD[1] + 1)
+    start = PARITY_PAD[0] - _ANCHOR
+    out[0, start : start + k] = g
+    out[1, start - _ANCHOR : start - _ANCHOR + 2 * k] = g.repeat_interleave(2) / 2
+    return out
 
 
 class Observation(NamedTuple):
@@ -184,6 +207,7 @@ class KeypointNet(NormalisedNet):
         self.register_buffer("parity_shifts", shifts.reshape(-1, 2), persistent=False)
         # +1 on white squares; the square at corner 0 (-X, -Y) is black
         self.register_buffer("checker", (((i + j) % 2) * 2 - 1).reshape(-1).float())
+        self.register_buffer("parity_blurs", _parity_blurs(), persistent=False)
         # buffers, so that a checkpoint carries them: the region split (cm), the sd of cx, cy
         # per cm of distance and of cz per cm of cz, the parity correlation -> logit gain
         self.register_buffer("z_split", torch.tensor(float(z_split_cm)))
@@ -324,13 +348,46 @@ class KeypointNet(NormalisedNet):
         r3 = torch.cross(r1, r2, dim=1)
         return -torch.stack([(r1 * t).sum(1), (r2 * t).sum(1), (r3 * t).sum(1)], 1)
 
+    def blurred_checker(self, H_unit: torch.Tensor, shape: tuple[int, int]) -> torch.Tensor:
+        """Unit-square homographies [N, 3, 3] and an image's (H, W) -> the checker (+1 white,
+        -1 black, 0 off the board) rendered at its pixel centres through them and blurred by
+        the two `parity_blurs` [N, 2, H, W]."""
+        h, w = shape
+        a = H_unit  # its adjugate maps image points back to the unit square (up to scale)
+        inv = torch.stack(
+            [
+                torch.cross(a[:, :, 1], a[:, :, 2], dim=1),
+                torch.cross(a[:, :, 2], a[:, :, 0], dim=1),
+                torch.cross(a[:, :, 0], a[:, :, 1], dim=1),
+            ],
+            1,
+        )  # rows: [N, 3, 3]
+        u = torch.arange(w, dtype=a.dtype, device=a.device)
+        v = torch.arange(h, dtype=a.dtype, device=a.device)[:, None]
+        p = [
+            inv[:, i, 0, None, None] * u + inv[:, i, 1, None, None] * v + inv[:, i, 2, None, None]
+            for i in range(3)
+        ]
+        z = torch.where(p[2].abs() < 1e-9, torch.full_like(p[2], 1e-9), p[2])
+        s, t = p[0] / z * SQUARES[0], p[1] / z * SQUARES[1]
+        inside = (s >= 0) & (s < SQUARES[0]) & (t >= 0) & (t < SQUARES[1])
+        cells = torch.floor(s) + torch.floor(t)
+        value = 2 * (cells - 2 * torch.floor(cells / 2)) - 1
+        board = torch.where(inside, value, torch.zeros_like(value))[:, None]  # [N, 1, H, W]
+        lo, hi = PARITY_PAD
+        k = self.parity_blurs
+        out = F.conv2d(F.pad(board, (lo, hi, 0, 0), mode="replicate"), k[:, None, None, :])
+        return F.conv2d(F.pad(out, (0, 0, lo, hi), mode="replicate"), k[:, None, :, None], groups=2)
+
     def parity(self, x: torch.Tensor, H_unit: torch.Tensor) -> torch.Tensor:
         """Correlation [N] in [-1, 1] of the grey image at the 70 square centres (through
         `H_unit`) with the checker pattern: > 0 when the corner order is the true one.
 
         The centres are also tried shifted by a third of a square along each axis (9 grids),
         and the grid with the strongest correlation answers: corners a few pixels off put
-        the exact centres near square edges, where the correlation fades."""
+        the exact centres near square edges, where the correlation fades. Each grid is also
+        correlated with the `blurred_checker`s sampled at it (a heavy blur inverts the
+        pattern of small squares); the strongest of the 3 x 9 correlations answers."""
         n, k = x.shape[0], self.square_st.shape[0]
         st = (self.square_st[None] + self.parity_shifts[:, None]).reshape(-1, 2)
         st = torch.cat([st, torch.ones_like(st[:, :1])], 1)
@@ -339,10 +396,15 @@ class KeypointNet(NormalisedNet):
         uv = p[..., :2] / w
         grid = ((uv + 0.5) * self.px_to_unit - 1.0).clamp(-2.0, 2.0).reshape(n, 1, -1, 2)
         grey = x.mean(1, keepdim=True)
-        samples = F.grid_sample(grey, grid, align_corners=False).reshape(n, -1, k)
-        centred = samples - samples.mean(2, keepdim=True)
-        norm = centred.pow(2).mean(2).sqrt() + 1e-4
-        corr = (centred * self.checker).mean(2) / norm  # [N, 9]
+        samples = F.grid_sample(grey, grid, align_corners=False).reshape(n, 1, -1, k)
+        blurred = self.blurred_checker(H_unit, (x.shape[2], x.shape[3]))
+        blurred = F.grid_sample(blurred, grid, align_corners=False).reshape(n, 2, -1, k)
+        grids = self.parity_shifts.shape[0]
+        templates = torch.cat([self.checker.expand(n, 1, grids, k), blurred], 1)  # [N, 3, 9, 70]
+        centred = samples - samples.mean(3, keepdim=True)
+        templates = templates - templates.mean(3, keepdim=True)
+        norm = centred.pow(2).mean(3).sqrt() * templates.pow(2).mean(3).sqrt() + 1e-4
+        corr = ((centred * templates).mean(3) / norm).flatten(1)  # [N, 3 * 9]
         best = corr.abs().argmax(1, keepdim=True)
         return torch.gather(corr, 1, best)[:, 0]
 
