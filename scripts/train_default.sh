@@ -49,13 +49,13 @@ train_recipe() {  # NAME: recipes/NAME.toml, resumed if its run folder has a las
 }
 card_evals() {  # SIZE: the --eval options of a model card's accuracies (models/README.md)
     local set
-    for set in free-s$1-b0 free-s$1-b3 noC-s$1-b0 spec-s$1-b0 spec-s$1-b3 real-s$1-b0 real-s$1-b3; do
+    for set in free-s$1-b0 free-s$1-b3 noC-s$1-b0 spec-s$1-b0 spec-s$1-b3 real-s$1-b{0,1,2,3}; do
         printf -- "--eval %s " "$D/$set"
     done
 }
-export_model() {  # RUN NAME SIZE NOTES
+export_model() {  # RUN NAME SIZE NOTES [OPTIONS]: OPTIONS go to planar-pose export
     $PP export "$R/$1/best.pt" --name "$2" --out-dir models --version "$VERSION" \
-        $(card_evals "$3") --notes "$4"
+        $(card_evals "$3") --notes "$4" "${@:5}"
 }
 
 remeasure() {  # NAME SIZE NOTES: a shipped model measured again on this run's data sets
@@ -93,7 +93,8 @@ shortens its focal-length prior; \
 since 3.9.0 each heat-map cell also gives each corner's offset from the cell, so that a corner the \
 frame cuts off lies beyond the frame (train/network/keypoint.py); \
 since 3.10.0 the half turn is also read against the checker blurred as the SPEC's heaviest blur \
-level blurs it, which inverts the pattern of squares under about 5 px (KeypointNet.parity)."
+level blurs it, which inverts the pattern of squares under about 5 px (KeypointNet.parity)." \
+    $(printf -- "--eval-val %s " "$D"/real-s2-b{0,1,2,3})  # the val sources it was selected on
 remeasure chessboard-keypoint-s2-real-160x120 2 "The default of version 3.4.0: the weights of \
 recipes/chessboard-keypoint-s2-160x120-real.toml in the graph of 3.4.0 (no view input, no \
 pattern output), so answered without the zoom pass, kept to measure it."

@@ -175,6 +175,14 @@ def export(
         typer.Option("--eval", help="Data set(s) whose accuracy goes in the card."),
     ] = None,
     split: Annotated[str, typer.Option(help="Split measured for the card.")] = "test",
+    eval_val: Annotated[
+        list[Path] | None,
+        typer.Option(
+            "--eval-val",
+            help="Data set(s) whose val split's accuracy goes in the card (accuracy_val: the "
+            "sources the model was selected on).",
+        ),
+    ] = None,
     version: str = "1.0.0",
     notes: Annotated[str, typer.Option(help="Free text for the card (how it was made).")] = "",
     regraph: Annotated[
@@ -202,7 +210,7 @@ def export(
         raise fail("--regraph takes a keypoint .onnx model", code=2)
     if not checkpoint.is_file():
         raise fail(f"checkpoint not found: {checkpoint}")
-    for path in eval_data or []:
+    for path in [*(eval_data or []), *(eval_val or [])]:
         if not (path / "labels.csv").is_file():
             raise fail(f"not a data set (no labels.csv): {path}")
     if checkpoint.suffix == ".onnx":
@@ -210,14 +218,18 @@ def export(
             raise fail("measuring an .onnx model again needs --eval data set(s)", code=2)
         new_version = version if regraph else None
         path, card = guard(
-            lambda: recard(checkpoint, name, out_dir, eval_data, split, notes or None, new_version)
+            lambda: recard(
+                checkpoint, name, out_dir, eval_data, split, notes or None, new_version, eval_val
+            )
         )
     else:
         path, card = guard(
-            lambda: run_export(checkpoint, name, out_dir, eval_data, split, version, notes)
+            lambda: run_export(
+                checkpoint, name, out_dir, eval_data, split, version, notes, eval_val
+            )
         )
     out.print(f"[green]wrote[/] {path} ({path.stat().st_size / 1e6:.2f} MB) and {name}.json")
-    for ds, acc in card["accuracy"].items():
+    for ds, acc in [*card["accuracy"].items(), *card.get("accuracy_val", {}).items()]:
         out.print(f"  {ds} ({acc['split']}, {acc['count']} images): {100 * acc['accuracy']:.2f} %")
 
 

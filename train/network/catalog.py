@@ -28,7 +28,9 @@ with unless asked for another model. Input: `image` float32 [N, 3, H, W], RGB in
 
 Accuracy columns are test splits: real = the corpus's test sources (cameras never used for
 training or model selection), free / noC = renders of corpus-like cameras, spec = renders of
-the SPEC's own camera (profile `chessboard-spec`; see docs/data.md), at blur level b.
+the SPEC's own camera (profile `chessboard-spec`; see docs/data.md), at blur level b. Under
+each model, its real test figures by source, and, where its card has them (`export
+--eval-val`), those of the real val sources it was selected on.
 
 This page is written by `planar-pose catalog`; do not edit it by hand.
 """
@@ -70,16 +72,19 @@ def write_catalog(models_dir: Path) -> Path:
     lines = [INTRO, *table(header, [_row(c) for c in cards]), ""]
     for card in cards:
         lines += [f"## `{card['name']}`", "", card.get("notes", ""), ""]
-        by_source = {
-            k: v["by_source"] for k, v in card.get("accuracy", {}).items() if "by_source" in v
-        }
-        for key, sources in by_source.items():
-            lines += [f"Real test sources, `{key}`:", "", *source_table(sources), ""]
-            for line in (
-                margin_line(card["accuracy"][key].get("by_margin")),
-                framing_line(card["accuracy"][key].get("by_framing")),
-            ):
-                lines += [line, ""] if line else []
+        for field, title in (
+            ("accuracy", "Real test sources"),
+            ("accuracy_val", "Real val sources (the model was selected on them)"),
+        ):
+            for key, entry in card.get(field, {}).items():
+                if "by_source" not in entry:
+                    continue
+                lines += [f"{title}, `{key}`:", "", *source_table(entry["by_source"]), ""]
+                for line in (
+                    margin_line(entry.get("by_margin")),
+                    framing_line(entry.get("by_framing")),
+                ):
+                    lines += [line, ""] if line else []
     stamp = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
     lines.append(f"Written {stamp} on {platform.node()} by `planar-pose catalog`.")
     out = models_dir / "README.md"

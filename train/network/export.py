@@ -309,10 +309,13 @@ def export(
     split: str = "test",
     version: str = "1.0.0",
     notes: str = "",
+    val_datasets: list[Path] | None = None,
 ) -> tuple[Path, dict[str, Any]]:
     """Write out_dir/<name>.onnx and out_dir/<name>.json -> (onnx path, card).
 
-    Accuracy on `eval_datasets` is measured with onnxruntime on the exported graph itself.
+    Accuracy on `eval_datasets` (their `split`) and on the val split of `val_datasets` (the
+    card's `accuracy_val`: what the model was selected on) is measured with onnxruntime on
+    the exported graph itself.
     """
     from train.network.fit import load_network
     from train.network.model import export_form
@@ -323,6 +326,8 @@ def export(
     predict = _graph_predictor(raw, {"name": name, "input": list(net.size)})
     accuracy = accuracy_on(predict, eval_datasets, split) if eval_datasets else {}
     card = build_card(name, checkpoint, accuracy, version, notes)
+    if val_datasets:
+        card["accuracy_val"] = accuracy_on(predict, val_datasets, "val")
     out_dir.mkdir(parents=True, exist_ok=True)
     onnx_path = out_dir / f"{name}.onnx"
     onnx_path.write_bytes(with_card(raw, card))
@@ -338,11 +343,13 @@ def recard(
     split: str = "test",
     notes: str | None = None,
     version: str | None = None,
+    val_datasets: list[Path] | None = None,
 ) -> tuple[Path, dict[str, Any]]:
-    """Measure a shipped ONNX model again on `eval_datasets` and write it with its card's
-    accuracy replaced (training provenance unchanged) as out_dir/<name>.onnx + .json.
-    With a `version`, a keypoint graph is first exported again from its weights in this
-    version's form (`regraph`) and its card says so."""
+    """Measure a shipped ONNX model again on `eval_datasets` (and the val split of
+    `val_datasets`, `export`) and write it with its card's accuracies replaced (training
+    provenance unchanged; val figures it is not measured on again are dropped) as
+    out_dir/<name>.onnx + .json. With a `version`, a keypoint graph is first exported again
+    from its weights in this version's form (`regraph`) and its card says so."""
     import onnx
 
     model = onnx.load(str(onnx_path))
@@ -355,7 +362,11 @@ def recard(
         raw = regraph(onnx_path)
         card |= {"version": version, "regraphed_from": card.get("version")} | _io_card(True)
     card |= {"name": name}
-    card["accuracy"] = accuracy_on(_graph_predictor(raw, card), eval_datasets, split)
+    predict = _graph_predictor(raw, card)
+    card["accuracy"] = accuracy_on(predict, eval_datasets, split)
+    card.pop("accuracy_val", None)
+    if val_datasets:
+        card["accuracy_val"] = accuracy_on(predict, val_datasets, "val")
     card["date_measured"] = datetime.now(UTC).isoformat(timespec="seconds")
     if notes is not None:
         card["notes"] = notes

@@ -105,10 +105,14 @@ def test_a_shipped_model_is_measured_again(tmp_path):
     path, card = export(ckpt, "tiny", tmp_path / "a", notes="first")
     real = tmp_path / "real-s1-b0"
     build_real_dataset(REAL, real, size=1, blur=0, profile="chessboard", seed=0)
-    again, new = recard(path, "tiny2", tmp_path / "b", [real], split="all")
+    again, new = recard(path, "tiny2", tmp_path / "b", [real], split="all", val_datasets=[real])
     assert new["name"] == "tiny2" and new["notes"] == "first"
     assert new["training"] == card["training"] and new["input"] == card["input"]
     assert new["accuracy"]["real-s1-b0"]["count"] == 26
+    val = new["accuracy_val"]["real-s1-b0"]  # its 6 val photos
+    assert val["split"] == "val" and val["count"] == 6
+    _, measured = recard(again, "tiny3", tmp_path / "c", [real], split="all")
+    assert "accuracy_val" not in measured  # not measured again: not carried over
     meta = {p.key: p.value for p in onnx.load(str(again)).metadata_props}
     assert (
         json.loads(meta["model_card"]) == new == json.loads((tmp_path / "b/tiny2.json").read_text())
@@ -135,8 +139,15 @@ def test_catalog_lists_every_card_with_its_measured_accuracy(tmp_path):
     card["accuracy"] = {
         "real-s1-b0": {"split": "test", "count": 10, "accuracy": 0.25, "by_source": by_source}
     }
+    card["accuracy_val"] = {
+        "real-s1-b3": {"split": "val", "count": 6, "accuracy": 0.5, "by_source": {
+            "cam-v": {"count": 6, "accuracy": 0.5, "detected": 1.0, "side": 0.5,
+                      "distance": 1.0, "focal_scale": 0.61}}}
+    }  # fmt: skip
     (models / "tiny.json").write_text(json.dumps(card))
     page = write_catalog(models).read_text()
+    assert "Real val sources (the model was selected on them), `real-s1-b3`:" in page
+    assert "| `cam-v` | 6 | 50.0 % | 100.0 % | 100.0 % | 50.0 % | 0.61 |" in page
     assert "| `tiny` | spec | 80x60 |" in page and "| 25.0 % |" in page
     assert "| `cam-a` | 6 | 33.3 % | 100.0 % | 66.7 % | 50.0 % | 1.73 |" in page
     assert "| `negatives` | 4 | 0.0 % | - | - | - | - |" in page
@@ -192,3 +203,5 @@ def test_a_keypoint_graph_is_regraphed_with_the_zoom_inputs(tmp_path):
     convnet = REPO_ROOT / "models" / "chessboard-convnet-160x120.onnx"
     result = runner.invoke(app, [*args, str(convnet), "--eval", str(real)])
     assert result.exit_code == 1 and "not a planar-pose keypoint network" in result.output
+    result = runner.invoke(app, [*args, str(old), "--eval-val", str(tmp_path / "none")])
+    assert result.exit_code == 1 and "not a data set (no labels.csv)" in result.output
