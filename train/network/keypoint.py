@@ -101,7 +101,7 @@ ZERO_IF_ABSENT = ("offset.weight", "offset.bias")
 
 def _parity_blurs() -> torch.Tensor:
     """The 1-D kernels of `PARITY_BLUR` on the input and on a tile enlarged 2x, [2, L] on the
-    same taps: tap j is the pixel j - `PARITY_PAD`[0] away (`KeypointNet.blurred_checker`)."""
+    same taps: tap j is the pixel j - `PARITY_PAD`[0] away (`_parity_blur_matrices`)."""
     k, sd = PARITY_BLUR
     g = torch.tensor(gaussian_taps(k, sd), dtype=torch.float32)
     out = torch.zeros(2, PARITY_PAD[0] + PARITY_PAD[1] + 1)
@@ -109,6 +109,17 @@ def _parity_blurs() -> torch.Tensor:
     out[0, start : start + k] = g
     out[1, start - _ANCHOR : start - _ANCHOR + 2 * k] = g.repeat_interleave(2) / 2
     return out
+
+
+def _parity_blur_matrices(n: int) -> torch.Tensor:
+    """The `_parity_blurs` along an axis of n pixels, borders replicated as the data sets'
+    blur does, as matrices [2, n, n]: blurred pixel i = sum over j of M[:, i, j] x pixel j
+    (one small matrix product per axis, far cheaper than a 1-channel convolution on a CPU)."""
+    taps = _parity_blurs()
+    offsets = torch.arange(taps.shape[1]) - PARITY_PAD[0]
+    source = (torch.arange(n)[:, None] + offsets).clamp(0, n - 1)  # [n, L]: the pixel of each tap
+    out = torch.zeros(2, n, n)
+    return out.scatter_add_(2, source.expand(2, n, -1), taps[:, None, :].expand(2, n, -1))
 
 
 class Observation(NamedTuple):
@@ -207,7 +218,9 @@ class KeypointNet(NormalisedNet):
         self.register_buffer("parity_shifts", shifts.reshape(-1, 2), persistent=False)
         # +1 on white squares; the square at corner 0 (-X, -Y) is black
         self.register_buffer("checker", (((i + j) % 2) * 2 - 1).reshape(-1).float())
-        self.register_buffer("parity_blurs", _parity_blurs(), persistent=False)
+        # the blurs of `blurred_checker` along the input's width and height
+        self.register_buffer("blur_u", _parity_blur_matrices(size[0]), persistent=False)
+        self.register_buffer("blur_v", _parity_blur_matrices(size[1]), persistent=False)
         # buffers, so that a checkpoint carries them: the region split (cm), the sd of cx, cy
         # per cm of distance and of cz per cm of cz, the parity correlation -> logit gain
         self.register_buffer("z_split", torch.tensor(float(z_split_cm)))
@@ -348,11 +361,11 @@ class KeypointNet(NormalisedNet):
         r3 = torch.cross(r1, r2, dim=1)
         return -torch.stack([(r1 * t).sum(1), (r2 * t).sum(1), (r3 * t).sum(1)], 1)
 
-    def blurred_checker(self, H_unit: torch.Tensor, shape: tuple[int, int]) -> torch.Tensor:
-        """Unit-square homographies [N, 3, 3] and an image's (H, W) -> the checker (+1 white,
-        -1 black, 0 off the board) rendered at its pixel centres through them and blurred by
-        the two `parity_blurs` [N, 2, H, W]."""
-        h, w = shape
+    def blurred_checker(self, H_unit: torch.Tensor) -> torch.Tensor:
+        """Unit-square homographies [N, 3, 3] -> the checker (+1 white, -1 black, 0 off the
+        board) rendered at the input's pixel centres through them and blurred by the two
+        `_parity_blurs` [N, 2, H, W]."""
+        w, h = self.size
         a = H_unit  # its adjugate maps image points back to the unit square (up to scale)
         inv = torch.stack(
             [
@@ -374,10 +387,7 @@ class KeypointNet(NormalisedNet):
         cells = torch.floor(s) + torch.floor(t)
         value = 2 * (cells - 2 * torch.floor(cells / 2)) - 1
         board = torch.where(inside, value, torch.zeros_like(value))[:, None]  # [N, 1, H, W]
-        lo, hi = PARITY_PAD
-        k = self.parity_blurs
-        out = F.conv2d(F.pad(board, (lo, hi, 0, 0), mode="replicate"), k[:, None, None, :])
-        return F.conv2d(F.pad(out, (0, 0, lo, hi), mode="replicate"), k[:, None, :, None], groups=2)
+        return self.blur_v @ (board @ self.blur_u.transpose(1, 2))
 
     def parity(self, x: torch.Tensor, H_unit: torch.Tensor) -> torch.Tensor:
         """Correlation [N] in [-1, 1] of the grey image at the 70 square centres (through
@@ -397,7 +407,7 @@ class KeypointNet(NormalisedNet):
         grid = ((uv + 0.5) * self.px_to_unit - 1.0).clamp(-2.0, 2.0).reshape(n, 1, -1, 2)
         grey = x.mean(1, keepdim=True)
         samples = F.grid_sample(grey, grid, align_corners=False).reshape(n, 1, -1, k)
-        blurred = self.blurred_checker(H_unit, (x.shape[2], x.shape[3]))
+        blurred = self.blurred_checker(H_unit)
         blurred = F.grid_sample(blurred, grid, align_corners=False).reshape(n, 2, -1, k)
         grids = self.parity_shifts.shape[0]
         templates = torch.cat([self.checker.expand(n, 1, grids, k), blurred], 1)  # [N, 3, 9, 70]

@@ -164,6 +164,16 @@ def test_parity_tells_the_half_turn():
     assert abs(float(net.parity(flat, square_homography(q)))) < 0.05
 
 
+def test_parity_blur_is_the_data_sets_level_3():
+    """`blurred_checker`'s blur along each axis (its first kernel) is SPEC blur level 3 at
+    160x120 as `blur_image` applies it: same taps, anchor and replicated borders."""
+    net = KeypointNet()
+    rgb = np.random.default_rng(0).random((120, 160, 3)).astype(np.float32)
+    want = blur_image(rgb, 3, 2)[..., 0]
+    got = net.blur_v[0] @ torch.from_numpy(rgb[..., 0]) @ net.blur_u[0].T
+    assert np.abs(got.numpy() - want).max() < 1e-5
+
+
 @pytest.mark.parametrize("distance", [70.0, 80.0])
 def test_parity_under_the_heaviest_blur(distance):
     """SPEC blur 3 (a nearly box-shaped 10 px kernel) inverts the checker of this board's
@@ -180,7 +190,7 @@ def test_parity_under_the_heaviest_blur(distance):
     assert float(((grey - grey.mean()) * net.checker).sum()) < 0  # inverted at the centres
     assert float(net.parity(x, H)) > 0.8
     assert float(net.parity(x, square_homography(torch.roll(q, 2, 1)))) < -0.8
-    rendered = net.blurred_checker(H, (120, 160))[0, 0]
+    rendered = net.blurred_checker(H)[0, 0]
     board = rendered.abs() > 0.02
     corr = np.corrcoef(x[0].mean(0)[board].numpy(), rendered[board].numpy())[0, 1]
     assert corr > 0.85  # the render matches the data sets' blur of the board
