@@ -177,8 +177,8 @@ def test_parity_blur_is_the_data_sets_level_3():
 @pytest.mark.parametrize("distance", [70.0, 80.0])
 def test_parity_under_the_heaviest_blur(distance):
     """SPEC blur 3 (a nearly box-shaped 10 px kernel) inverts the checker of this board's
-    3.8-4.4 px squares: the square centres alone read the half turn; the blurred template
-    reads it right."""
+    3.8-4.4 px squares: the square centres alone, and the plain template the training step
+    logs with (`blurred=False`), read the half turn; the blurred template reads it right."""
     net = KeypointNet()
     corners = _view(net, (8.0, 6.0, distance), 170.0)
     x = _input(blur_image(_board_image(corners), 3, 2))
@@ -188,6 +188,7 @@ def test_parity_under_the_heaviest_blur(distance):
     u, v = (centres[:, :2] / centres[:, 2:]).round().long().T
     grey = x[0].mean(0)[v, u]
     assert float(((grey - grey.mean()) * net.checker).sum()) < 0  # inverted at the centres
+    assert float(net.parity(x, H, blurred=False)) < 0
     assert float(net.parity(x, H)) > 0.8
     assert float(net.parity(x, square_homography(torch.roll(q, 2, 1)))) < -0.8
     rendered = net.blurred_checker(H)[0, 0]
