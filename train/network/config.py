@@ -59,12 +59,6 @@ class FitConfig:
         min=0.0,
         max=1.0,
     )
-    blurred_noise: bool = _opt(
-        False,
-        "Augmentation: the Gaussian noise of an image at SPEC blur level L scaled by the norm "
-        "of L's kernel, as much as the blur leaves of a sensor's noise (the data sets blur "
-        "photos and renders with their noise); off: the same noise at every level.",
-    )
     init: Path | None = _opt(
         None, "Checkpoint to start from (fine-tuning), or a shipped keypoint model's .onnx."
     )

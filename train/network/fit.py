@@ -125,8 +125,7 @@ class Augmenter:
       0.75) squashed to the input size, as the service does;
     * photometric: contrast x U(0.7, 1.3), brightness + U(-25, 25), per-channel gain
       U(0.9, 1.1), grey level with probability `p_grey` (real photos may be grey), Gaussian
-      noise with sigma U(0, 6) grey levels; with `blurred_noise`, times the norm of the image's
-      blur kernel (its data set's level or the one drawn here: `noise_factors`).
+      noise with sigma U(0, 6) grey levels.
 
     No mirror, rotation or large shift: those would change the pose class.
     """
@@ -138,25 +137,12 @@ class Augmenter:
         p_grey: float = 0.2,
         p_crop: float = 0.5,
         p_squash: float = 0.0,
-        blurred_noise: bool = False,
     ) -> None:
         self.size = size
         self.p_blur = p_blur
         self.p_grey = p_grey
         self.p_crop = p_crop
         self.p_squash = p_squash
-        self.blurred_noise = blurred_noise
-
-    def noise_factors(self, levels: np.ndarray) -> np.ndarray:
-        """SPEC blur levels [B] of the images -> their noise's scale [B]: the 2-D kernel's L2
-        norm (the sd of white noise blurred by it; 1 at level 0) with `blurred_noise`, else 1."""
-        from train.synth.blur import KERNELS, gaussian_taps, size_index
-
-        if not self.blurred_noise:
-            return np.ones(len(levels))
-        kernels = KERNELS[size_index(self.size)]
-        norms = [1.0] + [float((gaussian_taps(*kernels[level]) ** 2).sum()) for level in (1, 2, 3)]
-        return np.asarray(norms)[levels]
 
     def crop(
         self, image: np.ndarray, corners: np.ndarray, rng: np.random.Generator
@@ -201,15 +187,12 @@ class Augmenter:
         )
         for i in np.flatnonzero(levels):
             out[i] = blur_image(out[i], int(levels[i]), self.size)
-        noise = self.noise_factors(np.maximum(blur, levels))
-        return self.photometric(to_input(out), rng, noise), corners
+        return self.photometric(to_input(out), rng), corners
 
-    def photometric(
-        self, x: torch.Tensor, rng: np.random.Generator, noise_factor: np.ndarray | None = None
-    ) -> torch.Tensor:
+    def photometric(self, x: torch.Tensor, rng: np.random.Generator) -> torch.Tensor:
         """The photometric part on the input [B, 3, H, W] in [0, 1], in torch (the noise is
-        most of the augmentation's time in numpy), the noise's sd times `noise_factor` [B]
-        (None: 1); its parameters, and the seed of the noise, come from `rng`."""
+        most of the augmentation's time in numpy); its parameters, and the seed of the noise,
+        come from `rng`."""
         n = len(x)
 
         def per_image(values: np.ndarray) -> torch.Tensor:  # [B] or [B, 3] -> [B, 3 | 1, 1, 1]
@@ -220,8 +203,7 @@ class Augmenter:
         x = torch.where(grey, x.mean(1, keepdim=True), x)
         gain = per_image(rng.uniform(0.7, 1.3, (n, 1)) * rng.uniform(0.9, 1.1, (n, 3)))
         shift = per_image(rng.uniform(-25, 25, n) / 255)
-        sigma = rng.uniform(0, 6, n) / 255
-        sigma = per_image(sigma if noise_factor is None else sigma * noise_factor)
+        sigma = per_image(rng.uniform(0, 6, n) / 255)
         noise = torch.Generator().manual_seed(int(rng.integers(2**62)))
         mean = x.mean((1, 2, 3), keepdim=True)
         x = (x - mean) * gain + mean + shift + sigma * torch.randn(x.shape, generator=noise)
@@ -309,11 +291,7 @@ def fit(config: FitConfig, resume: bool = False) -> dict[str, Any]:
     net = net.to(memory_format=torch.channels_last)
     opt = _optimiser(config, net)
     sched = _schedule(config, opt)
-    augmenter = (
-        Augmenter(size, p_squash=config.squash, blurred_noise=config.blurred_noise)
-        if config.augment
-        else None
-    )
+    augmenter = Augmenter(size, p_squash=config.squash) if config.augment else None
     # The compiled module shares its parameters with `net` (used for evaluation and saving).
     step_net = torch.compile(net) if config.compile else net
 

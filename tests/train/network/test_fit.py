@@ -137,29 +137,6 @@ def test_the_squash_crop_is_a_band_that_keeps_the_corners():
         assert np.ptp(out[:, 40, 0].astype(int)) > 150  # rows from the top to the bottom band
 
 
-@pytest.mark.parametrize("size", [(80, 60), (160, 120)])
-def test_blurred_noise_is_what_the_blur_leaves_of_white_noise(size):
-    """`blurred_noise`: each level's factor is the sd of unit white noise blurred by that
-    level's kernel (measured with `blur_image`); a flat image of a blur-3 set gets that much
-    of the noise a blur-0 one gets, with the same random draws; off, the same noise."""
-    from train.synth.blur import blur_image
-
-    noise = np.random.default_rng(0).normal(128, 20, (400, 400, 1))
-    measured = [np.std(blur_image(noise, level, size)[20:-20, 20:-20]) / 20 for level in (1, 2, 3)]
-    on = Augmenter(size, p_blur=0.0, p_grey=0.0, p_crop=0.0, blurred_noise=True)
-    factors = on.noise_factors(np.array([0, 1, 2, 3]))
-    assert factors[0] == 1.0 and np.allclose(factors[1:], measured, rtol=0.05)
-    flat = np.full((2, size[1], size[0], 3), 128, np.uint8)
-    spread = {}
-    for blurred_noise in (True, False):
-        aug = Augmenter(size, p_blur=0.0, p_grey=0.0, p_crop=0.0, blurred_noise=blurred_noise)
-        for level in (0, 3):
-            x, _ = aug(flat, np.full(2, level), np.random.default_rng(5))
-            spread[blurred_noise, level] = float((x - x.mean((1, 2, 3), keepdim=True)).std())
-    assert spread[True, 3] / spread[True, 0] == pytest.approx(factors[3], rel=0.05)
-    assert spread[False, 3] == pytest.approx(spread[False, 0], rel=1e-6)
-
-
 def test_errors_are_clear(tiny_set, tmp_path):
     with pytest.raises(TrainingError, match="not a data set"):
         fit(_config(tmp_path / "missing", tmp_path / "run"))
