@@ -28,15 +28,15 @@ from pathlib import Path
 
 import numpy as np
 
+from service.core.preprocess import resize_rgb
+from service.core.profile import load_profile
+from service.core.regions import pose_class
 from service.model import PoseModel
-from service.preprocess import resize_rgb
 from service.proposals import propose_boxes
 from service.sliding import SlidingWindows
 from train.compare.baseline import BaselineConfig, FeatureBaseline
 from train.compare.chessboard_peer import ChessboardPeer
-from train.geometry import pose_class
 from train.network.evaluate import model_predictor, predict_all
-from train.profile import load_profile
 from train.real.calibration import Calibration
 from train.real.label import chessboard_pattern
 from train.real.realset import read_rgb

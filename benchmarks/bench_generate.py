@@ -29,7 +29,7 @@ from pathlib import Path
 
 import cv2
 
-from train.profile import load_profile
+from service.core.profile import load_profile
 from train.synth.generate import (
     CHUNK,
     DatasetSpec,

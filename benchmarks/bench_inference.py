@@ -30,8 +30,8 @@ import numpy as np
 import onnxruntime
 from docs_section import write_section  # benchmarks/, the script's own folder
 
+from service.core.preprocess import to_network_input
 from service.model import PoseModel
-from service.preprocess import to_network_input
 from service.zoom import detail_of, zoomed
 from train.markdown import table
 

@@ -16,7 +16,7 @@ per variant:
   and the self-calibrated focal length against the calibrated one, with and without the
   pixel aspect;
 * the val board photos turned to portrait, squashed to 160x120 or turned back first
-  (`service.preprocess.NetworkFrame`);
+  (`service.core.preprocess.NetworkFrame`);
 * the focal-length prior and its weight; the bounds of the estimate; the principal point;
 * the focal-length prior shortened by a strong barrel distortion (`keypoint.BARREL_LIMIT`),
   with the alignment's k1 range as the code has it and as it was before (down to -0.6);
@@ -43,18 +43,19 @@ import cv2
 import numpy as np
 import torch
 
-from service.preprocess import NetworkFrame, to_network_input
-from train import REPO_ROOT
+from service.core.dataset import LoadedDataset, load_dataset
+from service.core.geometry import intrinsics
+from service.core.paths import REPO_ROOT
+from service.core.preprocess import NetworkFrame, to_network_input
+from service.core.profile import load_profile
+from service.core.regions import pose_class
 from train.compare.chessboard_peer import ENLARGE, enlarged_grey
-from train.dataset import LoadedDataset, load_dataset
-from train.geometry import intrinsics, pose_class
 from train.markdown import table, written_by
 from train.network import keypoint
 from train.network.align import square_homography
 from train.network.fit import load_network, to_input
 from train.network.keypoint import KeypointNet
 from train.network.onnx_weights import keypoint_from_onnx
-from train.profile import load_profile
 from train.real.corners import detect_chessboard
 from train.real.label import ObjectFinder
 from train.real.realset import read_rgb, read_splits

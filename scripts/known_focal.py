@@ -18,13 +18,13 @@ from pathlib import Path
 
 import numpy as np
 
+from service.core.dataset import DatasetError, LoadedDataset, load_dataset
+from service.core.inputs import spec_fx
+from service.core.paths import REPO_ROOT
 from service.model import ModelLoadError, PoseModel
 from service.predictor import Predictor
 from service.settings import Settings
-from train import REPO_ROOT
-from train.dataset import DatasetError, LoadedDataset, load_dataset
 from train.markdown import table, written_by
-from train.real.label import SPEC_FOCAL_160
 
 SPLITS = ("val", "test")
 
@@ -32,7 +32,7 @@ SPLITS = ("val", "test")
 def photo_focal(data: LoadedDataset) -> list[float | None]:
     """Each photo's calibrated fx in pixels of its image in the set (None: no calibration)."""
     width = data.manifest["size"][0]
-    scale = SPEC_FOCAL_160[0] * width / 160
+    scale = spec_fx(width)
     return [float(r["focal_scale"]) * scale if r.get("focal_scale") else None for r in data.rows]
 
 

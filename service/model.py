@@ -3,7 +3,7 @@
 Contract (written by `train/network/export.py`): input `image` float32 [N, 3, H, W], RGB in
 [0, 1]; optionally `pixel_aspect` float32 [N], an input with a default of 1 (an overridable
 initializer): the height over the width of an input pixel in the scene
-(`service.preprocess.NetworkFrame.pixel_aspect`); output `probabilities` float32 [N, 9]
+(`service.core.preprocess.NetworkFrame.pixel_aspect`); output `probabilities` float32 [N, 9]
 (softmax), optionally `corners` float32 [N, 4, 2] (the object's corners in input pixels,
 order (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y)); metadata_props `model_card` = card JSON. A graph
 with one output takes it as the probabilities whatever its name. Since 3.5.0 the keypoint
@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 import onnxruntime as ort
 
-from service.regions import NUM_CLASSES
+from service.core.regions import NUM_CLASSES
 
 PROBABILITIES, CORNERS = "probabilities", "corners"  # output names (train/network/export.py)
 PATTERN = "pattern"  # the optional output of the zoom pass (`service.zoom`)

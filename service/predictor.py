@@ -14,17 +14,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from service.exif import exif_focal
-from service.model import PoseModel
-from service.preprocess import (
+from service.core.preprocess import (
     DecodedImage,
     ImageDecodeError,
     NetworkFrame,
     load_image,
     to_network_input,
 )
+from service.core.regions import region_of_class
+from service.exif import exif_focal
+from service.model import PoseModel
 from service.proposals import propose_boxes
-from service.regions import region_of_class
 from service.schemas import Box, Detection, FocalSource, ImageResult, Mode, RegionOut
 from service.settings import Settings
 from service.sliding import (

@@ -11,7 +11,8 @@ FocalSource = Literal["query", "exif"]  # where a known focal length came from
 
 
 class RegionOut(BaseModel):
-    """A pose class in words (service.regions); for class 0 only `present` and `label` matter."""
+    """A pose class in words (`service.core.regions`); for class 0 only `present` and `label`
+    matter."""
 
     present: bool
     depth: Literal["near", "far"] | None

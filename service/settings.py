@@ -13,7 +13,8 @@ from typing import Annotated, Any
 from pydantic import Field, SecretStr, field_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
+from service.core.paths import REPO_ROOT
+
 DEFAULT_MODEL_DIR = REPO_ROOT / "models"
 DEFAULT_MODEL = DEFAULT_MODEL_DIR / "default.onnx"
 

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from service.preprocess import DecodedImage, resize_rgb, to_network_input
+from service.core.preprocess import DecodedImage, resize_rgb, to_network_input
 
 #: RGB uint8 [H, W, 3] -> int [K, 4] boxes (x, y, w, h) inside that image.
 BoxGenerator = Callable[[np.ndarray], np.ndarray]

@@ -35,10 +35,10 @@ import numpy as np
 from prometheus_client import Counter, Gauge
 from starlette.websockets import WebSocket, WebSocketDisconnect, WebSocketState
 
+from service.core.preprocess import ImageDecodeError, ImageTooLargeError
+from service.core.regions import region_of_class
 from service.metrics import Metrics
 from service.predictor import Predictor
-from service.preprocess import ImageDecodeError, ImageTooLargeError
-from service.regions import region_of_class
 from service.schemas import ImageResult, Mode, RegionOut
 
 #: Frames that may wait besides the one being answered; more and the oldest is dropped.

@@ -27,8 +27,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from service.core.preprocess import NetworkFrame, to_network_input
 from service.model import Answer, PoseModel
-from service.preprocess import NetworkFrame, to_network_input
 
 GRID = 3  # tiles per axis, half the input's size each, overlapping by half
 MARGIN_PX = 4.0  # input pixels between the board's corners and a tile's edge

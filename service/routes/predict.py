@@ -7,6 +7,7 @@ from typing import Annotated, Any
 import anyio
 from fastapi import APIRouter, Query, Request
 
+from service.core.preprocess import ImageDecodeError, ImageTooLargeError
 from service.deps import (
     AUTHORISED,
     LimiterDep,
@@ -17,7 +18,6 @@ from service.deps import (
 )
 from service.errors import ApiError
 from service.predictor import Prediction, Predictor
-from service.preprocess import ImageDecodeError, ImageTooLargeError
 from service.schemas import ERROR_RESPONSES, Mode, PredictResponse
 from service.uploads import read_images
 

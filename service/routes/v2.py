@@ -13,6 +13,8 @@ import numpy as np
 from fastapi import APIRouter, Request
 from fastapi.responses import JSONResponse
 
+from service.core.preprocess import ImageDecodeError, ImageTooLargeError
+from service.core.regions import NUM_CLASSES
 from service.deps import (
     AUTHORISED,
     LimiterDep,
@@ -24,8 +26,6 @@ from service.deps import (
 from service.errors import ApiError
 from service.oip import InferRequest, ProtocolError, infer_response, parse_infer_request
 from service.predictor import Predictor
-from service.preprocess import ImageDecodeError, ImageTooLargeError
-from service.regions import NUM_CLASSES
 
 health = APIRouter(tags=["v2"])
 router = APIRouter(tags=["v2"], dependencies=AUTHORISED)

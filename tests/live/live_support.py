@@ -60,7 +60,7 @@ def run_server(log: Path, ready: str = "/readyz", **env: str) -> Iterator[Server
 
 def render_frames() -> tuple[list[np.ndarray], list[int]]:
     """BGR frames (640x480) of VIEWS, FRAMES_PER_VIEW each, by the project's renderer."""
-    from train.profile import load_profile
+    from service.core.profile import load_profile
     from train.synth.render import render_view
 
     profile = load_profile("chessboard")

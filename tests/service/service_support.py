@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
+from service.core.preprocess import load_image, to_network_input
+from service.core.regions import region_of_class
 from service.model import PoseModel
-from service.preprocess import load_image, to_network_input
-from service.regions import region_of_class
 from service.settings import DEFAULT_MODEL, DEFAULT_MODEL_DIR
 
 ROOT = Path(__file__).resolve().parents[2]

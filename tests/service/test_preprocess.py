@@ -1,4 +1,4 @@
-"""service.preprocess: header guard, formats, EXIF orientation, reduced decoding, fuzzing."""
+"""service.core.preprocess: header guard, formats, EXIF orientation, reduced decoding, fuzzing."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from image_bytes import png_claiming, with_exif_orientation
 from service_support import REAL
 
-from service.preprocess import (
+from service.core.preprocess import (
     ImageDecodeError,
     ImageTooLargeError,
     NetworkFrame,

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from service_support import REAL
 
+from service.core.preprocess import DecodedImage
 from service.model import PoseModel
 from service.predictor import Predictor
-from service.preprocess import DecodedImage
 from service.settings import DEFAULT_MODEL, Settings
 from service.sliding import (
     SlidingWindows,

@@ -17,7 +17,7 @@ from server_process import live_server
 from service_support import CARD, OTHER_MODELS, REAL, SERVE, card_of
 from tritonclient.utils import InferenceServerException
 
-from service.preprocess import load_image, to_network_input
+from service.core.preprocess import load_image, to_network_input
 from service.zoom import detail_decode_size
 
 PHOTOS = [(REAL / name).read_bytes() for name in ("left01.jpg", "right05.jpg", "left12.jpg")]

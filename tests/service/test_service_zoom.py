@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from service_support import PHOTO
 
+from service.core.preprocess import load_image, to_network_input
 from service.model import Answer, PoseModel
 from service.predictor import Predictor
-from service.preprocess import load_image, to_network_input
 from service.settings import DEFAULT_MODEL, Settings
 from service.zoom import (
     MARGIN_PX,

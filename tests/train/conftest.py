@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from train.profile import load_profile
+from service.core.profile import load_profile
 from train.synth.generate import DatasetSpec, make_dataset
 
 

@@ -1,4 +1,4 @@
-"""Property tests of train.geometry: look-at, homographies, DLT, pose recovery, regions."""
+"""Property tests of service.core.geometry: look-at, homographies, DLT, pose recovery, regions."""
 
 from __future__ import annotations
 
@@ -7,8 +7,7 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from train.geometry import (
-    RegionGeometry,
+from service.core.geometry import (
     apply_homography,
     camera_centre,
     camera_lattice,
@@ -17,11 +16,11 @@ from train.geometry import (
     homography_from_pose,
     intrinsics,
     look_at,
-    pose_class,
     pose_from_homography,
     project_points,
     translation,
 )
+from service.core.regions import RegionGeometry, pose_class
 
 GEOM = RegionGeometry()
 coord = st.floats(-36.86, 36.86, allow_nan=False)

@@ -10,15 +10,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from train import ASSETS_DIR
-from train.geometry import look_at, pose_class
-from train.profile import (
-    PROFILES_DIR,
-    ProfileError,
-    load_profile,
-    measure_rolls,
-    roll_of_pose,
-)
+from service.core.geometry import look_at, roll_of_pose
+from service.core.paths import ASSETS_DIR
+from service.core.profile import PROFILES_DIR, ProfileError, load_profile
+from service.core.regions import pose_class
+from train.real.realset import measure_rolls
 
 REAL = ASSETS_DIR / "real" / "chessboard-stereo"
 

@@ -33,6 +33,6 @@ def guard(body: Callable[[], Any], code: int = 1) -> Any:
 
 def profile_or_exit(name_or_path: str) -> Any:
     """The object profile, or exit 1 with the loader's message (unknown profile, bad files)."""
-    from train.profile import load_profile
+    from service.core.profile import load_profile
 
     return guard(lambda: load_profile(name_or_path))

@@ -10,7 +10,7 @@ from typing import Annotated, Any
 
 import typer
 
-from train import ASSETS_DIR
+from service.core.paths import ASSETS_DIR
 from train.commands.common import err, fail, guard, out, profile_or_exit
 
 CORPUS = ASSETS_DIR / "real" / "corpus"

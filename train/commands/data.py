@@ -42,7 +42,7 @@ def _make(jobs: list[tuple[Any, Path]], overwrite: bool, workers: int) -> list[d
     """Write the sets with a progress bar; print a summary table."""
     from tqdm import tqdm
 
-    from train.dataset import DatasetError
+    from service.core.dataset import DatasetError
     from train.synth.generate import check_outputs, make_datasets
 
     guard(lambda: check_outputs([path for _, path in jobs], overwrite), code=2)
@@ -142,7 +142,7 @@ def roll(
     """Measure the camera roll (SPEC 5) of real photographs, to set a profile's roll_deg."""
     import numpy as np
 
-    from train.profile import measure_rolls
+    from train.real.realset import measure_rolls
 
     for path in labels_csv:
         if not path.is_file():

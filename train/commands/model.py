@@ -115,7 +115,7 @@ def evaluate(
     """Evaluate model(s) on data set(s): metrics.json, Markdown, plots (grid if several)."""
     from tqdm import tqdm
 
-    from train.dataset import load_dataset
+    from service.core.dataset import load_dataset
     from train.network.evaluate import evaluate_predictor, load_predictor
     from train.network.report import write_report
 

@@ -32,8 +32,9 @@ from typing import Any, Protocol
 import cv2
 import numpy as np
 
-from train import REPO_ROOT
-from train.geometry import apply_homography, camera_centre, intrinsics, pose_class
+from service.core.geometry import apply_homography, camera_centre, intrinsics
+from service.core.paths import REPO_ROOT
+from service.core.regions import pose_class
 from train.network.evaluate import compute_metrics
 from train.real.calibration import Calibration, Camera, default_camera
 from train.real.corners import FEATURES, ImageFeatures, MatchResult, TextureMatcher

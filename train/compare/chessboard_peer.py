@@ -23,8 +23,9 @@ from typing import Any
 import cv2
 import numpy as np
 
+from service.core.geometry import camera_centre
+from service.core.regions import pose_class
 from train.compare.baseline import BaselinePrediction, failure_summary, run_baseline
-from train.geometry import camera_centre, pose_class
 from train.network.evaluate import compute_metrics
 from train.real.calibration import Camera
 from train.real.corners import ChessboardPattern, find_grid, orient_grid, to_grey

@@ -18,6 +18,7 @@ from typing import Any
 
 from tqdm import tqdm
 
+from service.core.dataset import LoadedDataset
 from train.compare.baseline import (
     FEATURE_CHOICES,
     BaselineConfig,
@@ -28,7 +29,6 @@ from train.compare.baseline import (
 from train.compare.baseline import tune as tune_baseline
 from train.compare.chessboard_peer import ChessboardPeer, evaluate_peer
 from train.compare.sets import StoredPhotos, load_part, profile_of
-from train.dataset import LoadedDataset
 
 PEER_CHOICES = (*FEATURE_CHOICES, "chessboard")
 

@@ -15,8 +15,8 @@ proposals, measured in one run on one machine, so times compare as ratios:
 
 Outputs: the Markdown report (default docs/comparison.md, `train.compare.report`), and next
 to it a folder with metrics.json (the `planar-pose evaluate` layout, via
-`train.network.report.write_report`), detection_metrics.json, the per-cell report and the PNG
-plots (`train.compare.plots`).
+`train.network.report.write_metrics`), detection_metrics.json, the summary plots
+(`train.compare.plots`) and, in its `details` folder, the per-cell report and plots.
 """
 
 from __future__ import annotations
@@ -30,6 +30,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from tqdm import tqdm
 
+from service.core.dataset import LoadedDataset
 from train.compare.baseline import dataset_cameras
 from train.compare.detection import detection_variants
 from train.compare.peers import (
@@ -50,7 +51,6 @@ from train.compare.sets import (
     same_object,
     stored_photos,
 )
-from train.dataset import LoadedDataset
 from train.markdown import pct
 from train.network.evaluate import evaluate_predictor, model_predictor
 
@@ -234,22 +234,24 @@ def write_outputs(
     results: Results,
     detections: dict[str, dict[str, dict]],
 ) -> list[str]:
-    """metrics.json + details (`write_report`), detection_metrics.json, plots and the
-    Markdown report; returns the main files written."""
-    from train.network.report import write_report
+    """metrics.json, the per-cell details (`write_details`, in out_dir/details),
+    detection_metrics.json, the summary plots and the Markdown report; returns the main files
+    written."""
+    from train.network.report import DETAILS_DIR, write_details, write_metrics
 
     out_dir = config.markdown.with_suffix("")
-    details = write_report(
+    title = "Comparison: CNN vs the classical peers"
+    sources = {n: str(e.path) for n, e in models.items()}
+    sources |= {r["name"]: str(d) for r, d in zip(rows, config.datasets, strict=True)}
+    write_metrics(results, out_dir, title, sources)
+    details = write_details(
         results,
-        out_dir,
-        out_dir / "details.md",
-        "Comparison details: CNN vs the classical peers",
+        out_dir / DETAILS_DIR,
+        title,
         [
             f"Split `{config.split}`. Written by `planar-pose compare`; "
-            f"summary in {config.markdown.name}."
+            f"summary in {config.markdown}."
         ],
-        {n: str(e.path) for n, e in models.items()}
-        | {r["name"]: str(d) for r, d in zip(rows, config.datasets, strict=True)},
     )
     if detections:
         (out_dir / "detection_metrics.json").write_text(json.dumps(detections, indent=1) + "\n")

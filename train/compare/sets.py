@@ -1,7 +1,7 @@
 """What the comparison reads: data set splits, their manifests and profiles, model cards, and
 the full-size photographs behind real data sets.
 
-Splits are `train.dataset.LoadedDataset`s (images RGB uint8 [N, H, W, 3], labels int64 [N],
+Splits are `service.core.dataset.LoadedDataset`s (images RGB uint8 [N, H, W, 3], labels int64 [N],
 labels.csv rows); `load_part` only cuts them to the first `limit` images.
 """
 
@@ -16,8 +16,8 @@ from typing import Any
 import cv2
 import numpy as np
 
-from train import REPO_ROOT
-from train.dataset import LoadedDataset, load_dataset
+from service.core.dataset import LoadedDataset, load_dataset
+from service.core.paths import REPO_ROOT
 from train.real.calibration import Calibration, Camera, default_camera
 
 #: Where a corpus data set's stored photos live, below the corpus folder: <kind>/<source>/.
@@ -60,7 +60,7 @@ def describe(folder: Path, images: np.ndarray) -> dict[str, Any]:
 
 def profile_of(folder: Path, override: str | None) -> Any:
     """The object profile of a data set (its manifest's, or `override`, a name or folder)."""
-    from train.profile import load_profile
+    from service.core.profile import load_profile
 
     if override:
         return load_profile(override)
@@ -101,7 +101,7 @@ def photo_set(folder: Path, z_split: float) -> tuple[list[bytes], np.ndarray, li
     The split is the one `planar-pose realset` gives with its default seed (0): by stereo
     moment, so it matches the real data sets built from the same folder.
     """
-    from train.geometry import pose_class
+    from service.core.regions import pose_class
     from train.real.realset import moment_of, split_moments
 
     with (folder / "labels.csv").open(newline="") as fh:

@@ -28,7 +28,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from service.regions import NUM_CLASSES
+from service.core.regions import NUM_CLASSES
 from train.network.model import NormalisedNet
 
 SIZES = ((80, 60), (160, 120))

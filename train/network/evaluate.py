@@ -15,15 +15,15 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from service.preprocess import to_network_input
-from service.regions import NUM_CLASSES
-from train.dataset import LoadedDataset
+from service.core.dataset import LoadedDataset
+from service.core.preprocess import to_network_input
+from service.core.regions import NUM_CLASSES
 
 if TYPE_CHECKING:
     from service.model import PoseModel
 
 #: A classifier: RGB uint8 images [N, H, W, 3] at the network's size and their pixel aspect
-#: [N] (`service.preprocess.NetworkFrame.pixel_aspect`: 1 unless a photo was squashed) ->
+#: [N] (`service.core.preprocess.NetworkFrame.pixel_aspect`: 1 unless a photo was squashed) ->
 #: probabilities float32 [N, 9]. A predictor of a graph that takes the camera's focal length
 #: (`model_predictor`) also takes `focal` [N] (px of the input's width, 0: unknown).
 Predictor = Callable[..., np.ndarray]

@@ -25,6 +25,8 @@ from typing import Any
 
 import numpy as np
 
+from service.core.paths import REPO_ROOT
+from service.core.regions import NUM_CLASSES, class_descriptions, region_of_class
 from service.model import (
     CORNERS,
     DEFAULT_VIEW,
@@ -34,8 +36,6 @@ from service.model import (
     PROBABILITIES,
     VIEW,
 )
-from service.regions import NUM_CLASSES, class_descriptions, region_of_class
-from train import REPO_ROOT
 
 OPSET = 17
 #: What the card says of each architecture (train.network.model.build_network).
@@ -106,7 +106,7 @@ def profile_card(profile: dict[str, Any]) -> dict[str, Any]:
     """
     card = dict(profile)
     try:
-        from train.profile import load_profile
+        from service.core.profile import load_profile
 
         full = load_profile(profile["name"])
         card.setdefault("box_min_cm", list(full.geometry.box_min))
@@ -256,7 +256,7 @@ def accuracy_on(predict: Any, datasets: list[Path], split: str) -> dict[str, dic
     """{data set folder name: {accuracy, class0_accuracy, count, split, by_margin,
     by_framing[, by_source]}} of a predictor (`train.network.evaluate.compute_metrics`; real
     sets: `source_breakdown`)."""
-    from train.dataset import load_dataset
+    from service.core.dataset import load_dataset
     from train.network.evaluate import compute_metrics, predict_all, source_breakdown
 
     out: dict[str, dict[str, Any]] = {}

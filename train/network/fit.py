@@ -74,7 +74,7 @@ def load_split(paths: list[Path], split: str) -> tuple[Split, list[dict[str, Any
 
     Raises TrainingError for a missing folder, mixed image sizes or an empty split.
     """
-    from train.dataset import load_dataset
+    from service.core.dataset import load_dataset
 
     images, labels, blurs, corners, aspects, infos = [], [], [], [], [], []
     for path in paths:
@@ -115,7 +115,7 @@ class Augmenter:
     input float32 [B, 3, H, W] in [0, 1].
 
     * blur: an image of a blur-0 data set gets, with probability `p_blur`, a SPEC blur level
-      drawn from 1..3 (the same kernels as the data sets, `train.synth.blur`), so that one network
+      drawn from 1..3 (the same kernels as the data sets, `service.core.blur`), so that one network
       sees all levels;
     * crop: with probability `p_crop`, a crop of U(0.85, 1) of the width and height at a
       random place, resized back: the camera centre (so the class) is unchanged, the image
@@ -175,7 +175,7 @@ class Augmenter:
     ) -> tuple[torch.Tensor, np.ndarray]:
         """Augmented network input float32 [B, 3, H, W] in [0, 1] (channels-last, as
         `to_input`) and the corners [B, 8] px (nan if not given)."""
-        from train.synth.blur import blur_image
+        from service.core.blur import blur_image
 
         n = len(images)
         out = images.copy()

@@ -57,11 +57,11 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from train.geometry import intrinsics
+from service.core.blur import KERNELS, gaussian_taps
+from service.core.geometry import intrinsics
 from train.network.align import CheckerAlign, Lens, square_homography
 from train.network.convnet import _conv
 from train.network.model import NormalisedNet
-from train.synth.blur import KERNELS, gaussian_taps
 
 SIZE = (160, 120)
 # The focal length (`KeypointNet.focal_length`): Zhang's constraints with a prior. The prior
@@ -82,7 +82,7 @@ RADIAL_PRIOR = -0.2
 # Chosen on the val sources, with the train sources as the second check (docs/camera_model.md)
 BARREL_LIMIT = -0.45
 # The blurs the parity step also reads the pattern under (`parity`): SPEC blur level 3 at
-# 160x120 (k = 10 taps, sd 5 px, anchored as the data sets' `train.synth.blur`), whose nearly
+# 160x120 (k = 10 taps, sd 5 px, anchored as the data sets' `service.core.blur`), whose nearly
 # box-shaped kernel inverts the checker of squares under about 5 px, on the input and on a
 # tile enlarged 2x (each tap spread over 2 px)
 PARITY_BLUR = KERNELS[2][3]
@@ -349,7 +349,7 @@ class KeypointNet(NormalisedNet):
 
         `pixel_aspect` [N] is the height over the width of an input pixel in the scene (fy /
         fx): 1 for a 4:3 photo, 0.75 W / H for a landscape W x H photo resized to 160x120
-        (16:9: 4/3; `service.preprocess.NetworkFrame`, which turns portraits to landscape).
+        (16:9: 4/3; `service.core.preprocess.NetworkFrame`, which turns portraits to landscape).
         The rows are brought to square pixels of the input's width first."""
         Hc = self.centred_homography(H_unit, pixel_aspect)
         f = self.focal_length(Hc, focal, k1)

@@ -1,6 +1,6 @@
 """The pose-class CNN of SPEC section 8, with the input normalisation inside the module.
 
-Input: float32 [N, 3, H, W], RGB in [0, 1] (what `service.preprocess.to_network_input` makes).
+Input: float32 [N, 3, H, W], RGB in [0, 1] (what `service.core.preprocess.to_network_input` makes).
 Output of `PoseNet.forward`: log-probabilities float32 [N, 9] (log-softmax).
 
     conv 5x5 3->64, tanh, L2 pool 4x4/4, conv 5x5 64->64, tanh, L2 pool 4x4/4,
@@ -21,7 +21,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from service.regions import NUM_CLASSES
+from service.core.regions import NUM_CLASSES
 from train.network.config import Arch
 
 #: Supported input sizes (W, H) -> hidden width of the classifier (SPEC section 8 table).
@@ -245,7 +245,7 @@ def log_probabilities(
     net: NormalisedNet, x: torch.Tensor, pixel_aspect: torch.Tensor | None = None
 ) -> torch.Tensor:
     """Eval-mode log-probabilities [N, 9] of RGB [N, 3, H, W] in [0, 1]; the pixel aspect
-    [N] (`service.preprocess.NetworkFrame.pixel_aspect`) goes to the networks that read
+    [N] (`service.core.preprocess.NetworkFrame.pixel_aspect`) goes to the networks that read
     it."""
     if takes_pixel_aspect(net):
         out: torch.Tensor = net(x, pixel_aspect)

@@ -26,7 +26,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from train.geometry import intrinsics
+from service.core.geometry import intrinsics
 
 
 @dataclass(frozen=True)
@@ -67,7 +67,7 @@ def default_camera(size: tuple[int, int]) -> Camera:
     """The default guess for an uncalibrated photograph of `size` (W, H).
 
     The SPEC camera's field of view (fx = fy scaled from 206 px at 160 px wide, about 42 deg
-    horizontally, `train.geometry.intrinsics`) with the principal point at the image centre
+    horizontally, `service.core.geometry.intrinsics`) with the principal point at the image centre
     and no distortion. Positions in cm are only as good as this guess: calibrate for real
     measurements.
     """

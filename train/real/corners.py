@@ -21,7 +21,12 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from train.geometry import apply_homography, camera_centre, dlt_homography, pose_from_homography
+from service.core.geometry import (
+    apply_homography,
+    camera_centre,
+    dlt_homography,
+    pose_from_homography,
+)
 
 FEATURES = ("sift", "orb")
 

@@ -34,7 +34,6 @@ outline, axes and class drawn, to check by eye).
 
 from __future__ import annotations
 
-import csv
 import json
 import shutil
 from collections import Counter
@@ -46,7 +45,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from train.dataset import LABEL_COLUMNS
+from service.core.dataset import LABEL_COLUMNS, LABELS_FILE, write_labels, write_manifest
 from train.real.calibration import Camera
 from train.real.corners import ChessboardPattern, Correspondences, find_grid, orient_grid, to_grey
 from train.real.label import (
@@ -246,12 +245,9 @@ def _prepare(src: Path, out: Path) -> tuple[dict[str, Any], list[Path]]:
 
 
 def _write(out: Path, rows: list[dict[str, Any]], failed: list[str], manifest: dict) -> None:
-    with (out / "labels.csv").open("w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=CORPUS_COLUMNS, extrasaction="ignore")
-        writer.writeheader()
-        writer.writerows(rows)
+    write_labels(out / LABELS_FILE, rows, CORPUS_COLUMNS)
     (out / "failed.txt").write_text("".join(f"{line}\n" for line in failed))
-    (out / "manifest.json").write_text(json.dumps(manifest, indent=1) + "\n")
+    write_manifest(out, manifest, rows)
 
 
 def label_source(
@@ -324,7 +320,6 @@ def label_source(
         "photos": len(paths),
         "failed": len(failed),
         "failed_by_reason": dict(reasons),
-        "class_counts": np.bincount([int(r["class"]) for r in rows], minlength=9).tolist(),
     }
     _write(out, rows, failed, manifest)
     return manifest

@@ -31,7 +31,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from train.geometry import pose_class
+from service.core.regions import pose_class
 from train.real.calibration import Camera
 from train.real.corners import ChessboardPattern
 from train.real.corpus import stored_size

@@ -4,7 +4,7 @@ For each photograph: the object is found automatically (`train.real.corners`: th
 detector for a chessboard profile, SIFT matching to the profile texture otherwise) or taken
 from a CSV of clicked corners; the points are undistorted with the camera's calibration; the
 object-plane -> image homography comes from the normalised DLT over all points
-(`train.geometry.dlt_homography`) and the initial pose from `pose_from_homography` (nearest
+(`service.core.geometry.dlt_homography`) and the initial pose from `pose_from_homography` (nearest
 rotation); `refine_pose` then minimises the reprojection error of all points in raw pixels,
 through the camera's distortion (Levenberg-Marquardt, `cv2.solvePnPRefineLM`), and keeps the
 refined pose only when it is not worse and has the same orientation (board normal, in-plane
@@ -23,7 +23,6 @@ overlays/<stem>.png with the projected outline and axes.
 from __future__ import annotations
 
 import csv
-import json
 import shutil
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
@@ -33,15 +32,10 @@ from typing import Any
 import cv2
 import numpy as np
 
-from train.dataset import CORNER_COLUMNS, LABEL_COLUMNS
-from train.geometry import (
-    SPEC_FOCAL_160,
-    camera_centre,
-    dlt_homography,
-    pose_class,
-    pose_from_homography,
-)
-from train.profile import roll_of_pose
+from service.core.dataset import CORNER_COLUMNS, LABEL_COLUMNS, write_manifest
+from service.core.geometry import camera_centre, dlt_homography, pose_from_homography, roll_of_pose
+from service.core.inputs import focal_scale
+from service.core.regions import pose_class
 from train.real.calibration import Calibration, Camera, default_camera
 from train.real.corners import ChessboardPattern, Correspondences, TextureMatcher, detect_chessboard
 from train.real.realset import moment_of, optical_axis_target, split_moments
@@ -291,7 +285,7 @@ def row_of(file: str, lab: Label, size: tuple[int, int], split: str) -> dict[str
     row: dict[str, Any] = {"file": file, "class": lab.label, "blur": 0, "split": split}
     row["roll_deg"] = f"{roll_of_pose(lab.R):.2f}"
     # Focal length relative to the SPEC camera's at the same image width.
-    row["focal_scale"] = f"{K[0, 0] / size[0] * 160 / SPEC_FOCAL_160[0]:.4f}"
+    row["focal_scale"] = f"{focal_scale(K[0, 0], size[0]):.4f}"
     row |= {f"cam_{a}": f"{v:.4f}" for a, v in zip("xyz", lab.centre, strict=True)}
     row |= {f"target_{a}": f"{v:.4f}" for a, v in zip("xyz", target, strict=True)}
     row |= {"width": size[0], "height": size[1]}
@@ -395,15 +389,11 @@ def label_folder(
         "seed": seed,
         "size": list(sizes.pop()) if len(sizes) == 1 else None,
         "blur": 0,
-        "count": len(rows),
-        "counts": {s: sum(r["split"] == s for r in rows) for s in ("train", "val", "test")},
-        "class_counts": np.bincount([r["class"] for r in rows], minlength=9).tolist(),
         "failed": len(failed),
         "methods": {m: sum(r["method"] == m for r in rows) for m in {r["method"] for r in rows}},
         "mean_reproj_rms_px": float(np.mean([lab.rms for _, lab, _ in labelled])) if rows else None,
     }
-    (out / "manifest.json").write_text(json.dumps(manifest, indent=1) + "\n")
-    return manifest | {"failed_files": failed}
+    return write_manifest(out, manifest, rows) | {"failed_files": failed}
 
 
 def compare_to_truth(out: Path, truth_csv: Path, z_split: float) -> dict[str, Any]:

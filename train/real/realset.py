@@ -4,8 +4,8 @@ The source folder has images and a labels.csv with at least `file, cam_x, cam_y,
 camera centre in the object frame, cm) and, optionally, OpenCV `rvec0..2` (object -> camera
 rotation) used to find where the optical axis meets the object plane (the "target").
 Each image is read, turned to RGB, resized to the network size with the service's area
-resize, blurred with a SPEC level (`train.synth.blur`) and saved as PNG; its class comes from
-`train.geometry.pose_class` with the profile's z split.
+resize, blurred with a SPEC level (`service.core.blur`) and saved as PNG; its class comes from
+`service.core.regions.pose_class` with the profile's z split.
 
 Stereo pairs (`leftNN` / `rightNN`) are taken at the same moment: the train / val / test split
 (60 / 20 / 20 %, seeded) is drawn over moments, never separating a pair.
@@ -14,21 +14,29 @@ Stereo pairs (`leftNN` / `rightNN`) are taken at the same moment: the train / va
 from __future__ import annotations
 
 import csv
-import json
 import re
+import tomllib
 from pathlib import Path
 from typing import Any
 
 import cv2
 import numpy as np
 
-from service.preprocess import NetworkFrame
-from train import repo_relative
-from train.dataset import CORNER_COLUMNS, LABEL_COLUMNS
-from train.geometry import pose_class
-from train.synth.blur import SIZES
-
-SPLITS = ("train", "val", "test")
+from service.core.blur import blur_image
+from service.core.dataset import (
+    CORNER_COLUMNS,
+    LABEL_COLUMNS,
+    LABELS_FILE,
+    SPLITS,
+    write_labels,
+    write_manifest,
+)
+from service.core.geometry import roll_of_pose
+from service.core.inputs import SIZES, focal_scale
+from service.core.paths import repo_relative
+from service.core.preprocess import NetworkFrame
+from service.core.profile import load_profile
+from service.core.regions import pose_class
 
 
 def moment_of(file: str) -> str:
@@ -72,7 +80,7 @@ def optical_axis_target(cam: np.ndarray, rvec: np.ndarray | None) -> np.ndarray:
 
 def turned_roll(roll_deg: float) -> float:
     """The camera roll (degrees, [-180, 180)) of a photo turned a quarter clockwise
-    (`service.preprocess.NetworkFrame`): its content turns by -90 degrees."""
+    (`service.core.preprocess.NetworkFrame`): its content turns by -90 degrees."""
     return (roll_deg + 90.0) % 360.0 - 180.0
 
 
@@ -90,14 +98,9 @@ def build_real_dataset(
     """Write out/ (images/*.png, labels.csv, manifest.json) from `source`; return the manifest.
 
     Besides the class, labels.csv gets the target (`optical_axis_target`), the camera roll
-    (`train.profile.roll_of_pose`), the focal length relative to the SPEC one when the
+    (`service.core.geometry.roll_of_pose`), the focal length relative to the SPEC one when the
     source gives `rvec0..2` and `fx`, `width`, and the pixel aspect of the resized photo.
     """
-    from train.geometry import SPEC_FOCAL_160
-    from train.profile import load_profile, roll_of_pose
-    from train.synth.blur import blur_image
-    from train.synth.generate import write_labels
-
     prof = load_profile(profile)
     z_split = float(prof.geometry.z_split_cm)
     wh = SIZES[size]
@@ -127,7 +130,7 @@ def build_real_dataset(
         turned = frame.turned and row.get("fy") and row.get("height")
         if row.get("fx") and row.get("width"):  # along the landscape width
             f, w = (row["fy"], row["height"]) if turned else (row["fx"], row["width"])
-            focal = f"{float(f) / float(w) * 160 / SPEC_FOCAL_160[0]:.4f}"
+            focal = f"{focal_scale(float(f), float(w)):.4f}"
         labels.append(
             {
                 "file": name,
@@ -141,9 +144,7 @@ def build_real_dataset(
                 "pixel_aspect": f"{frame.pixel_aspect:.4f}",
             }
         )
-    write_labels(out / "labels.csv", labels, [*LABEL_COLUMNS, "pixel_aspect"])
-    counts = {s: sum(r["split"] == s for r in labels) for s in SPLITS}
-    classes = np.bincount([r["class"] for r in labels], minlength=9).tolist()
+    write_labels(out / LABELS_FILE, labels, [*LABEL_COLUMNS, "pixel_aspect"])
     manifest = {
         "generator": "planar-pose realset",
         "generator_version": "1.0",
@@ -154,17 +155,13 @@ def build_real_dataset(
         "size": list(wh),
         "blur": blur,
         "seed": seed,
-        "count": len(labels),
-        "counts": counts,
-        "class_counts": classes,
         "split_by": "moment (stereo pairs stay together)",
     }
-    (out / "manifest.json").write_text(json.dumps(manifest, indent=1) + "\n")
-    return manifest
+    return write_manifest(out, manifest, labels)
 
 
 #: Columns of a corpus data set: the data set ones, the source, the camera at the set's size
-#: and the pixel aspect of the resized photo (`service.preprocess.NetworkFrame`).
+#: and the pixel aspect of the resized photo (`service.core.preprocess.NetworkFrame`).
 CORPUS_SET_COLUMNS = [
     *LABEL_COLUMNS, "source", "original", "fx", "fy", "cx", "cy", "k2", "p1", "p2", "k3",
     "pixel_aspect",
@@ -173,8 +170,6 @@ CORPUS_SET_COLUMNS = [
 
 def read_splits(path: Path) -> dict[str, str]:
     """splits.toml of a corpus: {source id: train | val | test} from its [splits] table."""
-    import tomllib
-
     if not path.is_file():
         raise FileNotFoundError(f"corpus split file not found: {path}")
     try:
@@ -221,13 +216,10 @@ def build_corpus_dataset(
 
     `corpus/splits.toml` names the split of every source: a source's photos all go to one
     split, so the test split holds cameras and scenes never used for training or selection.
-    The images go to the network size as in serving (`service.preprocess.NetworkFrame`:
+    The images go to the network size as in serving (`service.core.preprocess.NetworkFrame`:
     portraits turned to landscape, the area resize, aspect ratio not kept: the `pixel_aspect`
     column says by how much) and are blurred with the SPEC level.
     """
-    from train.profile import load_profile
-    from train.synth.blur import blur_image
-
     prof = load_profile(profile)
     z_split = float(prof.geometry.z_split_cm)
     splits = read_splits(corpus / "splits.toml")
@@ -254,10 +246,7 @@ def build_corpus_dataset(
             label |= {"file": name, "blur": blur, "split": splits[src.name], "source": src.name}
             label |= {"original": row.get("original", "")} | in_frame(row, frame)
             labels.append(label)
-    with (out / "labels.csv").open("w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=CORPUS_SET_COLUMNS, lineterminator="\n")
-        writer.writeheader()
-        writer.writerows(labels)
+    write_labels(out / LABELS_FILE, labels, CORPUS_SET_COLUMNS)
     manifest = {
         "generator": "planar-pose realset (corpus)",
         "generator_version": "1.0",
@@ -267,11 +256,21 @@ def build_corpus_dataset(
         "profile": prof.manifest_entry(),
         "size": list(wh),
         "blur": blur,
-        "count": len(labels),
-        "counts": {s: sum(r["split"] == s for r in labels) for s in SPLITS},
-        "class_counts": np.bincount([int(r["class"]) for r in labels], minlength=9).tolist(),
         "split_by": "source (corpus/splits.toml)",
         "sources": {s: sorted({r["source"] for r in labels if r["split"] == s}) for s in SPLITS},
     }
-    (out / "manifest.json").write_text(json.dumps(manifest, indent=1) + "\n")
-    return manifest
+    return write_manifest(out, manifest, labels)
+
+
+def measure_rolls(labels_csv: Path) -> np.ndarray:
+    """Rolls (degrees, (N,)) of the photos of a real labels.csv with OpenCV rvec0..2 columns."""
+    with Path(labels_csv).open(newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    if not rows or "rvec0" not in rows[0]:
+        raise ValueError(f"{labels_csv}: needs rows with rvec0, rvec1, rvec2 columns")
+    rolls = []
+    for row in rows:
+        rvec = np.array([float(row[f"rvec{i}"]) for i in range(3)])
+        R, _ = cv2.Rodrigues(rvec)
+        rolls.append(roll_of_pose(R))
+    return np.asarray(rolls)

@@ -23,8 +23,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from train import ASSETS_DIR
-from train.geometry import apply_homography, dlt_homography
+from service.core.geometry import apply_homography, dlt_homography
+from service.core.paths import ASSETS_DIR
 
 BACKGROUNDS_DIR = ASSETS_DIR / "backgrounds"
 CORPUS_DIR = ASSETS_DIR / "real" / "corpus"

@@ -1,4 +1,4 @@
-"""Writing synthetic data sets (SPEC section 7); `train.dataset` reads them.
+"""Writing synthetic data sets (SPEC section 7); `service.core.dataset` reads them.
 
 A synthetic set is a folder:
 
@@ -16,8 +16,6 @@ the same bytes whatever the number of worker processes) and `make_datasets` the 
 
 from __future__ import annotations
 
-import csv
-import json
 import multiprocessing
 import os
 import shutil
@@ -31,10 +29,20 @@ from typing import Any
 import cv2
 import numpy as np
 
-from train.dataset import CORNER_COLUMNS, LABEL_COLUMNS, NUM_CLASSES, SPLITS, DatasetError
-from train.profile import Profile
+from service.core.blur import BLUR_LEVELS
+from service.core.dataset import (
+    CORNER_COLUMNS,
+    LABEL_COLUMNS,
+    LABELS_FILE,
+    SPLITS,
+    DatasetError,
+    write_labels,
+    write_manifest,
+)
+from service.core.inputs import SIZES
+from service.core.profile import Profile
+from service.core.regions import NUM_CLASSES
 from train.synth.background import BackgroundPool
-from train.synth.blur import BLUR_LEVELS, SIZES
 from train.synth.render import VARIANTS, Renderer, View, draw_views
 
 GENERATOR = "planar-pose data make"
@@ -322,14 +330,6 @@ def _manifest(plan: Plan) -> dict[str, Any]:
     }
 
 
-def write_labels(path: Path, rows: list[dict[str, Any]], columns: list[str] | None = None) -> None:
-    """Write labels.csv rows (`columns`, default LABEL_COLUMNS) to `path`."""
-    with path.open("w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=columns or LABEL_COLUMNS, lineterminator="\n")
-        writer.writeheader()
-        writer.writerows(rows)
-
-
 def make_datasets(
     jobs: list[tuple[DatasetSpec, Path]],
     overwrite: bool = False,
@@ -350,10 +350,8 @@ def make_datasets(
         pass
     manifests = []
     for plan, (spec, out) in zip(plans, jobs, strict=True):
-        write_labels(out / "labels.csv", plan.rows(_digits(spec.count)))
-        manifest = _manifest(plan)
-        (out / "manifest.json").write_text(json.dumps(manifest, indent=1) + "\n")
-        manifests.append(manifest)
+        write_labels(out / LABELS_FILE, plan.rows(_digits(spec.count)))
+        manifests.append(write_manifest(out, _manifest(plan)))
     return manifests
 
 

@@ -24,18 +24,18 @@ from functools import cache
 import cv2
 import numpy as np
 
-from train.geometry import (
+from service.core.blur import blur_image
+from service.core.geometry import (
     homography_from_pose,
     intrinsics,
     look_at,
-    pose_class,
     project_points,
     translation,
 )
-from train.profile import Profile
+from service.core.profile import Profile
+from service.core.regions import pose_class
 from train.real.corners import texture_to_object
 from train.synth.background import BackgroundPool
-from train.synth.blur import blur_image
 
 #: Look-at targets: C (object centre), noC (SPEC: a 6 x 6 cm square around it), free (the
 #: object anywhere in the central part of the frame, as in hand-held calibration photos).
@@ -366,7 +366,7 @@ class Renderer:
 
 @cache
 def _plain_renderer(profile_path: str, size: tuple[int, int]) -> Renderer:
-    from train.profile import load_profile
+    from service.core.profile import load_profile
 
     profile = load_profile(profile_path)
     grey = np.full((size[1], size[0], 3), 127, np.uint8)

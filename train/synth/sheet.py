@@ -7,8 +7,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from service.regions import NUM_CLASSES, region_of_class
-from train.dataset import load_dataset
+from service.core.dataset import load_dataset
+from service.core.regions import NUM_CLASSES, region_of_class
 
 LABEL_WIDTH = 190  # px of the text column
 GAP = 2  # px between tiles
@@ -24,7 +24,7 @@ def contact_sheet(
 ) -> np.ndarray:
     """Draw `per_class` random images of each class 0..8 (rows) of `dataset`, magnified by
     `scale` (nearest neighbour, to see the pixels), with the class id and its region in words
-    (`service.regions.region_of_class`); write it to `out` (PNG) and return it (RGB uint8).
+    (`service.core.regions.region_of_class`); write it to `out` (PNG) and return it (RGB uint8).
 
     A class with fewer images leaves its remaining tiles light grey.
     """

@@ -27,8 +27,8 @@ STARTUP_TIMEOUT_S = 90.0
 
 def _other_model() -> str:
     """A shipped model besides the default that is another network (not a renamed copy)."""
+    from service.core.preprocess import load_image, to_network_input
     from service.model import PoseModel
-    from service.preprocess import load_image, to_network_input
 
     photo = (REAL / "left01.jpg").read_bytes()
 

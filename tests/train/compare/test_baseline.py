@@ -12,10 +12,11 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from train import ASSETS_DIR
+from service.core.geometry import homography_from_pose, intrinsics, look_at, translation
+from service.core.paths import ASSETS_DIR
+from service.core.regions import pose_class
 from train.cli import app
 from train.compare.baseline import BaselineConfig, FeatureBaseline, dataset_cameras, tune
-from train.geometry import homography_from_pose, intrinsics, look_at, pose_class, translation
 from train.real.calibration import Camera
 from train.real.corners import texture_to_object
 
@@ -167,8 +168,8 @@ def _stereo_rows(n: int) -> list[dict[str, str]]:
 
 
 def _peer(enlarge: float = 4):
+    from service.core.profile import load_profile
     from train.compare.chessboard_peer import ChessboardPeer
-    from train.profile import load_profile
     from train.real.label import chessboard_pattern
 
     profile = load_profile("chessboard")
@@ -215,8 +216,8 @@ def test_chessboard_peer_at_the_network_size(tmp_path):
 
 
 def test_chessboard_peer_answers_zero_without_a_board():
+    from service.core.profile import load_profile
     from train.compare.chessboard_peer import NOT_FOUND
-    from train.profile import load_profile
     from train.synth.generate import DatasetSpec, render_in_memory
     from train.synth.render import render_view
 
@@ -234,8 +235,8 @@ def test_chessboard_peer_answers_zero_without_a_board():
 
 
 def test_stored_photos_of_a_corpus_set(tmp_path):
+    from service.core.dataset import load_dataset
     from train.compare.sets import stored_photos
-    from train.dataset import load_dataset
 
     corpus = tmp_path / "corpus"
     src = corpus / "boards" / "cam1"

@@ -11,8 +11,8 @@ import onnxruntime as ort
 import pytest
 import torch
 
-from service.preprocess import to_network_input
-from train import ASSETS_DIR, REPO_ROOT
+from service.core.paths import ASSETS_DIR, REPO_ROOT
+from service.core.preprocess import to_network_input
 from train.network.export import export
 from train.network.fit import CHECKPOINT_FORMAT
 from train.network.model import PoseNet

@@ -12,7 +12,7 @@ import torch
 from typer.testing import CliRunner
 
 import train.network.fit as fit_module
-from train import REPO_ROOT
+from service.core.paths import REPO_ROOT
 from train.cli import app
 from train.network.config import ConfigError, load_config
 from train.network.fit import (

@@ -12,15 +12,16 @@ import pytest
 import torch
 from torch import nn
 
-from train.geometry import intrinsics, look_at, pose_class, project_points, translation
+from service.core.blur import blur_image
+from service.core.geometry import intrinsics, look_at, project_points, translation
+from service.core.profile import load_profile
+from service.core.regions import pose_class
 from train.network import keypoint
 from train.network.align import CheckerAlign, solve_spd, square_homography
 from train.network.export import onnx_bytes
 from train.network.fit import FitConfig, _grown, fit, load_network
 from train.network.keypoint import KeypointNet
 from train.network.model import arch_of, build_network
-from train.profile import load_profile
-from train.synth.blur import blur_image
 from train.synth.generate import DatasetSpec, make_dataset
 
 PROFILE = load_profile("chessboard")

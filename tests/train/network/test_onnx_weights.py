@@ -11,10 +11,10 @@ import pytest
 import torch
 from torch import nn
 
-from train import REPO_ROOT
+from service.core.paths import REPO_ROOT
+from service.core.profile import load_profile
 from train.network.fit import FitConfig, TrainingError, fit, load_network
 from train.network.onnx_weights import OnnxWeightsError, keypoint_from_onnx, recalibrate_batch_norm
-from train.profile import load_profile
 from train.synth.generate import DatasetSpec, make_dataset
 
 DEFAULT = REPO_ROOT / "models" / "default.onnx"

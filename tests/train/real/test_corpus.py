@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from train import ASSETS_DIR
+from service.core.dataset import load_dataset
+from service.core.paths import ASSETS_DIR
+from service.core.profile import load_profile
 from train.cli import app
-from train.dataset import load_dataset
-from train.profile import load_profile
 from train.real.corpus import STORE_MAX_SIDE, import_negatives, label_source, read_source
 from train.real.label import compare_to_truth
 from train.real.realset import build_corpus_dataset

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from train import ASSETS_DIR
+from service.core.paths import ASSETS_DIR
+from service.core.profile import load_profile
 from train.cli import app
-from train.profile import load_profile
 from train.real.calibration import Camera
 from train.real.corpus import stored_size
 from train.real.crosscheck import crosscheck_folder

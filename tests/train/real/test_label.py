@@ -11,11 +11,12 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from train import ASSETS_DIR
+from service.core.dataset import load_dataset
+from service.core.geometry import homography_from_pose, intrinsics, look_at, translation
+from service.core.paths import ASSETS_DIR
+from service.core.profile import load_profile
+from service.core.regions import pose_class
 from train.cli import app
-from train.dataset import load_dataset
-from train.geometry import homography_from_pose, intrinsics, look_at, pose_class, translation
-from train.profile import load_profile
 from train.real.calibration import Calibration, default_camera
 from train.real.corners import ChessboardPattern, detect_chessboard, texture_to_object
 from train.real.label import compare_to_truth, label_folder, read_corner_csv
@@ -231,7 +232,7 @@ def _noisy_view(c: tuple[float, float, float], seed: int = 0):
 
 @pytest.mark.parametrize("c", [(25.0, 18.0, 30.0), (-30.0, 10.0, 45.0), (30.0, 25.0, 70.0)])
 def test_refinement_lowers_the_reprojection_error_and_keeps_the_orientation(c):
-    from train.geometry import camera_centre, dlt_homography, pose_from_homography
+    from service.core.geometry import camera_centre, dlt_homography, pose_from_homography
     from train.real.corners import Correspondences
     from train.real.label import label_from_points
 
@@ -255,7 +256,7 @@ def test_refinement_falls_back_to_the_initial_pose(monkeypatch, bad):
     the board turned by half a turn), so the turned pose fits them far better than the
     initial one: only the orientation test refuses it."""
     import train.real.label as label_module
-    from train.geometry import dlt_homography, pose_from_homography
+    from service.core.geometry import dlt_homography, pose_from_homography
     from train.real.label import refine_pose, reprojection_rms
 
     grid, uv, camera, _, _ = _noisy_view((25.0, 18.0, 30.0))

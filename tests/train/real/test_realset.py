@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from service.preprocess import NetworkFrame
-from train import ASSETS_DIR
+from service.core.dataset import CORNER_COLUMNS, load_dataset
+from service.core.geometry import look_at, project_points, roll_of_pose, translation
+from service.core.paths import ASSETS_DIR
+from service.core.preprocess import NetworkFrame
+from service.core.regions import pose_class
 from train.cli import app
-from train.dataset import CORNER_COLUMNS, load_dataset
-from train.geometry import look_at, pose_class, project_points, translation
-from train.profile import roll_of_pose
 from train.real.realset import (
     build_real_dataset,
     in_frame,

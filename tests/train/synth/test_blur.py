@@ -6,7 +6,8 @@ import cv2
 import numpy as np
 import pytest
 
-from train.synth.blur import KERNELS, blur_image, gaussian_kernel, gaussian_taps, size_index
+from service.core.blur import KERNELS, blur_image, gaussian_kernel, gaussian_taps
+from service.core.inputs import size_index
 
 
 def _fspecial(k: int, sigma: float) -> np.ndarray:

@@ -10,9 +10,9 @@ import cv2
 import pytest
 from typer.testing import CliRunner
 
-from train import ASSETS_DIR
+from service.core.paths import ASSETS_DIR
+from service.core.profile import PROFILES_DIR
 from train.cli import app
-from train.profile import PROFILES_DIR
 
 runner = CliRunner()
 REAL = ASSETS_DIR / "real" / "chessboard-stereo"

@@ -10,9 +10,9 @@ import cv2
 import numpy as np
 import pytest
 
-from service.preprocess import decode_image, resize_rgb
-from train.dataset import DatasetError, load_dataset
-from train.profile import load_profile
+from service.core.dataset import DatasetError, load_dataset
+from service.core.preprocess import decode_image, resize_rgb
+from service.core.profile import load_profile
 from train.synth.generate import DatasetSpec, balanced_assignment, make_dataset, render_in_memory
 
 PROFILE = load_profile("chessboard")
@@ -24,7 +24,7 @@ def _rows(folder: Path) -> list[dict[str, str]]:
 
 
 def _class_of(x: float, y: float, z: float, z_split: float) -> int:
-    """SPEC section 3, written out independently of train.geometry."""
+    """SPEC section 3, written out independently of service.core.regions."""
     quadrants = {(True, True): 1, (False, True): 2, (False, False): 3, (True, False): 4}
     quadrant = quadrants[(x >= 0, y >= 0)]
     return quadrant if z < z_split else quadrant + 4

@@ -9,9 +9,10 @@ import cv2
 import numpy as np
 import pytest
 
-from train import ASSETS_DIR
-from train.geometry import intrinsics, look_at, pose_class, project_points, translation
-from train.profile import load_profile
+from service.core.geometry import intrinsics, look_at, project_points, translation
+from service.core.paths import ASSETS_DIR
+from service.core.profile import load_profile
+from service.core.regions import pose_class
 from train.synth.background import BackgroundPool, procedural_backgrounds
 from train.synth.render import Renderer, View, draw_views, render_view
 

@@ -13,25 +13,14 @@ from functools import cache
 import cv2
 import numpy as np
 
+from service.core.inputs import size_index
+
 BLUR_LEVELS = (0, 1, 2, 3)
-SIZES: dict[int, tuple[int, int]] = {1: (80, 60), 2: (160, 120)}
 #: (k taps, sigma px) per size (1, 2) and level (1..3).
 KERNELS: dict[int, dict[int, tuple[int, float]]] = {
     1: {1: (2, 1.0), 2: (4, 2.0), 3: (6, 3.0)},
     2: {1: (2, 2.0), 2: (5, 3.0), 3: (10, 5.0)},
 }
-
-
-def size_index(size: int | tuple[int, int]) -> int:
-    """SPEC size 1 or 2 from either the index itself or an image size (W, H) in pixels."""
-    if isinstance(size, int) and not isinstance(size, bool):
-        if size in SIZES:
-            return size
-    else:
-        for index, wh in SIZES.items():
-            if tuple(size) == wh:
-                return index
-    raise ValueError(f"size must be 1 (80x60) or 2 (160x120), got {size!r}")
 
 
 @cache

@@ -34,7 +34,6 @@ The object frame's origin is the centre of the texture rectangle; the border lie
 
 from __future__ import annotations
 
-import csv
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -43,8 +42,9 @@ from typing import Any
 import cv2
 import numpy as np
 
-from train import ASSETS_DIR, repo_relative
-from train.geometry import RegionGeometry, camera_lattice, look_at, pose_class
+from service.core.geometry import camera_lattice
+from service.core.paths import ASSETS_DIR, repo_relative
+from service.core.regions import RegionGeometry, pose_class
 
 PROFILES_DIR = ASSETS_DIR / "profiles"
 PROFILE_FILE = "profile.toml"
@@ -239,31 +239,3 @@ def load_profile(name_or_path: str | Path) -> Profile:
 
 def _lattice_classes(profile: Profile) -> set[int]:
     return {int(k) for k in pose_class(profile.lattice(), profile.geometry.z_split_cm)}
-
-
-def roll_of_pose(R: np.ndarray) -> float:
-    """Roll (degrees, in (-180, 180]) of a camera with world -> camera rotation R (3, 3).
-
-    The angle about the optical axis between R and the level camera of SPEC 5 with the same
-    optical axis: R = Rz(roll) @ look_at(...), the convention of `train.geometry.look_at`
-    (the image content turns counter-clockwise by +roll).
-    """
-    R = np.asarray(R, dtype=float)
-    axis = R[2]
-    level = look_at(np.zeros(3), axis)
-    turn = R @ level.T  # a rotation about the optical axis
-    return float(np.degrees(np.arctan2(turn[0, 1], turn[0, 0])))
-
-
-def measure_rolls(labels_csv: Path) -> np.ndarray:
-    """Rolls (degrees, (N,)) of the photos of a real labels.csv with OpenCV rvec0..2 columns."""
-    with Path(labels_csv).open(newline="") as fh:
-        rows = list(csv.DictReader(fh))
-    if not rows or "rvec0" not in rows[0]:
-        raise ValueError(f"{labels_csv}: needs rows with rvec0, rvec1, rvec2 columns")
-    rolls = []
-    for row in rows:
-        rvec = np.array([float(row[f"rvec{i}"]) for i in range(3)])
-        R, _ = cv2.Rodrigues(rvec)
-        rolls.append(roll_of_pose(R))
-    return np.asarray(rolls)

@@ -1,4 +1,4 @@
-"""Reading a data set folder (synthetic or real, SPEC section 7) into arrays, with a cache.
+"""The data-set folder format (SPEC section 7): writing its files, reading it into arrays.
 
 On disk a data set is a folder a person can open:
 
@@ -9,7 +9,8 @@ On disk a data set is a folder a person can open:
   lens distortion k1; the object's four corners in pixels, `CORNER_COLUMNS`);
 * `manifest.json`: generator and version, profile, size [W, H], counts.
 
-`train.synth.generate` writes synthetic sets, `train.real.realset` real ones.
+`train.synth.generate` makes synthetic sets, `train.real` real ones; both write them with
+`write_labels` and `write_manifest`, and everything reads them with `load_dataset`.
 """
 
 from __future__ import annotations
@@ -25,14 +26,17 @@ from typing import Any
 
 import numpy as np
 
-from service.preprocess import ImageDecodeError, decode_image, resize_rgb
+from service.core.preprocess import ImageDecodeError, decode_image, resize_rgb
+from service.core.regions import NUM_CLASSES
 
+#: The splits of every data set, in the order they are listed.
 SPLITS = ("train", "val", "test")
-NUM_CLASSES = 9
+#: The file names of a data set folder.
+LABELS_FILE, MANIFEST_FILE = "labels.csv", "manifest.json"
 #: Bumped when the decoded cache format changes.
 CACHE_VERSION = "1.0"
 CACHE_DIR = ".cache"
-#: Image pixels of the object corners (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y) at the set's size.
+#: Image pixels of the object corners (in `CORNER_ORDER`) at the set's size.
 CORNER_COLUMNS = [f"corner_{a}{i}" for i in range(4) for a in "xy"]
 LABEL_COLUMNS = [
     "file",
@@ -82,7 +86,7 @@ class LoadedDataset:
     def pixel_aspect(self) -> np.ndarray:
         """float32 [N]: height over width of each image's pixels in the scene (the
         `pixel_aspect` column of real photos resized to the set's size,
-        `service.preprocess.NetworkFrame.pixel_aspect`); 1 where the column is absent or
+        `service.core.preprocess.NetworkFrame.pixel_aspect`); 1 where the column is absent or
         empty (renders)."""
         return np.array([float(r.get("pixel_aspect") or 1.0) for r in self.rows], np.float32)
 
@@ -119,7 +123,7 @@ class LoadedDataset:
 
 
 def _read_table(path: Path) -> tuple[bytes, list[dict[str, str]]]:
-    labels = path / "labels.csv"
+    labels = path / LABELS_FILE
     if not path.is_dir():
         raise DatasetError(f"data set folder not found: {path}")
     if not labels.is_file():
@@ -144,8 +148,38 @@ def _read_table(path: Path) -> tuple[bytes, list[dict[str, str]]]:
     return raw, rows
 
 
-def _read_manifest(path: Path) -> dict[str, Any]:
-    file = path / "manifest.json"
+def write_labels(path: Path, rows: list[dict[str, Any]], columns: list[str] | None = None) -> None:
+    """Write labels.csv rows (`columns`, default LABEL_COLUMNS) to `path`."""
+    with path.open("w", newline="") as fh:
+        writer = csv.DictWriter(
+            fh, fieldnames=columns or LABEL_COLUMNS, lineterminator="\n", extrasaction="ignore"
+        )
+        writer.writeheader()
+        writer.writerows(rows)
+
+
+def write_manifest(
+    folder: Path, fields: dict[str, Any], rows: list[dict[str, Any]] | None = None
+) -> dict[str, Any]:
+    """Write `folder`/manifest.json from `fields` and return what was written.
+
+    With the labels.csv `rows`, also `count`, the images per class 0..8 (`class_counts`) and,
+    where the rows have a split, per split (`counts`), unless `fields` gives them.
+    """
+    manifest = dict(fields)
+    if rows is not None:
+        classes = [int(r["class"]) for r in rows]
+        manifest.setdefault("count", len(rows))
+        if all(r.get("split") in SPLITS for r in rows):
+            manifest.setdefault("counts", {s: sum(r["split"] == s for r in rows) for s in SPLITS})
+        manifest.setdefault("class_counts", np.bincount(classes, minlength=NUM_CLASSES).tolist())
+    (folder / MANIFEST_FILE).write_text(json.dumps(manifest, indent=1) + "\n")
+    return manifest
+
+
+def read_manifest(path: Path) -> dict[str, Any]:
+    """The parsed manifest.json of the data set folder `path`; DatasetError if absent or bad."""
+    file = path / MANIFEST_FILE
     if not file.is_file():
         raise DatasetError(f"not a data set (no manifest.json): {path}")
     try:
@@ -218,19 +252,19 @@ def load_dataset(
 
     `split`: train, val or test (None: every image, in labels.csv order). `size` (W, H):
     resize to it (default: the manifest's size). Images are decoded and resized with
-    `service.preprocess` (as in serving) and cached in `<path>/.cache/` (an .npy per size,
+    `service.core.preprocess` (as in serving) and cached in `<path>/.cache/` (an .npy per size,
     invalidated when labels.csv changes). Raises DatasetError for a missing or corrupt set.
     """
     path = Path(path)
     if split is not None and split not in SPLITS:
         raise DatasetError(f"split must be train, val, test or None, got {split!r}")
     raw, rows = _read_table(path)
-    manifest = _read_manifest(path)
+    manifest = read_manifest(path)
     if size is None:
         try:
             size = (int(manifest["size"][0]), int(manifest["size"][1]))
         except (KeyError, TypeError, ValueError, IndexError):
-            raise DatasetError(f"{path / 'manifest.json'}: no valid size [W, H]") from None
+            raise DatasetError(f"{path / MANIFEST_FILE}: no valid size [W, H]") from None
     images = _cached_images(path, raw, rows, tuple(size))
     if split is None:
         index = np.arange(len(rows))

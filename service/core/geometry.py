@@ -13,15 +13,14 @@ Frames and units:
 from __future__ import annotations
 
 from collections.abc import Iterable
-from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-FloatArray = NDArray[np.float64]
+from service.core.inputs import SPEC_FOCAL_160
+from service.core.regions import RegionGeometry
 
-#: Pinhole intrinsics (fx, fy, u0, v0) in pixels for 160x120 images (SPEC section 2).
-SPEC_FOCAL_160: tuple[float, float, float, float] = (206.0358, 205.1238, 80.0534, 49.8627)
+FloatArray = NDArray[np.float64]
 
 
 def intrinsics(size: tuple[int, int], focal_scale: float = 1.0) -> FloatArray:
@@ -36,37 +35,6 @@ def intrinsics(size: tuple[int, int], focal_scale: float = 1.0) -> FloatArray:
     return np.array(
         [[fx * s * focal_scale, 0.0, u0 * s], [0.0, fy * s * focal_scale, v0 * s], [0, 0, 1.0]]
     )
-
-
-@dataclass(frozen=True)
-class RegionGeometry:
-    """Where cameras may be and how their centres map to classes (SPEC sections 3-4), cm.
-
-    The x/y split is at 0; `z_split_cm` separates near (class 1-4) from far (class 5-8);
-    camera centres live in the axis-aligned box [box_min, box_max].
-    """
-
-    z_split_cm: float = 60.0
-    box_min: tuple[float, float, float] = (-36.86, -36.86, 10.68)
-    box_max: tuple[float, float, float] = (36.86, 36.86, 92.40)
-
-    def contains(self, points: ArrayLike) -> NDArray[np.bool_]:
-        """Which of `points` (N, 3) lie inside the box (borders included) -> bool (N,)."""
-        p = np.asarray(points, dtype=float).reshape(-1, 3)
-        lo, hi = np.asarray(self.box_min), np.asarray(self.box_max)
-        return np.all((p >= lo) & (p <= hi), axis=1)
-
-
-def pose_class(c: ArrayLike, z_split_cm: float) -> NDArray[np.int64]:
-    """Class 1..8 of camera centre(s) `c` (..., 3) in the object frame (SPEC section 3).
-
-    Quadrant 1: x >= 0, y >= 0; 2: x < 0, y >= 0; 3: x < 0, y < 0; 4: x >= 0, y < 0.
-    Near (z < z_split) keeps the quadrant, far (z >= z_split) adds 4.
-    """
-    p = np.asarray(c, dtype=float)
-    x, y, z = p[..., 0], p[..., 1], p[..., 2]
-    quadrant = np.where(y >= 0, np.where(x >= 0, 1, 2), np.where(x < 0, 3, 4)).astype(np.int64)
-    return quadrant + np.where(z >= z_split_cm, 4, 0).astype(np.int64)
 
 
 def look_at(c: ArrayLike, t: ArrayLike, roll_rad: float = 0.0) -> FloatArray:
@@ -213,3 +181,17 @@ def camera_lattice(
         raise ValueError("need at least one radius and one height")
     pts = np.concatenate(parts)
     return pts[geometry.contains(pts)]
+
+
+def roll_of_pose(R: np.ndarray) -> float:
+    """Roll (degrees, in (-180, 180]) of a camera with world -> camera rotation R (3, 3).
+
+    The angle about the optical axis between R and the level camera of SPEC 5 with the same
+    optical axis: R = Rz(roll) @ look_at(...), the convention of `look_at`
+    (the image content turns counter-clockwise by +roll).
+    """
+    R = np.asarray(R, dtype=float)
+    axis = R[2]
+    level = look_at(np.zeros(3), axis)
+    turn = R @ level.T  # a rotation about the optical axis
+    return float(np.degrees(np.arctan2(turn[0, 1], turn[0, 0])))
