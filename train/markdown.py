@@ -38,12 +38,14 @@ def link(path: Path, base: Path) -> str:
     return Path(os.path.relpath(path, base)).as_posix()
 
 
-def written_by(command: str) -> str:
-    """The line that dates a measured page: now (UTC), this machine (host, CPU, CPU count)
-    and the `command` that wrote it."""
-    stamp = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
+def machine() -> str:
+    """This machine as a measured page names it: host (CPU, CPU count)."""
     cpu = platform.processor() or platform.machine()
-    return (
-        f"Written {stamp} on {platform.node()} ({cpu}, {os.cpu_count()} CPUs) by `{command}`; "
-        "do not edit by hand."
-    )
+    return f"{platform.node()} ({cpu}, {os.cpu_count()} CPUs)"
+
+
+def written_by(command: str) -> str:
+    """The line that dates a measured page: now (UTC), this machine (`machine`) and the
+    `command` that wrote it."""
+    stamp = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
+    return f"Written {stamp} on {machine()} by `{command}`; do not edit by hand."

@@ -43,6 +43,7 @@ def plot_accuracy(rows: list[dict], names: list[str], path: Path) -> None:
         row[0].set_ylabel("accuracy %")
     axes[0][0].legend(handles.values(), handles.keys(), fontsize=7)
     fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path)
     plt.close(fig)
 
@@ -71,5 +72,6 @@ def plot_times(rows: list[dict], names: list[str], path: Path) -> None:
     ax.set_ylabel("ms / image")
     ax.legend(fontsize=7)
     fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path)
     plt.close(fig)

@@ -9,8 +9,6 @@ of `train.network.evaluate.margin_breakdown`}, `info` {peer: {failures, tuning}}
 
 from __future__ import annotations
 
-import os
-import platform
 from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -21,7 +19,7 @@ import numpy as np
 
 from train.compare.detection import PROPOSALS_MAX
 from train.compare.sets import finetuned_on_real
-from train.markdown import link, pct, pct_cell, table
+from train.markdown import link, machine, pct, pct_cell, table
 from train.network.report import band_label
 
 #: The peer the chessboard section is about (`train.compare.peers.peer_name("chessboard")`).
@@ -70,15 +68,14 @@ def time_ratios(rows: list[dict], peer: str, models: Sequence[str]) -> list[floa
 
 def header_section(ctx: ReportContext) -> list[str]:
     """Title, when / where it was measured, and the models with their training data."""
-    cpu = platform.processor() or platform.machine()
     limit = f", at most {ctx.limit} images per set" if ctx.limit else ""
     lines = [
         "# CNN vs the classical peers (chessboard detector, feature baseline), and the "
         "detection variants",
         "",
         f"Written by `planar-pose compare` on {datetime.now(UTC).isoformat(timespec='minutes')} "
-        f"({cpu}, {os.cpu_count()} logical CPUs, shared with other jobs: times are indicative, "
-        f"their ratios measured in the same run are what counts). Split: `{ctx.split}`{limit}. "
+        f"on {machine()} (shared with other jobs: times are indicative, their ratios measured "
+        f"in the same run are what counts); do not edit by hand. Split: `{ctx.split}`{limit}. "
         f"Peers: {', '.join(ctx.peers)}.",
         "",
         "Models:",
@@ -404,11 +401,12 @@ def detection_section(detections: dict[str, dict[str, dict[str, dict]]]) -> list
 
 
 def links_section(ctx: ReportContext, details: Path) -> list[str]:
-    """Where the per-cell details and the numbers are."""
+    """Where the numbers and the per-cell details are (the details are not linked: they stay
+    in the output folder, which may not be published with the page)."""
     return [
-        f"Per-class metrics, confusion matrices and plots of every cell: [{details.name}]"
-        f"({link(details, ctx.base)}); numbers: "
-        f"[metrics.json]({link(ctx.out_dir / 'metrics.json', ctx.base)}).",
+        f"Every number above is in [metrics.json]({link(ctx.out_dir / 'metrics.json', ctx.base)})"
+        "; per-class metrics, confusion matrices and a plot of every cell are written by the "
+        f"same command to `{details.as_posix()}`.",
         "",
     ]
 

@@ -7,12 +7,11 @@ Written from the model cards (`<name>.json` beside each `<name>.onnx`, made by
 from __future__ import annotations
 
 import json
-import platform
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from train.markdown import pct, table
+from train.markdown import machine, pct, table
 from train.network.report import framing_line, margin_line, source_table
 
 INTRO = """# Shipped models
@@ -29,8 +28,9 @@ with unless asked for another model. Input: `image` float32 [N, 3, H, W], RGB in
 Accuracy columns are test splits: real = the corpus's test sources (cameras never used for
 training or model selection), free / noC = renders of corpus-like cameras, spec = renders of
 the SPEC's own camera (profile `chessboard-spec`; see docs/data.md), at blur level b. Under
-each model, its real test figures by source, and, where its card has them (`export
---eval-val`), those of the real val sources it was selected on.
+the default model (every model, in a folder without one), its real test figures by source at
+the blur levels of the table, and, where its card has them (`export --eval-val`), those of
+the real val sources it was selected on; the other models' are in their cards.
 
 This page is written by `planar-pose catalog`; do not edit it by hand.
 """
@@ -59,8 +59,37 @@ def _row(card: dict[str, Any]) -> list[Any]:
     ]
 
 
+#: The card whose per-source figures the page shows (the service's default model).
+DEFAULT = "default"
+
+
+def source_sections(card: dict[str, Any]) -> list[str]:
+    """The card's real figures by source (`source_table`), at the real blur levels of
+    `COLUMNS`, test then val, each with its margin and framing lines."""
+    levels = {f"-b{b}" for d, b in COLUMNS if d == "real"}
+    lines: list[str] = []
+    for field, title in (
+        ("accuracy", "Real test sources"),
+        ("accuracy_val", "Real val sources (the model was selected on them)"),
+    ):
+        for key, entry in card.get(field, {}).items():
+            if "by_source" not in entry or not any(key.endswith(b) for b in levels):
+                continue
+            lines += [f"{title}, `{key}`:", "", *source_table(entry["by_source"]), ""]
+            for line in (
+                margin_line(entry.get("by_margin")),
+                framing_line(entry.get("by_framing")),
+            ):
+                lines += [line, ""] if line else []
+    return lines
+
+
 def write_catalog(models_dir: Path) -> Path:
-    """Write models_dir/README.md from the cards there; return its path."""
+    """Write models_dir/README.md from the cards there; return its path.
+
+    Per-source tables (`source_sections`) only for the `DEFAULT` model, or for every model
+    when the folder has none; each model's notes as its card gives them.
+    """
     cards = []
     for path in sorted(models_dir.glob("*.json")):
         card = json.loads(path.read_text())
@@ -68,25 +97,18 @@ def write_catalog(models_dir: Path) -> Path:
             cards.append(card)
     if not cards:
         raise ValueError(f"no model card (*.json) in {models_dir}")
+    detailed = [c["name"] for c in cards if c["name"] == DEFAULT] or [c["name"] for c in cards]
     header = ["model", "network", "input", "profile", "recipe", *(f"{d} b{b}" for d, b in COLUMNS)]
     lines = [INTRO, *table(header, [_row(c) for c in cards]), ""]
     for card in cards:
-        lines += [f"## `{card['name']}`", "", card.get("notes", ""), ""]
-        for field, title in (
-            ("accuracy", "Real test sources"),
-            ("accuracy_val", "Real val sources (the model was selected on them)"),
-        ):
-            for key, entry in card.get(field, {}).items():
-                if "by_source" not in entry:
-                    continue
-                lines += [f"{title}, `{key}`:", "", *source_table(entry["by_source"]), ""]
-                for line in (
-                    margin_line(entry.get("by_margin")),
-                    framing_line(entry.get("by_framing")),
-                ):
-                    lines += [line, ""] if line else []
+        version = f" ({card['version']})" if card.get("version") else ""
+        lines += [f"## `{card['name']}`{version}", "", card.get("notes", ""), ""]
+        if card["name"] in detailed:
+            lines += source_sections(card)
+        elif any("by_source" in e for e in card.get("accuracy", {}).values()):
+            lines += [f"Its real figures by source: `{card['name']}.json` (`by_source`).", ""]
     stamp = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
-    lines.append(f"Written {stamp} on {platform.node()} by `planar-pose catalog`.")
+    lines.append(f"Written {stamp} on {machine()} by `planar-pose catalog`.")
     out = models_dir / "README.md"
     out.write_text("\n".join(lines) + "\n")
     return out

@@ -1,4 +1,5 @@
-"""Evaluation reports: metrics.json, a Markdown page and matplotlib plots (SPEC section 10).
+"""Evaluation reports (SPEC section 10): metrics.json, a summary page, and per-cell details
+with matplotlib plots in the output folder.
 
 `results` everywhere is {model name: {data set name: metrics}}, where metrics is the dict of
 `train.network.evaluate.compute_metrics`. One model is a grid with one row; the thesis-style
@@ -14,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from service.regions import NUM_CLASSES, region_of_class
-from train.markdown import link, pct, pct_cell, table
+from service.core.regions import NUM_CLASSES, region_of_class
+from train.markdown import link, machine, pct, pct_cell, table
 
 CLASS_LABELS = [region_of_class(k)["label"] for k in range(NUM_CLASSES)]
 
@@ -185,7 +186,7 @@ def source_table(sources: dict[str, dict]) -> list[str]:
 def cell_section(model: str, dataset: str, metrics: dict, image: str) -> list[str]:
     """Markdown details of one (model, data set): summary, per-class table, plot."""
     lines = [
-        f"### {model} on {dataset}",
+        f"## {model} on {dataset}",
         "",
         f"{metrics['count']} images, accuracy {pct_cell(metrics['accuracy'])} %, class 0 "
         f"accuracy {pct_cell(metrics['per_class_accuracy'][0])} %, "
@@ -205,6 +206,55 @@ def cell_section(model: str, dataset: str, metrics: dict, image: str) -> list[st
     return lines + table(header, body) + ["", f"![{model} on {dataset}]({image})", ""]
 
 
+#: The folder of `write_report`'s out_dir that holds the per-cell details and their plots.
+DETAILS_DIR = "details"
+
+
+def write_metrics(
+    results: dict[str, dict[str, dict]],
+    out_dir: Path,
+    title: str = "Evaluation",
+    sources: dict[str, str] | None = None,
+) -> Path:
+    """Write out_dir/metrics.json: the results with the title, when (UTC) and on which
+    machine they were measured, the class labels and `sources` (model / data set paths)."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    document = {
+        "title": title,
+        "date": datetime.now(UTC).isoformat(timespec="seconds"),
+        "machine": machine(),
+        "classes": CLASS_LABELS,
+        "sources": sources or {},
+        "results": results,
+    }
+    path = out_dir / "metrics.json"
+    path.write_text(json.dumps(document, indent=1) + "\n")
+    return path
+
+
+def write_details(
+    results: dict[str, dict[str, dict]],
+    folder: Path,
+    title: str = "Evaluation",
+    notes: list[str] | None = None,
+) -> Path:
+    """Write folder/details.md, one section per (model, data set) (`cell_section`), and
+    one plot per cell in folder/plots; return the Markdown path."""
+    plots = folder / "plots"
+    plots.mkdir(parents=True, exist_ok=True)
+    path = folder / "details.md"
+    lines = [f"# {title}: details", ""]
+    for note in notes or []:
+        lines += [note, ""]
+    for model, row in results.items():
+        for dataset, metrics in row.items():
+            png = plots / f"{_slug(model)}__{_slug(dataset)}.png"
+            plot_cell(metrics, f"{model} on {dataset}", png)
+            lines += cell_section(model, dataset, metrics, link(png, folder))
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
 def write_report(
     results: dict[str, dict[str, dict]],
     out_dir: Path,
@@ -213,48 +263,45 @@ def write_report(
     notes: list[str] | None = None,
     sources: dict[str, str] | None = None,
 ) -> Path:
-    """Write out_dir/metrics.json, the PNG plots and a Markdown report; return the report path.
+    """Write out_dir/metrics.json (`write_metrics`), the summary page `markdown` and the
+    per-cell details in out_dir/details (`write_details`); return the summary's path.
 
-    `markdown` defaults to out_dir/report.md (image links are made relative to it); `notes`
-    are paragraphs placed under the title; `sources` maps model / data set names to paths.
+    The summary holds the grid tables (accuracy, x/y side, near/far, time) and the accuracy
+    grid's plot (out_dir/plots/grid.png) when there is more than one cell. `markdown`
+    defaults to out_dir/report.md (links are made relative to it); `notes` are paragraphs
+    placed under the title (and the details' title); `sources` maps model / data set names
+    to paths.
     """
-    out_dir.mkdir(parents=True, exist_ok=True)
+    metrics_json = write_metrics(results, out_dir, title, sources)
+    details = write_details(results, out_dir / DETAILS_DIR, title, notes)
     markdown = markdown or out_dir / "report.md"
     markdown.parent.mkdir(parents=True, exist_ok=True)
-    plots = out_dir / "plots"
-    plots.mkdir(exist_ok=True)
-    document = {
-        "title": title,
-        "date": datetime.now(UTC).isoformat(timespec="seconds"),
-        "classes": CLASS_LABELS,
-        "sources": sources or {},
-        "results": results,
-    }
-    (out_dir / "metrics.json").write_text(json.dumps(document, indent=1) + "\n")
-
     lines = [f"# {title}", ""]
     for note in notes or []:
         lines += [note, ""]
     lines += ["## Accuracy (%), models x data sets", ""] + grid_table(results) + [""]
-    n_cells = sum(len(row) for row in results.values())
-    if n_cells > 1:
-        grid_png = plots / "grid.png"
+    if sum(len(row) for row in results.values()) > 1:
+        grid_png = out_dir / "plots" / "grid.png"
+        grid_png.parent.mkdir(exist_ok=True)
         plot_grid(results, grid_png)
         lines += [f"![accuracy grid]({link(grid_png, markdown.parent)})", ""]
+    for key, heading in (
+        ("side", "Right x/y side (%), distance ignored"),
+        ("distance", "Right near/far (%), side ignored"),
+        ("detected", "Object detected (%)"),
+    ):
+        lines += [f"## {heading}, on the images that show the object", ""]
+        lines += [*grid_table(results, key), ""]
+    lines += ["## Time per image (ms, preprocessing + inference, batch 64)", ""]
+    lines += [*grid_table(results, "ms_per_image"), ""]
     lines += [
-        "## Right x/y side (%), distance ignored, on the images that show the object",
-        "",
-        *grid_table(results, "side"),
-        "",
         "## Details",
         "",
+        f"Every number above is in [metrics.json]({link(metrics_json, markdown.parent)}). Per "
+        "model and data set (per-class accuracy, precision, recall and F1, the confusion "
+        "matrix, the breakdowns by source, by the camera's distance from a region boundary "
+        f"and by framing, one plot each), the same command writes `{details.as_posix()}` "
+        "next to it.",
     ]
-    for model, row in results.items():
-        for dataset, metrics in row.items():
-            png = plots / f"{_slug(model)}__{_slug(dataset)}.png"
-            plot_cell(metrics, f"{model} on {dataset}", png)
-            lines += cell_section(model, dataset, metrics, link(png, markdown.parent))
-    lines += ["## Time per image (ms, preprocessing + inference, batch 64)", ""]
-    lines += grid_table(results, "ms_per_image")
     markdown.write_text("\n".join(lines) + "\n")
     return markdown

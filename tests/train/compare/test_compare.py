@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from service.core.dataset import load_dataset
+from service.core.paths import ASSETS_DIR, REPO_ROOT
 from service.model import PoseModel
-from train import ASSETS_DIR, REPO_ROOT
 from train.cli import app
 from train.compare.detection import detection_variants
 from train.compare.run import camera_focal
 from train.compare.sets import encode_png
-from train.dataset import load_dataset
 from train.markdown import pct_cell
 from train.network.evaluate import evaluate_predictor, model_predictor, onnx_predictor
 from train.real.calibration import Calibration
@@ -67,6 +67,13 @@ def test_report_tables_hold_the_measured_numbers(report, real_sets):
     assert f"| {w}x{h} | 0 | 6 |" in text and f"| {w}x{h} | 3 | 6 |" in text
     for png in ("accuracy_vs_blur.png", "time_per_image.png"):
         assert (report.with_suffix("") / "plots" / png).is_file()
+        assert f"]({report.stem}/plots/{png})" in text
+    # the per-cell details go to the output folder's `details`, named but not linked
+    details = report.with_suffix("") / "details"
+    cell = f"## default on chessboard/{real_sets[0].name}"
+    assert cell in (details / "details.md").read_text() and cell not in text
+    assert (details / "plots" / f"default__chessboard_{real_sets[0].name}.png").is_file()
+    assert f"`{(details / 'details.md').as_posix()}`" in text
 
 
 def test_report_has_the_chessboard_peer_rows(report, real_sets):

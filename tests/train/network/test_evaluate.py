@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import platform
 import shutil
 from pathlib import Path
 
@@ -11,7 +12,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from train import ASSETS_DIR
+from service.core.paths import ASSETS_DIR
 from train.cli import app
 from train.network.evaluate import (
     compute_metrics,
@@ -162,16 +163,25 @@ def test_report_writes_json_markdown_and_plots(tmp_path):
         "net-a": {"set1": compute_metrics(y, y, 1.0), "set2": compute_metrics(y, y[::-1], 2.0)},
         "net-b": {"set1": compute_metrics(y, np.zeros_like(y), 0.5)},
     }
-    md = write_report(results, tmp_path / "out", tmp_path / "docs" / "results.md", "T", ["hi"])
-    doc = json.loads((tmp_path / "out" / "metrics.json").read_text())
+    out = tmp_path / "out"
+    md = write_report(results, out, tmp_path / "docs" / "results.md", "T", ["hi"])
+    doc = json.loads((out / "metrics.json").read_text())
     assert doc["results"]["net-a"]["set1"]["accuracy"] == 1.0
     assert len(doc["results"]["net-a"]["set2"]["confusion"]) == 9
+    assert doc["date"] and f"{platform.node()} (" in doc["machine"]
+    # the page: the summary tables and the grid's plot, no per-cell section
     text = md.read_text()
     assert "| net-a | 100.0 |" in text
-    assert "## Right x/y side (%)" in text and "x/y side right 100.0 %" in text
-    assert "](../out/plots/grid.png)" in text
-    pngs = sorted(p.name for p in (tmp_path / "out" / "plots").glob("*.png"))
-    assert pngs == ["grid.png", "net-a__set1.png", "net-a__set2.png", "net-b__set1.png"]
+    assert "## Right x/y side (%)" in text and "## Right near/far (%)" in text
+    assert "](../out/plots/grid.png)" in text and "](../out/metrics.json)" in text
+    assert "## net-a on set1" not in text and f"`{out / 'details' / 'details.md'}`" in text
+    assert [p.name for p in (out / "plots").glob("*.png")] == ["grid.png"]
+    # the details, in the output folder: one section and one plot per cell
+    details = (out / "details" / "details.md").read_text()
+    assert "## net-a on set1" in details and "x/y side right 100.0 %" in details
+    assert "](plots/net-b__set1.png)" in details
+    pngs = sorted(p.name for p in (out / "details" / "plots").glob("*.png"))
+    assert pngs == ["net-a__set1.png", "net-a__set2.png", "net-b__set1.png"]
 
 
 @pytest.fixture(scope="module")
@@ -231,10 +241,11 @@ def test_cli_evaluates_onnx_and_checkpoint_the_same(model_and_set, tmp_path):
     assert list(onnx_m["by_source"]) == ["left", "right"]
     assert sum(v["count"] for v in onnx_m["by_source"].values()) == 26
     assert onnx_m["by_source"] == torch_m["by_source"]
-    report = (out / "report.md").read_text()
-    assert "By source:" in report and "| source | photos | accuracy | detected |" in report
+    assert "| tiny | " in (out / "report.md").read_text()
+    details = (out / "details" / "details.md").read_text()
+    assert "By source:" in details and "| source | photos | accuracy | detected |" in details
     for name, v in onnx_m["by_source"].items():
-        assert f"| `{name}` | {v['count']} | {100 * v['accuracy']:.1f} % |" in report
+        assert f"| `{name}` | {v['count']} | {100 * v['accuracy']:.1f} % |" in details
     assert (out / "plots" / "grid.png").is_file()
 
 
