@@ -43,7 +43,7 @@ import cv2
 import numpy as np
 import torch
 
-from service.core.dataset import LoadedDataset, load_dataset
+from service.core.dataset import LoadedDataset, load_dataset, read_splits
 from service.core.geometry import intrinsics
 from service.core.paths import REPO_ROOT
 from service.core.preprocess import NetworkFrame, to_network_input
@@ -58,7 +58,7 @@ from train.network.keypoint import KeypointNet
 from train.network.onnx_weights import keypoint_from_onnx
 from train.real.corners import detect_chessboard
 from train.real.label import ObjectFinder
-from train.real.realset import read_rgb, read_splits
+from train.real.realset import read_rgb
 
 RADIAL = (0.0, -0.1, -0.2, -0.25, -0.3, -0.4)
 DEFAULT_PRIOR_WEIGHT, RADIAL_PRIOR = keypoint.FOCAL_PRIOR_WEIGHT, keypoint.RADIAL_PRIOR

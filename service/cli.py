@@ -20,7 +20,8 @@ from pydantic import ValidationError
 from rich.console import Console
 from rich.markup import escape
 
-from service.settings import Settings, cpu_count
+from service.core.paths import repo_relative
+from service.settings import DEFAULT_MODEL_DIR, Settings, cpu_count
 
 err = Console(stderr=True)
 
@@ -28,6 +29,13 @@ err = Console(stderr=True)
 def _error(message: str) -> None:
     """Print `error: message` on stderr as is (no markup, no wrapping inside paths)."""
     err.print(f"[bold red]error:[/] {escape(message)}", soft_wrap=True)
+
+
+def _help(text: str, field: str) -> str:
+    """An option's help with its variable and default, both read off `Settings`."""
+    default = Settings.model_fields[field].default
+    shown = repo_relative(DEFAULT_MODEL_DIR) if field == "model_dir" else default
+    return f"{text} [POSE_{field.upper()}" + ("]" if shown is None else f", {shown}]")
 
 
 def _settings(overrides: dict[str, Any]) -> Settings:
@@ -67,24 +75,22 @@ def _worker_environment(settings: Settings, overrides: dict[str, Any], runtime: 
 
 
 def serve(
-    host: Annotated[str | None, typer.Option(help="Bind address [POSE_HOST, 127.0.0.1].")] = None,
-    port: Annotated[
-        int | None, typer.Option(min=1, max=65535, help="Port [POSE_PORT, 8000].")
-    ] = None,
+    host: Annotated[str | None, typer.Option(help=_help("Bind address", "host"))] = None,
+    port: Annotated[int | None, typer.Option(min=1, max=65535, help=_help("Port", "port"))] = None,
     workers: Annotated[
         int | None,
-        typer.Option(min=0, help="Worker processes, 0 = one per CPU [POSE_WORKERS, 0]."),
+        typer.Option(min=0, help=_help("Worker processes, 0 = one per CPU", "workers")),
     ] = None,
     model_dir: Annotated[
         Path | None,
-        typer.Option(help="Model folder: every <name>.onnx is served [POSE_MODEL_DIR, models/]."),
+        typer.Option(help=_help("Model folder: every <name>.onnx is served", "model_dir")),
     ] = None,
     model: Annotated[
         Path | None,
-        typer.Option(help="One ONNX file served as the default model [POSE_MODEL_PATH]."),
+        typer.Option(help=_help("One ONNX file served as the default model", "model_path")),
     ] = None,
     log_level: Annotated[
-        str | None, typer.Option(help="critical, error, warning, info, debug [POSE_LOG_LEVEL].")
+        str | None, typer.Option(help=_help("critical, error, warning, info, debug", "log_level"))
     ] = None,
 ) -> None:
     """Serve the pose models over HTTP (OpenAPI docs at /docs); SIGTERM drains requests."""

@@ -1,17 +1,7 @@
 """The ONNX pose network in onnxruntime, with its model card.
 
-Contract (written by `train/network/export.py`): input `image` float32 [N, 3, H, W], RGB in
-[0, 1]; optionally `pixel_aspect` float32 [N], an input with a default of 1 (an overridable
-initializer): the height over the width of an input pixel in the scene
-(`service.core.preprocess.NetworkFrame.pixel_aspect`); output `probabilities` float32 [N, 9]
-(softmax), optionally `corners` float32 [N, 4, 2] (the object's corners in input pixels,
-order (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y)); metadata_props `model_card` = card JSON. A graph
-with one output takes it as the probabilities whatever its name. Since 3.5.0 the keypoint
-graphs also take `view` float32 [N, 3] (default (0, 0, 1)): where the input lies in the
-camera's frame, the corners then being in frame pixels; and output `pattern` float32 [N],
-P(object present) from the checker pattern alone; both serve the zoom pass (`service.zoom`).
-Since 3.6.0 they also take `focal` float32 [N] (default 0: unknown, self-calibrated): the
-camera's focal length fx where the caller knows it, in frame pixels of the input's width.
+The graph's inputs, outputs and defaults are `service.core.onnx_contract`'s; the card is the
+JSON in metadata_props `model_card` (or the `<name>.json` beside the file).
 """
 
 from __future__ import annotations
@@ -24,13 +14,16 @@ from typing import Any
 import numpy as np
 import onnxruntime as ort
 
+from service.core.onnx_contract import (
+    CARD_KEY,
+    CORNERS,
+    FOCAL,
+    PATTERN,
+    PIXEL_ASPECT,
+    PROBABILITIES,
+    VIEW,
+)
 from service.core.regions import NUM_CLASSES
-
-PROBABILITIES, CORNERS = "probabilities", "corners"  # output names (train/network/export.py)
-PATTERN = "pattern"  # the optional output of the zoom pass (`service.zoom`)
-# the optional inputs (overridable initializers)
-PIXEL_ASPECT, VIEW, FOCAL = "pixel_aspect", "view", "focal"
-DEFAULT_VIEW = np.array([0.0, 0.0, 1.0], np.float32)  # (u0, v0, s): the input is the frame
 
 
 @dataclass(frozen=True)
@@ -50,11 +43,11 @@ class ModelLoadError(RuntimeError):
 
 def _read_card(session: ort.InferenceSession, path: Path) -> dict[str, Any]:
     """The card from the ONNX metadata, else from the `<name>.json` next to the model."""
-    text = session.get_modelmeta().custom_metadata_map.get("model_card")
+    text = session.get_modelmeta().custom_metadata_map.get(CARD_KEY)
     if text is None:
         sidecar = path.with_suffix(".json")
         if not sidecar.is_file():
-            raise ModelLoadError(f"{path}: no model_card metadata and no {sidecar.name}")
+            raise ModelLoadError(f"{path}: no {CARD_KEY} metadata and no {sidecar.name}")
         text = sidecar.read_text(encoding="utf-8")
     try:
         card = json.loads(text)

@@ -20,6 +20,7 @@ import hashlib
 import io
 import json
 import os
+import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -27,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from service.core.preprocess import ImageDecodeError, decode_image, resize_rgb
-from service.core.regions import NUM_CLASSES
+from service.core.regions import NUM_CLASSES, boundary_margin_cm
 
 #: The splits of every data set, in the order they are listed.
 SPLITS = ("train", "val", "test")
@@ -114,11 +115,11 @@ class LoadedDataset:
         out = np.full(len(self.rows), np.nan)
         for i, (row, label) in enumerate(zip(self.rows, self.labels, strict=True)):
             try:
-                x, y, z = (float(row[f"cam_{a}"]) for a in "xyz")
+                centre = [float(row[f"cam_{a}"]) for a in "xyz"]
             except (KeyError, ValueError):
                 continue
             if label > 0:
-                out[i] = min(abs(x), abs(y), abs(z - z_split))
+                out[i] = boundary_margin_cm(centre, z_split)
         return out
 
 
@@ -175,6 +176,28 @@ def write_manifest(
         manifest.setdefault("class_counts", np.bincount(classes, minlength=NUM_CLASSES).tolist())
     (folder / MANIFEST_FILE).write_text(json.dumps(manifest, indent=1) + "\n")
     return manifest
+
+
+def read_splits(path: Path) -> dict[str, str]:
+    """splits.toml of a corpus: {source id: train | val | test} from its [splits] table."""
+    if not path.is_file():
+        raise FileNotFoundError(f"corpus split file not found: {path}")
+    try:
+        table = tomllib.loads(path.read_text(encoding="utf-8")).get("splits", {})
+    except tomllib.TOMLDecodeError as exc:
+        raise ValueError(f"{path}: not valid TOML ({exc})") from None
+    bad = {k: v for k, v in table.items() if v not in SPLITS}
+    if bad:
+        raise ValueError(f"{path}: splits must be train, val or test, got {bad}")
+    return dict(table)
+
+
+def corpus_sources(corpus: Path) -> list[Path]:
+    """The labelled source folders of a corpus (boards/* and negatives/*), sorted."""
+    found = sorted(p.parent for p in corpus.glob("*/*/labels.csv"))
+    if not found:
+        raise ValueError(f"no labelled source (*/*/labels.csv) in {corpus}")
+    return found
 
 
 def read_manifest(path: Path) -> dict[str, Any]:
@@ -265,7 +288,7 @@ def load_dataset(
             size = (int(manifest["size"][0]), int(manifest["size"][1]))
         except (KeyError, TypeError, ValueError, IndexError):
             raise DatasetError(f"{path / MANIFEST_FILE}: no valid size [W, H]") from None
-    images = _cached_images(path, raw, rows, tuple(size))
+    images = _cached_images(path, raw, rows, (int(size[0]), int(size[1])))
     if split is None:
         index = np.arange(len(rows))
     else:

@@ -27,3 +27,18 @@ def object_corners(width_cm: float, height_cm: float, z: bool = False) -> np.nda
     w, h = width_cm / 2.0, height_cm / 2.0
     xy = np.array([(sx * w, sy * h) for sx, sy in CORNER_SIGNS], dtype=np.float64)
     return np.column_stack([xy, np.zeros(4)]) if z else xy
+
+
+def texture_to_object(
+    texture_size: tuple[int, int], width_cm: float, height_cm: float
+) -> np.ndarray:
+    """Affine map (3, 3) from texture pixels (u, v) to object-plane cm (x, y).
+
+    The texture covers the object rectangle front-on, +y up: pixel centres are at integer
+    (u, v), so the left edge u = -0.5 is x = -w/2 and the top edge v = -0.5 is y = +h/2.
+    """
+    tw, th = texture_size
+    sx, sy = width_cm / tw, height_cm / th
+    return np.array(
+        [[sx, 0.0, sx * 0.5 - width_cm / 2], [0.0, -sy, height_cm / 2 - sy * 0.5], [0, 0, 1]]
+    )

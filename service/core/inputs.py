@@ -21,7 +21,7 @@ def size_index(size: int | tuple[int, int]) -> int:
             return size
     else:
         for index, wh in SIZES.items():
-            if tuple(size) == wh:
+            if isinstance(size, tuple) and tuple(size) == wh:
                 return index
     raise ValueError(f"size must be 1 (80x60) or 2 (160x120), got {size!r}")
 

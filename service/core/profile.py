@@ -48,6 +48,8 @@ from service.core.regions import RegionGeometry, pose_class
 
 PROFILES_DIR = ASSETS_DIR / "profiles"
 PROFILE_FILE = "profile.toml"
+#: The object of the shipped models and of the real corpus: a 10 x 7-square chessboard.
+DEFAULT_PROFILE = "chessboard"
 
 
 class ProfileError(ValueError):
@@ -141,7 +143,9 @@ def _resolve(name_or_path: str | Path) -> Path:
     )
 
 
-def _range(table: dict[str, Any], key: str, default: tuple[float, float], where: str) -> tuple:
+def _range(
+    table: dict[str, Any], key: str, default: tuple[float, float], where: str
+) -> tuple[float, float]:
     value = table.get(key, default)
     if (
         not isinstance(value, list | tuple)
@@ -160,11 +164,23 @@ def _positive(table: dict[str, Any], key: str, where: str) -> float:
     return float(value)
 
 
-def _triple(table: dict[str, Any], key: str, default: tuple, where: str) -> tuple:
+def _triple(
+    table: dict[str, Any], key: str, default: tuple[float, float, float], where: str
+) -> tuple[float, float, float]:
     value = table.get(key, default)
     if not isinstance(value, list | tuple) or len(value) != 3:
         raise ProfileError(f"{where}: {key} must be a list of 3 numbers, got {value!r}")
-    return tuple(float(v) for v in value)
+    return float(value[0]), float(value[1]), float(value[2])
+
+
+def _rgb(value: Any, where: str) -> tuple[int, int, int]:
+    if not isinstance(value, list | tuple) or len(value) != 3:
+        raise ProfileError(f"{where}: margin_rgb must be a list of 3 grey levels, got {value!r}")
+    return int(value[0]), int(value[1]), int(value[2])
+
+
+def _grey_range(value: tuple[float, float]) -> tuple[int, int]:
+    return int(value[0]), int(value[1])
 
 
 def load_profile(name_or_path: str | Path) -> Profile:
@@ -219,9 +235,9 @@ def load_profile(name_or_path: str | Path) -> Profile:
         lattice_points=int(camera.get("lattice_points", Profile.lattice_points)),
         border=Border(
             margin_cm=_range(border, "margin_cm", (0.0, 0.0), where),
-            margin_rgb=tuple(int(v) for v in border.get("margin_rgb", (255, 255, 255))),
+            margin_rgb=_rgb(border.get("margin_rgb", (255, 255, 255)), where),
             frame_cm=_range(border, "frame_cm", (0.0, 0.0), where),
-            frame_grey=tuple(int(v) for v in _range(border, "frame_grey", (100, 100), where)),
+            frame_grey=_grey_range(_range(border, "frame_grey", (100, 100), where)),
         ),
     )
     if profile.focal_scale[0] <= 0:

@@ -9,8 +9,14 @@ import typer
 from rich.console import Console
 from rich.markup import escape
 
+from service.core.dataset import SPLITS
+from service.core.inputs import SIZES
+
 err = Console(stderr=True)
 out = Console()
+
+#: What a --split option takes: a data set split, or all of them.
+SPLIT_CHOICES = (*SPLITS, "all")
 
 
 def fail(message: str, code: int = 1) -> typer.Exit:
@@ -36,3 +42,18 @@ def profile_or_exit(name_or_path: str) -> Any:
     from service.core.profile import load_profile
 
     return guard(lambda: load_profile(name_or_path))
+
+
+def size_or_exit(size: int) -> tuple[int, int]:
+    """The input size (W, H) a --size option names, or exit 2 with the choices."""
+    if size not in SIZES:
+        choices = " or ".join(f"{i} ({w}x{h})" for i, (w, h) in SIZES.items())
+        raise fail(f"--size must be {choices}, got {size}", code=2)
+    return SIZES[size]
+
+
+def split_or_exit(split: str) -> str | None:
+    """The split a --split option names (None for "all"), or exit 2 with the choices."""
+    if split not in SPLIT_CHOICES:
+        raise fail(f"--split must be one of {', '.join(SPLIT_CHOICES)}, got {split!r}", code=2)
+    return None if split == "all" else split

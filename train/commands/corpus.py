@@ -10,8 +10,9 @@ from typing import Annotated, Any
 
 import typer
 
+from service.core.inputs import SIZE_HELP
 from service.core.paths import ASSETS_DIR
-from train.commands.common import err, fail, guard, out, profile_or_exit
+from train.commands.common import err, fail, guard, out, profile_or_exit, size_or_exit
 
 CORPUS = ASSETS_DIR / "real" / "corpus"
 CorpusOption = Annotated[Path, typer.Option("--corpus", help="Corpus folder.")]
@@ -126,9 +127,9 @@ def run_check(corpus: Path, prof: Any, originals: Path | None = None) -> dict[st
 
     import numpy as np
 
+    from service.core.dataset import corpus_sources
     from train.real.crosscheck import crosscheck_folder
     from train.real.label import chessboard_pattern
-    from train.real.realset import corpus_sources
 
     pattern = chessboard_pattern(prof)
     if pattern is None:
@@ -175,7 +176,7 @@ def run_check(corpus: Path, prof: Any, originals: Path | None = None) -> dict[st
 @app.command()
 def sets(
     out_dir: Annotated[Path, typer.Argument(help="Folder for the data sets real-s{S}-b{B}.")],
-    size: Annotated[list[int], typer.Option(help="SPEC sizes (1 = 80x60, 2 = 160x120).")] = [1, 2],  # noqa: B006
+    size: Annotated[list[int], typer.Option(help=SIZE_HELP)] = [1, 2],  # noqa: B006
     blur: Annotated[list[int], typer.Option(help="SPEC blur levels.")] = [0, 1, 2, 3],  # noqa: B006
     corpus: CorpusOption = CORPUS,
     profile: Annotated[str, typer.Option(help="Object profile (z split).")] = "chessboard",
@@ -183,8 +184,8 @@ def sets(
     """Build the real data sets (one per size and blur level), split by source."""
     from train.real.realset import build_corpus_dataset
 
-    if any(s not in (1, 2) for s in size):
-        raise fail(f"--size must be 1 or 2, got {size}", code=2)
+    for s in size:
+        size_or_exit(s)
     if any(not 0 <= b <= 3 for b in blur):
         raise fail(f"--blur must be in 0..3, got {blur}", code=2)
     profile_or_exit(profile)

@@ -13,7 +13,8 @@ from typing import Annotated, Any
 import typer
 from rich.table import Table
 
-from train.commands.common import fail, guard, out, profile_or_exit
+from service.core.inputs import SIZE_HELP
+from train.commands.common import fail, guard, out, profile_or_exit, split_or_exit
 
 app = typer.Typer(
     name="data",
@@ -77,7 +78,7 @@ def make(
     variant: Annotated[
         str, typer.Option(help="C (target = object centre), noC (SPEC) or free (anywhere).")
     ] = "noC",
-    size: Annotated[int, typer.Option(help="1 = 80x60, 2 = 160x120.")] = 1,
+    size: Annotated[int, typer.Option(help=SIZE_HELP)] = 1,
     blur: Annotated[int, typer.Option(help="SPEC blur level 0..3.")] = 0,
     count: Annotated[int, typer.Option(help="Number of images (>= 9).")] = 5000,
     seed: int = 0,
@@ -124,11 +125,9 @@ def sheet(
     """Draw a contact sheet: one row of samples per class, labelled in words."""
     from train.synth.sheet import contact_sheet
 
-    if split not in ("train", "val", "test", "all"):
-        raise fail(f"--split must be train, val, test or all, got {split!r}", code=2)
     if out_png.suffix.lower() != ".png":
         raise fail(f"the contact sheet must be a .png file, got {out_png}", code=2)
-    chosen = None if split == "all" else split
+    chosen = split_or_exit(split)
     image = guard(lambda: contact_sheet(dataset, out_png, per_class, scale, chosen, seed))
     out.print(f"[green]wrote[/] {out_png} ({image.shape[1]}x{image.shape[0]})")
 

@@ -14,16 +14,9 @@ from typing import Annotated, Any
 
 import typer
 
-from train.commands.common import fail, guard, out
+from service.core.inputs import SIZE_HELP
+from train.commands.common import fail, guard, out, size_or_exit, split_or_exit
 from train.markdown import written_by
-
-SPLITS = ("train", "val", "test", "all")
-
-
-def _check_split(split: str) -> str:
-    if split not in SPLITS:
-        raise fail(f"--split must be one of {', '.join(SPLITS)}, got {split!r}", code=2)
-    return split
 
 
 def _default(f: dataclasses.Field) -> Any:
@@ -119,7 +112,7 @@ def evaluate(
     from train.network.evaluate import evaluate_predictor, load_predictor
     from train.network.report import write_report
 
-    _check_split(split)
+    chosen = split_or_exit(split)
     models = [p for p in paths if p.suffix in (".onnx", ".pt")]
     datasets = [p for p in paths if p not in models]
     if not models:
@@ -135,7 +128,7 @@ def evaluate(
         names = {p: _model_name(p, info) for p, (_, _, info) in loaded.items()}
         results: dict[str, dict[str, dict]] = {names[p]: {} for p in models}
         for ds in datasets:
-            data = load_dataset(ds, split=None if split == "all" else split)
+            data = load_dataset(ds, split=chosen)
             if len(data.labels) == 0:
                 raise ValueError(f"{ds} has no images in split {split!r}")
             for model in models:
@@ -203,7 +196,7 @@ def export(
     from train.network.export import export as run_export
     from train.network.export import recard
 
-    _check_split(split)
+    split_or_exit(split)
     if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.-]*", name):
         raise fail(f"--name {name!r}: use letters, digits, '.', '_' or '-'", code=2)
     if regraph and checkpoint.suffix != ".onnx":
@@ -236,7 +229,7 @@ def export(
 def realset(
     source: Annotated[Path, typer.Argument(help="Folder of real photos with labels.csv.")],
     out_dir: Annotated[Path, typer.Argument(help="New data set folder.")],
-    size: Annotated[int, typer.Option(help="1 = 80x60, 2 = 160x120.")] = 1,
+    size: Annotated[int, typer.Option(help=SIZE_HELP)] = 1,
     blur: Annotated[int, typer.Option(help="SPEC blur level 0..3.")] = 0,
     profile: Annotated[str, typer.Option(help="Profile name or path (z split).")] = "chessboard",
     seed: Annotated[int, typer.Option(help="Seed of the train/val/test split.")] = 0,
@@ -244,8 +237,7 @@ def realset(
     """Turn real photos with camera centres into a data set (split by stereo moment)."""
     from train.real.realset import build_real_dataset
 
-    if size not in (1, 2):
-        raise fail(f"--size must be 1 (80x60) or 2 (160x120), got {size}", code=2)
+    size_or_exit(size)
     if not 0 <= blur <= 3:
         raise fail(f"--blur must be in 0..3, got {blur}", code=2)
     if not (source / "labels.csv").is_file():

@@ -12,7 +12,7 @@ from typing import Annotated, Any
 import typer
 from rich.table import Table
 
-from train.commands.common import err, fail, guard, out, profile_or_exit
+from train.commands.common import err, fail, guard, out, profile_or_exit, split_or_exit
 
 
 def label(
@@ -99,8 +99,7 @@ def baseline(
 
     if features not in FEATURE_CHOICES:
         raise fail(f"--features must be one of {', '.join(FEATURE_CHOICES)}", code=2)
-    if split not in ("train", "val", "test", "all"):
-        raise fail(f"--split must be train, val, test or all, got {split!r}", code=2)
+    split_or_exit(split)
     for path in datasets:
         if not (path / "labels.csv").is_file():
             raise fail(f"not a data set (no labels.csv): {path}")
@@ -201,8 +200,7 @@ def compare(
     for kind in peer or []:
         if kind not in PEER_CHOICES:
             raise fail(f"--peer must be one of {', '.join(PEER_CHOICES)}, got {kind!r}", code=2)
-    if split not in ("train", "val", "test", "all"):
-        raise fail(f"--split must be train, val, test or all, got {split!r}", code=2)
+    split_or_exit(split)
     for path in models:
         if path.suffix != ".onnx" or not path.is_file():
             raise fail(f"not an ONNX model file: {path}")

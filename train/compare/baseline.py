@@ -32,6 +32,7 @@ from typing import Any, Protocol
 import cv2
 import numpy as np
 
+from service.core.frame import object_corners
 from service.core.geometry import apply_homography, camera_centre, intrinsics
 from service.core.paths import REPO_ROOT
 from service.core.regions import pose_class
@@ -92,8 +93,7 @@ class FeatureBaseline:
             )
             for k in kinds
         }
-        w, h = width_cm / 2, height_cm / 2
-        self.corners3 = np.array([[-w, -h, 0], [w, -h, 0], [w, h, 0], [-w, h, 0]], np.float64)
+        self.corners3 = object_corners(width_cm, height_cm, z=True)
 
     def with_thresholds(self, ratio: float, ransac_px: float) -> FeatureBaseline:
         """The same baseline (sharing the texture features) with other thresholds."""

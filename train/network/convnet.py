@@ -28,10 +28,10 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from service.core.inputs import SIZES, size_index
 from service.core.regions import NUM_CLASSES
-from train.network.model import NormalisedNet
+from train.network.base import NormalisedNet, conv_block
 
-SIZES = ((80, 60), (160, 120))
 HEAD_GRID = (3, 4)  # (H, W) of the pooled map the classifier reads
 FEATURE_HW = (7, 10)  # (H, W) of the last convolution's map, for both input sizes
 
@@ -60,14 +60,6 @@ class GridPool(nn.Module):
         return torch.matmul(torch.matmul(self.rows, x), self.cols.t())
 
 
-def _conv(cin: int, cout: int, k: int = 3, stride: int = 1) -> nn.Sequential:
-    return nn.Sequential(
-        nn.Conv2d(cin, cout, k, stride, k // 2, bias=False),
-        nn.BatchNorm2d(cout),
-        nn.ReLU(inplace=True),
-    )
-
-
 class ConvNet(NormalisedNet):
     """The network above for an input `size` (W, H) of 80x60 or 160x120."""
 
@@ -76,25 +68,25 @@ class ConvNet(NormalisedNet):
     def __init__(self, size: tuple[int, int] = (160, 120), dropout: float = 0.2) -> None:
         super().__init__()
         size = (int(size[0]), int(size[1]))
-        if size not in SIZES:
-            known = ", ".join(f"{w}x{h}" for w, h in SIZES)
+        if size not in SIZES.values():
+            known = ", ".join(f"{w}x{h}" for w, h in SIZES.values())
             raise ValueError(
                 f"unsupported input size {size[0]}x{size[1]}; the network takes {known}"
             )
         self.size = size
         self.batch_norm = True
-        stride = 1 if size == (80, 60) else 2
+        stride = size_index(size)  # 1 at 80x60, 2 at 160x120: the same maps after it
         self.features = nn.Sequential(
-            _conv(3, 24, 5, stride),
-            _conv(24, 32),
+            conv_block(3, 24, 5, stride),
+            conv_block(24, 32),
             nn.MaxPool2d(2),
-            _conv(32, 48),
-            _conv(48, 48),
+            conv_block(32, 48),
+            conv_block(48, 48),
             nn.MaxPool2d(2),
-            _conv(48, 96),
-            _conv(96, 96),
+            conv_block(48, 96),
+            conv_block(96, 96),
             nn.MaxPool2d(2),
-            _conv(96, 128),
+            conv_block(96, 128),
             GridPool(FEATURE_HW, HEAD_GRID),
         )
         self.hidden = nn.Sequential(

@@ -17,7 +17,7 @@ import numpy as np
 
 from service.core.dataset import LoadedDataset
 from service.core.preprocess import to_network_input
-from service.core.regions import NUM_CLASSES
+from service.core.regions import NUM_CLASSES, is_far, quadrant_of_class
 
 if TYPE_CHECKING:
     from service.model import PoseModel
@@ -172,8 +172,7 @@ def region_breakdown(cm: np.ndarray) -> dict[str, float | None]:
     None when no image shows the object.
     """
     classes = np.arange(NUM_CLASSES)
-    quadrant = np.where(classes == 0, 0, (classes - 1) % 4 + 1)
-    far = classes > 4
+    quadrant, far = quadrant_of_class(classes), is_far(classes)
     obj = cm[1:, 1:]  # object images predicted as object classes
     q_true, q_pred = quadrant[1:, None], quadrant[None, 1:]
     total = cm[1:].sum()

@@ -7,8 +7,8 @@ caller that feeds only `image` gets square pixels), `view` float32 [N, 3] (defau
 [[0, 0, 1]]: the input is the camera's whole frame; `train.network.keypoint.KeypointNet.answer`
 says what a crop's view is) and `focal` float32 [N] (default [0]: unknown, self-calibrated;
 else the camera's focal length in frame pixels of the input's width), and return `corners`
-float32 [N, 4, 2], the object's image corners in frame pixels, in the order (-X,-Y),
-(+X,-Y), (+X,+Y), (-X,+Y) of the object frame, and `pattern` float32 [N], P(present) from
+float32 [N, 4, 2], the object's image corners in frame pixels in
+`service.core.frame.CORNER_ORDER`, and `pattern` float32 [N], P(present) from
 the checker pattern at the corners alone (`service.zoom` uses both). The model card (JSON)
 is stored in the ONNX `metadata_props` under `model_card` and written next to it as
 `<name>.json`.
@@ -23,19 +23,20 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from service.core.paths import REPO_ROOT
-from service.core.regions import NUM_CLASSES, class_descriptions, region_of_class
-from service.model import (
+from service.core.onnx_contract import (
+    CARD_KEY,
     CORNERS,
-    DEFAULT_VIEW,
+    DEFAULTS,
     FOCAL,
+    IMAGE,
     PATTERN,
     PIXEL_ASPECT,
     PROBABILITIES,
     VIEW,
+    io_description,
 )
+from service.core.paths import REPO_ROOT
+from service.core.regions import NUM_CLASSES, Z_SPLIT_CM, class_descriptions, region_of_class
 
 OPSET = 17
 #: What the card says of each architecture (train.network.model.build_network).
@@ -48,7 +49,6 @@ ARCHITECTURES = {
     "keypoint-s2": "keypoint-s2: train/network/keypoint.py with corner heat maps at 80x60 "
     "(stride 2), corners aligned to the checker pattern (train/network/align.py)",
 }
-INPUT_NAME = "image"
 
 
 def onnx_bytes(net: Any) -> bytes:
@@ -65,16 +65,12 @@ def onnx_bytes(net: Any) -> bytes:
     keypoint = takes_pixel_aspect(net)
     image = torch.rand(2, 3, h, w)
     if keypoint:
-        inputs = [INPUT_NAME, PIXEL_ASPECT, VIEW, FOCAL]
+        inputs = [IMAGE, PIXEL_ASPECT, VIEW, FOCAL]
         outputs = [PROBABILITIES, CORNERS, PATTERN]
-        defaults = {
-            PIXEL_ASPECT: np.ones(1, np.float32),
-            VIEW: DEFAULT_VIEW[None],
-            FOCAL: np.zeros(1, np.float32),
-        }
+        defaults = DEFAULTS
         example: tuple[Any, ...] = (image, *(torch.from_numpy(v) for v in defaults.values()))
     else:
-        inputs, outputs, defaults, example = [INPUT_NAME], [PROBABILITIES], {}, (image,)
+        inputs, outputs, defaults, example = [IMAGE], [PROBABILITIES], {}, (image,)
     buf = io.BytesIO()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
@@ -86,7 +82,7 @@ def onnx_bytes(net: Any) -> bytes:
             input_names=inputs,
             output_names=outputs,
             # the defaults' own batch dimension: a default of one row broadcasts over any N
-            dynamic_axes={name: {0: "N"} for name in [INPUT_NAME, *outputs]}
+            dynamic_axes={name: {0: "N"} for name in [IMAGE, *outputs]}
             | {name: {0: f"N_{name}"} for name in defaults},
             opset_version=OPSET,
         )
@@ -157,29 +153,7 @@ def _camera_card() -> dict[str, Any]:
 def _io_card(keypoint: bool) -> dict[str, Any]:
     """The card's `input_format` and `output`: the graph's inputs and outputs (module doc),
     and for a keypoint graph its `camera_model`."""
-    return ({"camera_model": _camera_card()} if keypoint else {}) | {
-        "input_format": "image: float32 [N, 3, H, W], RGB, values in [0, 1] (portraits turned "
-        "a quarter clockwise, resize with area)"
-        + (
-            "; pixel_aspect: float32 [N], default 1, the height over the width of an input "
-            "pixel in the scene (4/3 for a 16:9 photo resized to the input); view: float32 "
-            "[N, 3], default (0, 0, 1), where the input lies in the camera's frame: input pixel "
-            "(u, v) is frame pixel (u0 + (u + 0.5) s - 0.5, v0 + (v + 0.5) s - 0.5); focal: "
-            "float32 [N], default 0 (unknown: self-calibrated), else the camera's focal length "
-            "fx in frame pixels of the input's width"
-            if keypoint
-            else ""
-        ),
-        "output": "probabilities: float32 [N, 9] (softmax), index = class id"
-        + (
-            "; corners: float32 [N, 4, 2], the object's corners (u, v) in frame pixels "
-            "(input pixels with the default view), order (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y); "
-            "pattern: float32 [N], P(object present) from the checker pattern at the corners "
-            "alone"
-            if keypoint
-            else ""
-        ),
-    }
+    return ({"camera_model": _camera_card()} if keypoint else {}) | {**io_description(keypoint)}
 
 
 def build_card(
@@ -191,7 +165,7 @@ def build_card(
 ) -> dict[str, Any]:
     """The model card dict (see module doc) from a checkpoint written by `train.network.fit`."""
     profile = profile_card(checkpoint.get("profile", {}))
-    z_split = float(profile.get("z_split_cm", 60.0))
+    z_split = float(profile.get("z_split_cm", Z_SPLIT_CM))
     descriptions = class_descriptions(z_split)
     keypoint = checkpoint.get("arch", "spec").startswith("keypoint")
     training: dict[str, Any] = {
@@ -247,7 +221,7 @@ def with_card(model_bytes: bytes, card: dict[str, Any]) -> bytes:
     model = onnx.load_from_string(model_bytes)
     del model.metadata_props[:]
     entry = model.metadata_props.add()
-    entry.key, entry.value = "model_card", json.dumps(card)
+    entry.key, entry.value = CARD_KEY, json.dumps(card)
     model.producer_name = "planar-pose"
     return model.SerializeToString()
 
@@ -353,7 +327,7 @@ def recard(
     import onnx
 
     model = onnx.load(str(onnx_path))
-    cards = [p.value for p in model.metadata_props if p.key == "model_card"]
+    cards = [p.value for p in model.metadata_props if p.key == CARD_KEY]
     if not cards:
         raise ValueError(f"{onnx_path} has no model card in its metadata")
     card = json.loads(cards[0])

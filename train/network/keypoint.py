@@ -59,9 +59,10 @@ from torch import nn
 
 from service.core.blur import KERNELS, gaussian_taps
 from service.core.geometry import intrinsics
+from service.core.profile import DEFAULT_PROFILE, load_profile
+from service.core.regions import QUADRANT_SIGNS, Z_SPLIT_CM
 from train.network.align import CheckerAlign, Lens, square_homography
-from train.network.convnet import _conv
-from train.network.model import NormalisedNet
+from train.network.base import NormalisedNet, conv_block
 
 SIZE = (160, 120)
 # The focal length (`KeypointNet.focal_length`): Zhang's constraints with a prior. The prior
@@ -133,22 +134,22 @@ class Observation(NamedTuple):
 
 
 def _block(cin: int, cout: int) -> nn.Sequential:
-    return nn.Sequential(_conv(cin, cout), _conv(cout, cout))
+    return nn.Sequential(conv_block(cin, cout), conv_block(cout, cout))
 
 
 class KeypointNet(NormalisedNet):
     """The network above for input `size` (W, H) = 160x120 and a board of `board_cm`
-    (width, height) with the region split `z_split_cm`; the camera prior is the SPEC camera
-    with its focal length times `focal_scale` and the principal point at the image centre;
-    heat maps at `stride` 4 or 2 input pixels."""
+    (width, height; default: the default profile's) with the region split `z_split_cm`; the
+    camera prior is the SPEC camera with its focal length times `focal_scale` and the principal
+    point at the image centre; heat maps at `stride` 4 or 2 input pixels."""
 
     corner_order = "upper"  # `fit._corner_loss`: corner 0 is the upper end of the 0-2 diagonal
 
     def __init__(
         self,
         size: tuple[int, int] = SIZE,
-        board_cm: tuple[float, float] = (25.0, 17.5),
-        z_split_cm: float = 60.0,
+        board_cm: tuple[float, float] | None = None,
+        z_split_cm: float = Z_SPLIT_CM,
         focal_scale: float = FOCAL_PRIOR,
         self_calibrate: bool = True,
         stride: int = 4,
@@ -164,15 +165,15 @@ class KeypointNet(NormalisedNet):
         self.size = size
         self.stride = stride
         self.batch_norm = True
-        self.stem = _conv(3, 16, 3, 2)  # 80x60
+        self.stem = conv_block(3, 16, 3, 2)  # 80x60
         self.down1 = _block(16, 32)  # 40x30
         self.down2 = _block(32, 64)  # 20x15
         self.down3 = _block(64, 128)  # 10x7
-        self.reduce = _conv(128, 32, 1)
-        self.up2 = _conv(32 + 64, 32)  # 20x15
-        self.up1 = _conv(32 + 32, 32)  # 40x30
+        self.reduce = conv_block(128, 32, 1)
+        self.up2 = conv_block(32 + 64, 32)  # 20x15
+        self.up1 = conv_block(32 + 32, 32)  # 40x30
         # stride 2: one more decoder step, on the stem's 80x60 features
-        self.up0 = _conv(32 + 16, 16) if stride == 2 else None
+        self.up0 = conv_block(32 + 16, 16) if stride == 2 else None
         self.heat = nn.Conv2d(16 if stride == 2 else 32, 4, 1)
         self.align = CheckerAlign(size, SQUARES)  # no weights: geometry only
         self.presence = nn.Sequential(
@@ -200,6 +201,9 @@ class KeypointNet(NormalisedNet):
         )
         self.register_buffer("self_calibrate", torch.tensor(float(self_calibrate)))
         self.register_buffer("radial_prior", torch.tensor(RADIAL_PRIOR), persistent=False)
+        if board_cm is None:
+            default = load_profile(DEFAULT_PROFILE)
+            board_cm = (default.width_cm, default.height_cm)
         bw, bh = board_cm
         # object (X, Y) -> unit square (s, t), the inverse of X = -bw/2 + bw s, Y = -bh/2 + bh t
         self.register_buffer(
@@ -430,7 +434,9 @@ class KeypointNet(NormalisedNet):
         near = 0.5 * (1 + torch.erf((self.z_split - c[:, 2]) / (sz * math.sqrt(2))))
 
         def quadrants(px: torch.Tensor, py: torch.Tensor) -> torch.Tensor:
-            return torch.stack([px * py, (1 - px) * py, (1 - px) * (1 - py), px * (1 - py)], 1)
+            """P(x >= 0) [N], P(y >= 0) [N] -> P(quadrant 1..4) [N, 4] (`QUADRANT_SIGNS`)."""
+            side = {1: (px, py), -1: (1 - px, 1 - py)}
+            return torch.stack([side[sx][0] * side[sy][1] for sx, sy in QUADRANT_SIGNS], 1)
 
         q = order_ok[:, None] * quadrants(px, py) + (1 - order_ok[:, None]) * quadrants(
             1 - px, 1 - py
@@ -502,8 +508,8 @@ class KeypointNet(NormalisedNet):
         pixel (u, v) is frame pixel (u0 + (u + 0.5) s - 0.5, v0 + (v + 0.5) s - 0.5), frame
         pixels as the input's (None: (0, 0, 1), the input is the frame; a crop of the frame
         enlarged 2x is (left, top, 0.5)) -> log-probabilities [N, 9] (softmax gives them
-        back), the aligned corners [N, 4, 2] in frame pixels, in the object's order (-X,-Y),
-        (+X,-Y), (+X,+Y), (-X,+Y) as the parity reads it (meaningless where the object is
+        back), the aligned corners [N, 4, 2] in frame pixels, in the object's
+        `CORNER_ORDER` as the parity reads it (meaningless where the object is
         not in view), and P(present) [N] from the checker pattern alone (`Observation`)."""
         seen = self.observe(x, pixel_aspect, view)
         q = seen.corners

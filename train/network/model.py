@@ -21,11 +21,15 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from service.core.inputs import SIZES
 from service.core.regions import NUM_CLASSES
+from train.network.base import NormalisedNet
 from train.network.config import Arch
+from train.network.convnet import ConvNet
+from train.network.keypoint import SQUARES, KeypointNet
 
 #: Supported input sizes (W, H) -> hidden width of the classifier (SPEC section 8 table).
-HIDDEN_UNITS: dict[tuple[int, int], int] = {(80, 60): 128, (160, 120): 1024}
+HIDDEN_UNITS: dict[tuple[int, int], int] = {SIZES[1]: 128, SIZES[2]: 1024}
 
 CONV_KERNEL = 5
 POOL = 4
@@ -63,40 +67,6 @@ def check_size(size: tuple[int, int]) -> tuple[int, int]:
         known = ", ".join(f"{w}x{h}" for w, h in HIDDEN_UNITS)
         raise ValueError(f"unsupported input size {size[0]}x{size[1]}; the network takes {known}")
     return size
-
-
-class NormalisedNet(nn.Module):
-    """Base of the pose networks: input normalisation, then `features`, then `classifier`.
-
-    `mean` and `std` (3 values, RGB, in [0, 1] units) are buffers: set them from the training
-    set with `set_normalisation`, they travel with the state dict and the ONNX graph.
-    Subclasses set `size` (W, H), `batch_norm`, `features` and `classifier`.
-    """
-
-    size: tuple[int, int]
-    batch_norm: bool
-    features: nn.Module
-    classifier: nn.Module
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.register_buffer("mean", torch.full((1, 3, 1, 1), 0.5))
-        self.register_buffer("std", torch.full((1, 3, 1, 1), 0.25))
-
-    def set_normalisation(self, mean: torch.Tensor, std: torch.Tensor) -> None:
-        """Store per-channel mean and std (3,) of the training images (RGB, [0, 1] units)."""
-        self.mean.copy_(torch.as_tensor(mean, dtype=torch.float32).reshape(1, 3, 1, 1))
-        self.std.copy_(
-            torch.as_tensor(std, dtype=torch.float32).clamp_min(1e-3).reshape(1, 3, 1, 1)
-        )
-
-    def logits(self, x: torch.Tensor) -> torch.Tensor:
-        """RGB [N, 3, H, W] in [0, 1] -> unnormalised scores [N, 9]."""
-        return self.classifier(self.features((x - self.mean) / self.std))
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """RGB [N, 3, H, W] in [0, 1] -> log-probabilities [N, 9]."""
-        return F.log_softmax(self.logits(x), dim=1)
 
 
 class PoseNet(NormalisedNet):
@@ -196,12 +166,8 @@ def build_network(
     if arch == "spec":
         return PoseNet(size, batch_norm=batch_norm)
     if arch == "convnet":
-        from train.network.convnet import ConvNet
-
         return ConvNet(size)
     if arch in ("keypoint", "keypoint-s2"):
-        from train.network.keypoint import SQUARES, KeypointNet
-
         stride = 2 if arch == "keypoint-s2" else 4
         if not profile:
             return KeypointNet(size, stride=stride)
@@ -220,8 +186,6 @@ def build_network(
 
 def arch_of(net: NormalisedNet) -> str:
     """The architecture name of a network built by `build_network`."""
-    from train.network.convnet import ConvNet
-
     if isinstance(net, PoseNet):
         return "spec"
     if isinstance(net, ConvNet):

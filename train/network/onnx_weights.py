@@ -21,8 +21,9 @@ from typing import Any
 import torch
 from torch import nn
 
+from train.network.base import NormalisedNet
 from train.network.keypoint import ZERO_IF_ABSENT
-from train.network.model import NormalisedNet, build_network
+from train.network.model import build_network
 
 PREFIX = "net."
 

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from service.core.frame import object_corners, texture_to_object
 from service.core.geometry import (
     apply_homography,
     camera_centre,
@@ -213,21 +214,6 @@ class MatchResult:
     inlier_uv: np.ndarray | None = None
 
 
-def texture_to_object(
-    texture_size: tuple[int, int], width_cm: float, height_cm: float
-) -> np.ndarray:
-    """Affine map (3, 3) from texture pixels (u, v) to object-plane cm (x, y).
-
-    The texture covers the object rectangle front-on, +y up: pixel centres are at integer
-    (u, v), so the left edge u = -0.5 is x = -w/2 and the top edge v = -0.5 is y = +h/2.
-    """
-    tw, th = texture_size
-    sx, sy = width_cm / tw, height_cm / th
-    return np.array(
-        [[sx, 0.0, sx * 0.5 - width_cm / 2], [0.0, -sy, height_cm / 2 - sy * 0.5], [0, 0, 1]]
-    )
-
-
 def signed_area(quad: np.ndarray) -> float:
     """Shoelace area (px^2) of a polygon (N, 2); its sign gives the winding order."""
     x, y = quad[:, 0], quad[:, 1]
@@ -286,9 +272,8 @@ class TextureMatcher:
             raise ValueError(f"the texture has too few {features} features to match")
 
     def corners_xy(self) -> np.ndarray:
-        """Object-plane corners (4, 2) cm in the order (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y)."""
-        w, h = self.width_cm / 2, self.height_cm / 2
-        return np.array([[-w, -h], [w, -h], [w, h], [-w, h]], dtype=np.float64)
+        """Object-plane corners (4, 2) cm in `CORNER_ORDER`."""
+        return object_corners(self.width_cm, self.height_cm)
 
     def image_features(self, image: np.ndarray, upscale: float = 1.0) -> ImageFeatures:
         """Keypoints and descriptors of `image` (RGB or grey), enlarged by `upscale` (cubic)

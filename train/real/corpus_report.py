@@ -17,10 +17,10 @@ from typing import Any
 import cv2
 import numpy as np
 
+from service.core.dataset import SPLITS, corpus_sources, read_splits
 from service.core.regions import region_of_class
 from train.markdown import pct, table
 from train.real.corpus import STORE_MAX_SIDE, contact_sheet
-from train.real.realset import SPLITS, corpus_sources, read_splits
 
 SHEET_PER_CLASS = 30
 

@@ -31,7 +31,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from service.core.regions import pose_class
+from service.core.regions import boundary_margin_cm, pose_class
 from train.real.calibration import Camera
 from train.real.corners import ChessboardPattern
 from train.real.corpus import stored_size
@@ -156,7 +156,7 @@ def crosscheck_folder(
                 "independent_class": None if theirs is None else int(pose_class(theirs, z_split)),
                 "centre_diff_cm": None if theirs is None else float(np.linalg.norm(ours - theirs)),
                 # How far the camera centre is from the nearest region boundary (cm).
-                "boundary_cm": float(min(abs(ours[0]), abs(ours[1]), abs(ours[2] - z_split))),
+                "boundary_cm": float(boundary_margin_cm(ours, z_split)),
             }
         )
     return out

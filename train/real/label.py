@@ -33,6 +33,7 @@ import cv2
 import numpy as np
 
 from service.core.dataset import CORNER_COLUMNS, LABEL_COLUMNS, write_manifest
+from service.core.frame import object_corners
 from service.core.geometry import camera_centre, dlt_homography, pose_from_homography, roll_of_pose
 from service.core.inputs import focal_scale
 from service.core.regions import pose_class
@@ -57,7 +58,7 @@ class Label:
     """The pose found for one photograph.
 
     R (3, 3), t (3,) cm: object -> camera; `centre` (3,) cm in the object frame; `corners`
-    (4, 2) raw pixels of the object corners (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y); `rms` the
+    (4, 2) raw pixels of the object corners in `CORNER_ORDER`; `rms` the
     reprojection RMS (raw px, through the distortion) of the points used by the pose, after
     `refine_pose`; `points` how many were used; `dlt_rms` the same RMS of the DLT pose.
     """
@@ -91,9 +92,8 @@ class ObjectFinder:
             )
 
     def corners_xy(self) -> np.ndarray:
-        """Object corners (4, 2) cm: (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y)."""
-        w, h = self.width_cm / 2, self.height_cm / 2
-        return np.array([[-w, -h], [w, -h], [w, h], [-w, h]])
+        """Object corners (4, 2) cm, in `CORNER_ORDER`."""
+        return object_corners(self.width_cm, self.height_cm)
 
     def find(self, rgb: np.ndarray, camera: Camera) -> Correspondences | None:
         """Object-plane <-> raw-pixel correspondences in `rgb`, or None when not found."""
@@ -217,7 +217,7 @@ def draw_overlay(rgb: np.ndarray, label: Label, width_cm: float, height_cm: floa
     thick = max(1, round(max(rgb.shape[:2]) / 400))
     w, h = width_cm / 2, height_cm / 2
     s = np.linspace(0, 1, 25)[:, None]
-    corners = np.array([[-w, -h], [w, -h], [w, h], [-w, h], [-w, -h]])
+    corners = object_corners(width_cm, height_cm)[[0, 1, 2, 3, 0]]
     edge = np.concatenate([(1 - s) * corners[i] + s * corners[i + 1] for i in range(4)])
     cam = label.camera
     outline = project(
@@ -243,7 +243,7 @@ def draw_overlay(rgb: np.ndarray, label: Label, width_cm: float, height_cm: floa
 
 
 def read_corner_csv(path: Path) -> dict[str, np.ndarray]:
-    """Clicked corners: file name -> (4, 2) raw pixels, order (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y).
+    """Clicked corners: file name -> (4, 2) raw pixels, in `CORNER_ORDER`.
 
     Columns `file, corner_x0, corner_y0, ..., corner_x3, corner_y3` (others are ignored).
     """

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import csv
 import re
-import tomllib
 from pathlib import Path
 from typing import Any
 
@@ -28,6 +27,8 @@ from service.core.dataset import (
     LABEL_COLUMNS,
     LABELS_FILE,
     SPLITS,
+    corpus_sources,
+    read_splits,
     write_labels,
     write_manifest,
 )
@@ -166,28 +167,6 @@ CORPUS_SET_COLUMNS = [
     *LABEL_COLUMNS, "source", "original", "fx", "fy", "cx", "cy", "k2", "p1", "p2", "k3",
     "pixel_aspect",
 ]  # fmt: skip
-
-
-def read_splits(path: Path) -> dict[str, str]:
-    """splits.toml of a corpus: {source id: train | val | test} from its [splits] table."""
-    if not path.is_file():
-        raise FileNotFoundError(f"corpus split file not found: {path}")
-    try:
-        table = tomllib.loads(path.read_text(encoding="utf-8")).get("splits", {})
-    except tomllib.TOMLDecodeError as exc:
-        raise ValueError(f"{path}: not valid TOML ({exc})") from None
-    bad = {k: v for k, v in table.items() if v not in SPLITS}
-    if bad:
-        raise ValueError(f"{path}: splits must be train, val or test, got {bad}")
-    return dict(table)
-
-
-def corpus_sources(corpus: Path) -> list[Path]:
-    """The labelled source folders of a corpus (boards/* and negatives/*), sorted."""
-    found = sorted(p.parent for p in corpus.glob("*/*/labels.csv"))
-    if not found:
-        raise ValueError(f"no labelled source (*/*/labels.csv) in {corpus}")
-    return found
 
 
 def in_frame(row: dict[str, str], frame: NetworkFrame) -> dict[str, str]:

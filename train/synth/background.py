@@ -23,8 +23,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from service.core.dataset import corpus_sources, read_splits
 from service.core.geometry import apply_homography, dlt_homography
 from service.core.paths import ASSETS_DIR
+from service.core.profile import DEFAULT_PROFILE, load_profile
 
 BACKGROUNDS_DIR = ASSETS_DIR / "backgrounds"
 CORPUS_DIR = ASSETS_DIR / "real" / "corpus"
@@ -106,7 +108,7 @@ def board_polygon(
 ) -> np.ndarray:
     """Image polygon (4, 2) px of the board grown by `grow_cm` around its inner-corner grid.
 
-    `corners_px` (4, 2): the inner-grid rectangle corners (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y) as
+    `corners_px` (4, 2): the inner-grid rectangle corners in `CORNER_ORDER` as
     in train/assets/real/*/labels.csv; `inner_cm` = (width, height) of that grid.
     """
     w, h = inner_cm[0] / 2, inner_cm[1] / 2
@@ -160,12 +162,12 @@ def real_photo_crops(
 def corpus_backgrounds(corpus: Path = CORPUS_DIR) -> list[np.ndarray]:
     """Backgrounds from the corpus's train sources (splits.toml): every class-0 photo, and
     the strips of the board photos outside the board (their corners are the board's outer
-    corners, 25 x 17.5 cm for the default profile). Empty when there is no corpus."""
-    from train.real.realset import corpus_sources, read_splits
-
+    corners, those of the default profile). Empty when there is no corpus."""
     if not (corpus / "splits.toml").is_file():
         return []
     splits = read_splits(corpus / "splits.toml")
+    board = load_profile(DEFAULT_PROFILE)
+    board_cm = (board.width_cm, board.height_cm)
     images: list[np.ndarray] = []
     for src in corpus_sources(corpus):
         if splits.get(src.name) != "train":
@@ -173,7 +175,7 @@ def corpus_backgrounds(corpus: Path = CORPUS_DIR) -> list[np.ndarray]:
         if src.parent.name == "negatives":
             images += shipped_backgrounds(src / "images")
         else:
-            images += [crop for _, crop in real_photo_crops(src, (25.0, 17.5), 3.0, 100)]
+            images += [crop for _, crop in real_photo_crops(src, board_cm, 3.0, 100)]
     return images
 
 

@@ -25,6 +25,7 @@ import cv2
 import numpy as np
 
 from service.core.blur import blur_image
+from service.core.frame import object_corners, texture_to_object
 from service.core.geometry import (
     homography_from_pose,
     intrinsics,
@@ -34,7 +35,6 @@ from service.core.geometry import (
 )
 from service.core.profile import Profile
 from service.core.regions import pose_class
-from train.real.corners import texture_to_object
 from train.synth.background import BackgroundPool
 
 #: Look-at targets: C (object centre), noC (SPEC: a 6 x 6 cm square around it), free (the
@@ -122,12 +122,11 @@ class View:
     k1: float = 0.0
 
     def object_corners(self, profile: Profile, size: tuple[int, int]) -> np.ndarray:
-        """Pixels (4, 2) of the object corners (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y) in an
+        """Pixels (4, 2) of the object corners in `CORNER_ORDER` in an
         image of `size` (W, H), lens distortion included."""
         A = intrinsics(size, self.focal_scale)
         R = look_at(self.centre, self.target, np.radians(self.roll_deg))
-        w, h = profile.width_cm / 2, profile.height_cm / 2
-        corners = np.array([[-w, -h, 0], [w, -h, 0], [w, h, 0], [-w, h, 0]])
+        corners = object_corners(profile.width_cm, profile.height_cm, z=True)
         uv = project_points(A, R, translation(R, self.centre), corners)
         return distort_points(uv, self.k1, A) if self.k1 else uv
 
@@ -232,10 +231,10 @@ class BoardImage:
             if min(lh, lw) // 2 < min_side:
                 break
             level = cv2.resize(level, (lw // 2, lh // 2), interpolation=cv2.INTER_AREA)
-        w = profile.width_cm / 2 + b / ppc
-        h = profile.height_cm / 2 + b * profile.height_cm / th
+        w = profile.width_cm + 2 * b / ppc
+        h = profile.height_cm + 2 * b * profile.height_cm / th
         #: The board's outline (4, 3) cm in the object plane, margin and frame included.
-        self.outline_cm = np.array([[-w, -h, 0], [w, -h, 0], [w, h, 0], [-w, h, 0]])
+        self.outline_cm = object_corners(w, h, z=True)
         self.texels = float(board.shape[0] * board.shape[1])  # at level 0
 
     def level_for(self, texels_per_px: float) -> _Level:

@@ -151,7 +151,7 @@ def test_cli_check_report_and_errors(corpus, tmp_path):
                                                      "licence": "MIT"}))  # fmt: skip
         read_source(bad)
     result = runner.invoke(app, ["corpus", "sets", str(tmp_path / "s"), "--size", "3"])
-    assert result.exit_code == 2 and "--size must be 1 or 2" in result.output
+    assert result.exit_code == 2 and "--size must be 1 (80x60) or 2" in result.output
 
 
 def _board_image(extended: bool) -> tuple[np.ndarray, object]:
@@ -185,7 +185,7 @@ def test_a_grid_inside_a_bigger_board_is_recognised():
 def test_the_shipped_corpus_keeps_its_test_cameras_apart():
     """Every source has a split; the test split has >= 4 board sources and >= 120 board
     photos, from repositories that no train or val source comes from."""
-    from train.real.realset import corpus_sources, read_splits
+    from service.core.dataset import corpus_sources, read_splits
 
     corpus = ASSETS_DIR / "real" / "corpus"
     splits = read_splits(corpus / "splits.toml")

@@ -12,13 +12,14 @@ import pytest
 from typer.testing import CliRunner
 
 from service.core.dataset import load_dataset
+from service.core.frame import texture_to_object
 from service.core.geometry import homography_from_pose, intrinsics, look_at, translation
 from service.core.paths import ASSETS_DIR
 from service.core.profile import load_profile
 from service.core.regions import pose_class
 from train.cli import app
 from train.real.calibration import Calibration, default_camera
-from train.real.corners import ChessboardPattern, detect_chessboard, texture_to_object
+from train.real.corners import ChessboardPattern, detect_chessboard
 from train.real.label import compare_to_truth, label_folder, read_corner_csv
 
 SOURCE = ASSETS_DIR / "real" / "chessboard-stereo"
