@@ -12,13 +12,13 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from service.core.frame import texture_to_object
 from service.core.geometry import homography_from_pose, intrinsics, look_at, translation
 from service.core.paths import ASSETS_DIR
 from service.core.regions import pose_class
 from train.cli import app
 from train.compare.baseline import BaselineConfig, FeatureBaseline, dataset_cameras, tune
 from train.real.calibration import Camera
-from train.real.corners import texture_to_object
 
 REAL = ASSETS_DIR / "real" / "chessboard-stereo"
 W_CM, H_CM = 25.0, 17.5
