@@ -39,9 +39,13 @@ def link(path: Path, base: Path) -> str:
 
 
 def machine() -> str:
-    """This machine as a measured page names it: host (CPU, CPU count)."""
+    """This machine as a measured page names it: host (CPU, CPU count), and how many of its
+    CPUs this process may use when that is fewer (`taskset`, a container's cpuset)."""
     cpu = platform.processor() or platform.machine()
-    return f"{platform.node()} ({cpu}, {os.cpu_count()} CPUs)"
+    count = os.cpu_count() or 0
+    usable = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else count
+    pinned = f", pinned to {usable} of them" if 0 < usable < count else ""
+    return f"{platform.node()} ({cpu}, {count} CPUs){pinned}"
 
 
 def written_by(command: str) -> str:
