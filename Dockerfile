@@ -2,7 +2,7 @@
 # Stage "build": a venv with the base install (`pip install .` of service/ only: no torch, no
 # training code; setuptools' package search finds no `train` in this context).
 # Stage "runtime": slim Python, that venv, the model folder (every models/<name>.onnx with its
-# card; default.onnx answers /v1/predict), a non-root user, one worker process per CPU.
+# card; chessboard-corners-160x120 answers /v1/predict), a non-root user, one worker process per CPU.
 #   docker build -t planar-pose .  &&  docker run -p 8000:8000 planar-pose
 # BASE_IMAGE lets a locally made stand-in of python:3.11-slim be used (docs/service.md).
 ARG BASE_IMAGE=python:3.11-slim

@@ -16,7 +16,7 @@ On the 26 real photographs (train/assets/real/chessboard-stereo) resized to each
 
 Prints ms / image and the ratios (the thesis: baseline about 10x slower than the network).
 
-    .venv/bin/python benchmarks/bench_baseline.py [--model models/default.onnx] [--repeat 3]
+    .venv/bin/python benchmarks/bench_baseline.py [--model MODEL.onnx] [--repeat 3]
 """
 
 from __future__ import annotations
@@ -33,6 +33,7 @@ from service.core.profile import load_profile
 from service.core.regions import pose_class
 from service.model import PoseModel
 from service.proposals import propose_boxes
+from service.settings import DEFAULT_MODEL
 from service.sliding import SlidingWindows
 from train.compare.baseline import BaselineConfig, FeatureBaseline
 from train.compare.chessboard_peer import ChessboardPeer
@@ -76,7 +77,7 @@ def chessboard_peer(profile, images, cameras, repeat: int) -> tuple[float, int]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--model", type=Path, default=Path("models/default.onnx"))
+    parser.add_argument("--model", type=Path, default=DEFAULT_MODEL)
     parser.add_argument("--repeat", type=int, default=3)
     args = parser.parse_args()
 

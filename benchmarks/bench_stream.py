@@ -45,7 +45,7 @@ from websockets.sync.client import connect
 
 ROOT = Path(__file__).resolve().parent.parent
 REAL = ROOT / "train" / "assets" / "real" / "chessboard-stereo"
-MODEL = ROOT / "models" / "default.onnx"
+MODEL = ROOT / "models" / "chessboard-corners-160x120.onnx"
 MODES = ("whole", "sliding")
 
 

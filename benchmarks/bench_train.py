@@ -5,7 +5,7 @@ Prints ms per training image (forward + backward + optimiser step, batch 64) for
 project's training epoch (`train.network.fit._train_epoch`) on uint8 images in memory: the
 SPEC network at both sizes (eager, compiled, with the batch-norm layers that `planar-pose
 train` adds by default, and that with augmentation), the convnet, and the default's networks
-(`keypoint`, `keypoint-s2` at 160x120, with the options of the first recipe stage that
+(`corners-coarse`, `corners` at 160x120, with the options of the first recipe stage that
 trains each: optimiser, corner loss, augmentation; in float32 and with `bf16`, the autocast
 that the recipes ask for; eager, as the recipes train, and compiled); a plain eager loop over
 the SPEC network on pre-made float tensors (the reference); the ratios, and the thesis's Torch7
@@ -45,10 +45,10 @@ THESIS_MS = {(80, 60): 15.0, (160, 120): 71.0}
 BATCH = 64
 #: The default's recipe, in the order scripts/train_default.sh runs it.
 DEFAULT_RECIPE = (
-    "chessboard-keypoint-160x120-pretrain",
-    "chessboard-keypoint-160x120",
-    "chessboard-keypoint-s2-160x120",
-    "chessboard-keypoint-s2-160x120-real",
+    "chessboard-corners-160x120-stage1",
+    "chessboard-corners-160x120-stage2",
+    "chessboard-corners-160x120-stage3",
+    "chessboard-corners-160x120",
 )
 
 

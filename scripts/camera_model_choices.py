@@ -26,9 +26,10 @@ per variant:
   presence from the network.
 
 Usage (after `scripts/train_default.sh`, which makes the run and the data sets; a shipped
-model's ONNX graph works too, e.g. models/default.onnx, with the data sets of its step 1):
+model's ONNX graph works too, e.g. models/chessboard-corners-160x120.onnx, with the data sets
+of its step 1):
     .venv/bin/python scripts/camera_model_choices.py \
-        runs/default/runs/chessboard-keypoint-s2-160x120-real/best.pt runs/default/data
+        runs/default/runs/chessboard-corners-160x120/best.pt runs/default/data
 """
 
 from __future__ import annotations

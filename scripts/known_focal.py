@@ -6,7 +6,7 @@ without `fx` (the pose estimates the focal length) and once with the photo's cal
 (labels.csv `focal_scale`, x the SPEC camera's; photos without a calibration get none).
 Writes a markdown page (default docs/known_focal.md) with the date and the machine.
 
-    python scripts/known_focal.py models/default.onnx runs/default/data
+    python scripts/known_focal.py models/chessboard-corners-160x120.onnx runs/default/data
 """
 
 from __future__ import annotations

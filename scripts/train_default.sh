@@ -8,17 +8,17 @@
 #      and the SPEC's own camera: profile chessboard-spec), long-lens renders (profile
 #      chessboard-tele: the camera model's check beyond the corpus's cameras), the level-camera
 #      renders of the SPEC-network models, and the real corpus as data sets (split by source);
-#   2. the default model: the keypoint network on renders + real train sources (two stages),
-#      its stride-2 form (keypoint-s2) grown from it, then keypoint-s2 fine-tuned on the real
-#      train sources of the corpus split of 2026-12-02 with the squash crop (keypoint-s2-real),
-#      best epochs on the real val sources; exported with its corners aligned to the image and
-#      the camera model of docs/camera_model.md (the default; that page is written too) and the
-#      zoom pass's inputs and outputs (service/zoom.py; its accuracies are measured with it);
-#      the defaults of 3.4.0 (same network, a graph without the zoom pass), 3.2.0 and 3.1.0
-#      are measured again; WEIGHTS_NOTE, if set, is added to the default's card notes;
-#   3. with CONVNET=1 also the convnet (stage 1 on renders, stage 2 on renders + real train
-#      sources), with SPEC=1 the SPEC-network models A (80x60) and C (160x120); otherwise the
-#      shipped ones are measured again on this run's data sets;
+#   2. the default model, chessboard-corners-160x120: the corner network at stride 4
+#      (corners-coarse) on renders + real train sources (stages 1-2), its stride-2 form
+#      (corners) grown from it (stage 3), then fine-tuned on the real train sources of the
+#      corpus split of 2026-12-02 with the squash crop (stage 4), best epochs on the real val
+#      sources; exported with its corners aligned to the image and the camera model of
+#      docs/camera_model.md (that page is written too) and the zoom pass's inputs and outputs
+#      (service/zoom.py; its accuracies are measured with it); WEIGHTS_NOTE, if set, is added
+#      to its card notes;
+#   3. with SPEC=1 also the SPEC-network models (the thesis's reference) at 80x60 and 160x120;
+#      otherwise the shipped ones are measured again on this run's data sets. Superseded
+#      models (the convnet, earlier defaults) stay reproducible from their recipes;
 #   4. export to models/ (ONNX + card with accuracies measured on the exported graph), the
 #      evaluation grid (docs/results.md), the comparison with the chessboard detector
 #      (docs/comparison.md) and models/README.md.
@@ -83,13 +83,13 @@ done
 [ -f "$D/real-s2-b3/manifest.json" ] || $PP corpus sets "$D"
 
 # 2. The default model.
-train_recipe chessboard-keypoint-160x120-pretrain
-train_recipe chessboard-keypoint-160x120
-train_recipe chessboard-keypoint-s2-160x120
-train_recipe chessboard-keypoint-s2-160x120-real
-NOTES="Made by scripts/train_default.sh from recipes/chessboard-keypoint-s2-160x120-real.toml; \
+train_recipe chessboard-corners-160x120-stage1
+train_recipe chessboard-corners-160x120-stage2
+train_recipe chessboard-corners-160x120-stage3
+train_recipe chessboard-corners-160x120
+NOTES="Made by scripts/train_default.sh from recipes/chessboard-corners-160x120.toml; \
 its corners are aligned to the image (train/network/align.py).${WEIGHTS_NOTE:+ $WEIGHTS_NOTE}"
-export_model chessboard-keypoint-s2-160x120-real default 2 "The default model. $NOTES \
+export_model chessboard-corners-160x120 chessboard-corners-160x120 2 "The default model. $NOTES \
 Since 3.5.0 its graph serves the zoom pass (service/zoom.py), with which its accuracies are measured; \
 since 3.6.0 it also takes the camera's focal length where the caller knows it (input focal; /v1/predict?fx=); \
 since 3.7.0 its corner alignment fits the lens's radial distortion per image (train/network/align.py); \
@@ -100,48 +100,28 @@ frame cuts off lies beyond the frame (train/network/keypoint.py); \
 since 3.10.0 the half turn is also read against the checker blurred as the SPEC's heaviest blur \
 level blurs it, which inverts the pattern of squares under about 5 px (KeypointNet.parity)." \
     $(printf -- "--eval-val %s " "$D"/real-s2-b{0,1,2,3})  # the val sources it was selected on
-remeasure chessboard-keypoint-s2-real-160x120 2 "The default of version 3.4.0: the weights of \
-recipes/chessboard-keypoint-s2-160x120-real.toml in the graph of 3.4.0 (no view input, no \
-pattern output), so answered without the zoom pass, kept to measure it."
-remeasure chessboard-keypoint-s2-align-160x120 2 "The default of version 3.2.0: the network of \
-recipes/chessboard-keypoint-s2-160x120.toml with the corner alignment and the focal length of \
-3.2.0 (within 0.45-0.8 x the SPEC camera's, no prior), kept for comparison."
-remeasure chessboard-keypoint-s2-160x120 2 "The default of version 3.1.0: the network of \
-recipes/chessboard-keypoint-s2-160x120.toml without the corner alignment, kept for comparison."
-
-CONVNET_NOTES="The convnet (the default of version 2), kept for comparison. Recipes: \
-recipes/chessboard-convnet-160x120*.toml (stage 1 stopped after 5 of its 10 epochs)."
-if [ "${CONVNET:-0}" = 1 ]; then
-    train_recipe chessboard-convnet-160x120-pretrain
-    train_recipe chessboard-convnet-160x120
-    export_model chessboard-convnet-160x120 chessboard-convnet-160x120 2 "$CONVNET_NOTES"
-else
-    remeasure chessboard-convnet-160x120 2 "$CONVNET_NOTES"
-fi
 
 if [ "${SPEC:-0}" = 1 ]; then
     make_set "$D/level-noC-s1" noC 1 0 40000 101 chessboard-level
     make_set "$D/level-noC-s2" noC 2 0 12000 102 chessboard-level
-    train_recipe chessboard-noC-80x60 &
-    train_recipe chessboard-noC-160x120 &
+    train_recipe chessboard-spec-80x60-stage1 &
+    train_recipe chessboard-spec-160x120 &
     wait
-    train_recipe chessboard-noC-80x60-stage2
+    train_recipe chessboard-spec-80x60
     for wh in 80x60 160x120; do
         size=$([ "$wh" = 80x60 ] && echo 1 || echo 2)
-        export_model "chessboard-noC-$wh" "chessboard-noC-$wh" "$size" \
+        export_model "chessboard-spec-$wh" "chessboard-spec-$wh" "$size" \
             "SPEC network, level camera. Made by scripts/train_default.sh (recipes/)."
     done
 else  # the shipped SPEC models, measured again on this run's data sets
     for wh in 80x60 160x120; do
-        remeasure "chessboard-noC-$wh" "$([ "$wh" = 80x60 ] && echo 1 || echo 2)" "The SPEC \
-network (thesis), level camera (profile chessboard-level), kept for comparison. Recipes: \
-recipes/chessboard-noC-$wh*.toml; measured again on the corpus and the free renders."
+        remeasure "chessboard-spec-$wh" "$([ "$wh" = 80x60 ] && echo 1 || echo 2)" "The SPEC \
+network (thesis), level camera (profile chessboard-level), the method's reference. Recipes: \
+recipes/chessboard-spec-$wh*.toml; measured again on the corpus and the free renders."
     done
 fi
 
-MODELS=(models/default.onnx
-    models/chessboard-{keypoint-s2-real,keypoint-s2-align,keypoint-s2,convnet}-160x120.onnx
-    models/chessboard-noC-{80x60,160x120}.onnx)
+MODELS=(models/chessboard-corners-160x120.onnx models/chessboard-spec-{80x60,160x120}.onnx)
 $PP evaluate "${MODELS[@]}" \
     "$D"/real-s{1,2}-b{0,1,2,3} "$D"/free-s{1,2}-b{0,1,2,3} "$D"/noC-s{1,2}-b{0,1,2,3} \
     "$D"/spec-s{1,2}-b{0,1,2,3} --same-size --split test --out docs/results --markdown docs/results.md \
@@ -151,6 +131,6 @@ $PP evaluate "${MODELS[@]}" \
 $PP compare $(printf -- "--models %s " "${MODELS[@]}") --peer chessboard --split test --resize \
     $(printf -- "--datasets %s " "$D"/real-s{1,2}-b{0,1,2,3}) --out docs/comparison.md
 $PP catalog models
-.venv/bin/python scripts/camera_model_choices.py "$R/chessboard-keypoint-s2-160x120-real/best.pt" "$D"
-.venv/bin/python scripts/known_focal.py models/default.onnx "$D"
-echo "done: models/default.onnx; results in docs/results.md, docs/comparison.md, models/README.md, docs/camera_model.md, docs/known_focal.md"
+.venv/bin/python scripts/camera_model_choices.py "$R/chessboard-corners-160x120/best.pt" "$D"
+.venv/bin/python scripts/known_focal.py models/chessboard-corners-160x120.onnx "$D"
+echo "done: models/chessboard-corners-160x120.onnx; results in docs/results.md, docs/comparison.md, models/README.md, docs/camera_model.md, docs/known_focal.md"

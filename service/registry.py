@@ -26,6 +26,8 @@ log = logging.getLogger("uvicorn.error.pose")
 
 #: Names usable in a URL path segment.
 NAME_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
+#: A name /v1/models/{name}/... also answers to with the default model (its name until 3.10.0).
+DEFAULT_ALIAS = "default"
 
 Signature = tuple[int, int, int]  # (size, mtime_ns, inode)
 
@@ -140,7 +142,10 @@ class ModelRegistry:
         return {name: served.predictor for name, served in self._served.items()}
 
     def get(self, name: str) -> Predictor:
-        """The predictor of `name`, or UnknownModel listing the known names."""
+        """The predictor of `name` (`DEFAULT_ALIAS`: the default model, unless a model has
+        that name), or UnknownModel listing the known names."""
+        if name == DEFAULT_ALIAS and name not in self._served:
+            name = self.settings.default_model
         served = self._served.get(name)
         if served is None:
             raise UnknownModel(name, self.names)

@@ -16,7 +16,9 @@ from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 from service.core.paths import REPO_ROOT
 
 DEFAULT_MODEL_DIR = REPO_ROOT / "models"
-DEFAULT_MODEL = DEFAULT_MODEL_DIR / "default.onnx"
+#: The shipped model that /v1/predict answers with: object, network, input size.
+DEFAULT_MODEL_NAME = "chessboard-corners-160x120"
+DEFAULT_MODEL = DEFAULT_MODEL_DIR / f"{DEFAULT_MODEL_NAME}.onnx"
 
 
 def _split_list(value: Any) -> Any:
@@ -38,7 +40,9 @@ class Settings(BaseSettings):
         description="Model folder: every <name>.onnx (with its card) is served; default models/.",
     )
     default_model: str = Field(
-        default="default", description="The folder's model that /v1/predict answers with."
+        default=DEFAULT_MODEL_NAME,
+        description="The folder's model that /v1/predict answers with (also as "
+        "/v1/models/default/...).",
     )
     model_path: Path | None = Field(
         default=None,

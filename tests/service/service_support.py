@@ -45,7 +45,7 @@ _DEFAULT_ANSWERS = _answers(DEFAULT_MODEL)
 OTHER_MODELS = [
     p
     for p in sorted(DEFAULT_MODEL_DIR.glob("*.onnx"))
-    if p.stem != "default" and np.abs(_answers(p) - _DEFAULT_ANSWERS).max() > 1e-3
+    if p != DEFAULT_MODEL and np.abs(_answers(p) - _DEFAULT_ANSWERS).max() > 1e-3
 ]
 assert len(OTHER_MODELS) >= 2, "the service tests need two shipped models besides the default"
 #: `app_factory` (conftest): `with app_factory(**settings) as client:` an in-process app.

@@ -20,6 +20,8 @@ import pytest
 from server_process import free_port
 from service_support import JPEG, PHOTO, ROOT, check_answer
 
+from service.settings import DEFAULT_MODEL_NAME
+
 # The build (pip install of the service's wheels) takes minutes on a loaded 2-core machine.
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(1500)]
 TAG = "localhost/planar-pose:test"
@@ -79,7 +81,7 @@ def test_the_container_answers_a_photo(container: tuple[str, str]) -> None:
     assert r.status_code == 200, r.text
     check_answer(r.json(), "sliding", [(640, 480)])
     names = {m["name"] for m in httpx.get(base + "/v1/models").json()["models"]}
-    assert "default" in names and len(names) > 1  # the model folder
+    assert DEFAULT_MODEL_NAME in names and len(names) > 1  # the model folder
     assert httpx.get(base + "/v2/health/ready").json() == {"ready": True}
 
 

@@ -23,6 +23,8 @@ import pytest
 from server_process import free_port, live_server
 from service_support import PHOTO, ROOT, check_answer
 
+from service.settings import DEFAULT_MODEL_NAME
+
 DOCKERFILE = ROOT / "Dockerfile"
 
 
@@ -185,7 +187,7 @@ def test_image_install_and_command_outside_docker(tmp_path: Path) -> None:
         )
         assert r.status_code == 200, r.text
         check_answer(r.json(), "sliding", [(640, 480)])
-        assert httpx.get(base + "/v1/model").json()["name"] == "default"
+        assert httpx.get(base + "/v1/model").json()["name"] == DEFAULT_MODEL_NAME
     no_train = subprocess.run(
         [str(venv_python), "-c", "import train"], env=env, cwd=cwd, capture_output=True, text=True
     )

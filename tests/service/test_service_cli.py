@@ -13,7 +13,7 @@ from pydantic import ValidationError
 from typer.testing import CliRunner
 
 from service.cli import serve_app as app
-from service.settings import DEFAULT_MODEL, Settings
+from service.settings import DEFAULT_MODEL, DEFAULT_MODEL_NAME, Settings
 
 
 def test_defaults_serve_the_shipped_model(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -111,11 +111,14 @@ def test_worker_settings_and_model_files(monkeypatch: pytest.MonkeyPatch, tmp_pa
     monkeypatch.setenv("POSE_MODEL_DIR", str(tmp_path))
     settings = Settings()
     assert settings.process_count == 3 and settings.resolved_model_dir == tmp_path
-    assert settings.resolved_model_path == tmp_path / "default.onnx"
+    assert settings.resolved_model_path == tmp_path / f"{DEFAULT_MODEL_NAME}.onnx"
     (tmp_path / "a.onnx").write_bytes(b"")
     (tmp_path / "b.json").write_text("{}")
     assert ModelRegistry(settings).files() == {"a": tmp_path / "a.onnx"}
     only = Settings(model_path=tmp_path / "x.onnx", model_dir=None)
-    assert ModelRegistry(only).files() == {"default": tmp_path / "x.onnx"}
+    assert ModelRegistry(only).files() == {DEFAULT_MODEL_NAME: tmp_path / "x.onnx"}
     both = Settings(model_path=tmp_path / "x.onnx")  # POSE_MODEL_DIR still set
-    assert ModelRegistry(both).files() == {"a": tmp_path / "a.onnx", "default": tmp_path / "x.onnx"}
+    assert ModelRegistry(both).files() == {
+        "a": tmp_path / "a.onnx",
+        DEFAULT_MODEL_NAME: tmp_path / "x.onnx",
+    }

@@ -67,7 +67,7 @@ def test_whole_mode_gives_the_corners_in_image_pixels(client: TestClient) -> Non
     assert np.abs(np.array(result["corners"]) - corners).max() < 6.0  # 1.5 px at 160x120
     sliding = client.post("/v1/predict", params={"mode": "sliding"}, content=data, headers=png)
     assert sliding.json()["results"][0]["corners"] is None  # whole mode only
-    spec = client.post("/v1/models/chessboard-noC-160x120/predict", content=data, headers=png)
+    spec = client.post("/v1/models/chessboard-spec-160x120/predict", content=data, headers=png)
     assert spec.status_code == 200 and spec.json()["results"][0]["corners"] is None
 
 
@@ -128,9 +128,9 @@ def test_the_photos_exif_focal_length_is_used_where_the_request_gives_none(
             "fx: applies to mode=whole only, not mode=sliding",
         ),
         (
-            "/v1/models/chessboard-noC-160x120/predict",
+            "/v1/models/chessboard-spec-160x120/predict",
             {"fx": "500"},
-            "fx: model chessboard-noC-160x120 does not take a focal length",
+            "fx: model chessboard-spec-160x120 does not take a focal length",
         ),
     ],
 )

@@ -40,7 +40,7 @@ def test_card_from_sidecar_when_metadata_missing(tmp_path: Path) -> None:
     with pytest.raises(ModelLoadError, match="no model_card"):
         PoseModel.load(path)
     path.with_suffix(".json").write_text(DEFAULT_MODEL.with_suffix(".json").read_text())
-    assert PoseModel.load(path).name == "default"
+    assert PoseModel.load(path).name == DEFAULT_MODEL.stem
 
 
 def test_card_and_graph_must_agree(tmp_path: Path) -> None:
@@ -113,7 +113,7 @@ def test_a_corners_output_of_the_wrong_shape_is_refused(tmp_path: Path) -> None:
 
 
 def test_models_without_corners_answer_none() -> None:
-    model = PoseModel.load(DEFAULT_MODEL.with_name("chessboard-noC-160x120.onnx"))
+    model = PoseModel.load(DEFAULT_MODEL.with_name("chessboard-spec-160x120.onnx"))
     assert model.corners_name is None
     answer = model.run(np.zeros((1, 3, 120, 160), np.float32))
     assert answer.probabilities.shape == (1, 9) and answer.corners is None

@@ -15,9 +15,10 @@ import pytest
 from fastapi.testclient import TestClient
 from service_support import CARD, JPEG, OTHER_MODELS, PHOTO, AppFactory, card_of, check_answer
 
-from service.settings import DEFAULT_MODEL
+from service.settings import DEFAULT_MODEL, DEFAULT_MODEL_NAME
 
-SMALL = DEFAULT_MODEL  # served as "default"
+DEFAULT = DEFAULT_MODEL_NAME
+SMALL = DEFAULT_MODEL  # served as DEFAULT
 LARGE = OTHER_MODELS[0]  # served as "board-large" (whatever its size)
 REPLACEMENT = OTHER_MODELS[1]
 KEY = {"x-api-key": "reload-key"}
@@ -33,7 +34,7 @@ def put(folder: Path, name: str, source: Path) -> None:
 
 @pytest.fixture()
 def folder(tmp_path: Path) -> Path:
-    put(tmp_path, "default", SMALL)
+    put(tmp_path, DEFAULT, SMALL)
     put(tmp_path, "board-large", LARGE)
     return tmp_path
 
@@ -51,12 +52,12 @@ def predict(c: TestClient, path: str = "/v1/predict") -> dict:
 
 
 def test_two_models_chosen_per_request(served: TestClient) -> None:
-    small = predict(served, "/v1/models/default/predict")
+    small = predict(served, "/v1/models/default/predict")  # the alias of the default model
     large = predict(served, "/v1/models/board-large/predict")
-    check_answer(small, "whole", [(640, 480)], model="default")
+    check_answer(small, "whole", [(640, 480)], model=DEFAULT)
     check_answer(large, "whole", [(640, 480)], model=card_of(LARGE)["name"])
     default = predict(served)  # /v1/predict answers with the default model
-    assert default["model"] == "default"
+    assert default["model"] == DEFAULT
     assert default["results"][0]["probabilities"] == small["results"][0]["probabilities"]
     p_small, p_large = (np.array(a["results"][0]["probabilities"]) for a in (small, large))
     assert np.abs(p_small - p_large).max() > 1e-3  # really two networks
@@ -68,13 +69,13 @@ def test_two_models_chosen_per_request(served: TestClient) -> None:
 
 def test_the_list_of_models(served: TestClient) -> None:
     body = served.get("/v1/models", headers=KEY).json()
-    assert body["default"] == "default" and body["problems"] == {}
+    assert body["default"] == DEFAULT and body["problems"] == {}
     by_name = {m["name"]: m for m in body["models"]}
-    assert set(by_name) == {"default", "board-large"}
+    assert set(by_name) == {DEFAULT, "board-large"}
     assert by_name["board-large"]["input"] == card_of(LARGE)["input"]
-    assert not by_name["board-large"]["default"] and by_name["default"]["default"]
-    assert by_name["default"]["profile"] == CARD["profile"]["name"]
-    assert by_name["default"]["accuracy"] == CARD["accuracy"]
+    assert not by_name["board-large"]["default"] and by_name[DEFAULT]["default"]
+    assert by_name[DEFAULT]["profile"] == CARD["profile"]["name"]
+    assert by_name[DEFAULT]["accuracy"] == CARD["accuracy"]
     assert served.get("/v1/models").status_code == 401
 
 
@@ -82,7 +83,7 @@ def test_unknown_model_is_404_with_the_known_names(served: TestClient) -> None:
     r = served.post("/v1/models/nope/predict", content=PHOTO, headers={**JPEG, **KEY})
     assert r.status_code == 404 and r.json()["error"]["code"] == "model_not_found"
     assert "'nope'" in r.json()["error"]["message"]
-    assert "served: board-large, default" in r.json()["error"]["message"]
+    assert f"served: board-large, {DEFAULT}" in r.json()["error"]["message"]
 
 
 def test_reload_needs_the_key(served: TestClient) -> None:
@@ -94,12 +95,12 @@ def test_reload_adds_replaces_refuses_and_removes(served: TestClient, folder: Pa
     first = predict(served)["results"][0]["probabilities"]
     held = served.app.state.pose.predictor  # type: ignore[attr-defined]  # as a request holds it
     put(folder, "extra", SMALL)
-    put(folder, "default", REPLACEMENT)
+    put(folder, DEFAULT, REPLACEMENT)
     (folder / "broken.onnx").write_bytes(b"not onnx")
     (folder / "board-large.onnx").unlink()
     report = served.post("/v1/models/reload", headers=KEY).json()
-    assert report["models"] == ["default", "extra"]
-    assert sorted(report["loaded"]) == ["default", "extra"]
+    assert report["models"] == [DEFAULT, "extra"]
+    assert sorted(report["loaded"]) == [DEFAULT, "extra"]
     assert report["removed"] == ["board-large"]
     assert "not a loadable ONNX model" in report["problems"]["broken"]
     assert predict(served)["model"] == card_of(REPLACEMENT)["name"]
@@ -126,9 +127,9 @@ def test_folder_without_a_default_is_not_ready(app_factory: AppFactory, tmp_path
                 break
             time.sleep(0.01)
         assert r.status_code == 503
-        assert "no default.onnx in" in r.json()["error"]["message"]
+        assert f"no {DEFAULT}.onnx in" in r.json()["error"]["message"]
         assert "served: only-this" in r.json()["error"]["message"]
-        assert predict(c, "/v1/models/only-this/predict")["model"] == "default"  # its card name
+        assert predict(c, "/v1/models/only-this/predict")["model"] == DEFAULT  # its card name
         assert c.post("/v1/predict", content=PHOTO, headers=JPEG).status_code == 503
 
 

@@ -15,7 +15,7 @@ import psutil
 import pytest
 from server_process import live_server
 from service_support import JPEG, PHOTO, SERVE, AppFactory, card_of
-from test_service_models import LARGE, REPLACEMENT, SMALL, put
+from test_service_models import DEFAULT, LARGE, REPLACEMENT, SMALL, put
 
 NEW_NAME = card_of(REPLACEMENT)["name"]
 
@@ -23,7 +23,7 @@ NEW_NAME = card_of(REPLACEMENT)["name"]
 @pytest.fixture(scope="module")
 def folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
     path = tmp_path_factory.mktemp("models")
-    put(path, "default", SMALL)
+    put(path, DEFAULT, SMALL)
     put(path, "board-large", LARGE)
     return path
 
@@ -81,9 +81,9 @@ def test_model_replaced_during_a_load_test_fails_no_request(workers: str, folder
         t.start()
     try:
         time.sleep(1.0)
-        put(folder, "default", REPLACEMENT)
+        put(folder, DEFAULT, REPLACEMENT)
         report = httpx.post(workers + "/v1/models/reload", timeout=60).json()
-        assert report["loaded"] == ["default"], report
+        assert report["loaded"] == [DEFAULT], report
         time.sleep(1.5)  # the other worker follows within its sync interval
         answers_at_swap = sum(answers.values())
         time.sleep(1.0)
@@ -92,7 +92,7 @@ def test_model_replaced_during_a_load_test_fails_no_request(workers: str, folder
         for t in threads:
             t.join()
     assert errors == [], errors[:5]
-    assert answers["default"] > 0 and answers[NEW_NAME] > 0, answers
+    assert answers[DEFAULT] > 0 and answers[NEW_NAME] > 0, answers
     assert sum(answers.values()) > answers_at_swap
     # every worker now answers with the new model
     seen = set()
@@ -100,7 +100,7 @@ def test_model_replaced_during_a_load_test_fails_no_request(workers: str, folder
         with httpx.Client(base_url=workers, timeout=60) as c:
             seen.add(c.post("/v1/predict", content=PHOTO, headers=JPEG).json()["model"])
     assert seen == {NEW_NAME}
-    put(folder, "default", SMALL)  # leave the folder as the module found it
+    put(folder, DEFAULT, SMALL)  # leave the folder as the module found it
 
 
 def test_ready_only_when_every_worker_has_its_models(

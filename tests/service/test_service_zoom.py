@@ -151,7 +151,7 @@ def test_no_board_looks_at_all_tiles_and_stays_absent(model: PoseModel) -> None:
 
 
 def test_a_model_without_the_view_input_answers_the_whole_frame() -> None:
-    old = PoseModel.load(DEFAULT_MODEL.with_name("chessboard-noC-160x120.onnx"))
+    old = PoseModel.load(DEFAULT_MODEL.with_name("chessboard-spec-160x120.onnx"))
     assert not old.zooms
     batch = np.full((2, 3, 120, 160), 0.3, np.float32)
     spy = Spy(old)

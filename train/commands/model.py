@@ -189,7 +189,7 @@ def export(
     """Export a checkpoint to ONNX (probabilities, dynamic batch) with its model card.
 
     Given an .onnx model instead, measure it again on --eval and rewrite its card's accuracy
-    (with --regraph, its graph too).
+    (with --regraph, its graph too); without --eval, write it under the new --name only.
     """
     import re
 
@@ -207,8 +207,8 @@ def export(
         if not (path / "labels.csv").is_file():
             raise fail(f"not a data set (no labels.csv): {path}")
     if checkpoint.suffix == ".onnx":
-        if not eval_data:
-            raise fail("measuring an .onnx model again needs --eval data set(s)", code=2)
+        if regraph and not eval_data:
+            raise fail("a regraphed model is measured again: give --eval data set(s)", code=2)
         new_version = version if regraph else None
         path, card = guard(
             lambda: recard(
@@ -222,6 +222,8 @@ def export(
             )
         )
     out.print(f"[green]wrote[/] {path} ({path.stat().st_size / 1e6:.2f} MB) and {name}.json")
+    if "renamed_from" in card and not eval_data:
+        out.print(f"  renamed from {card['renamed_from']!r}; accuracies as measured before")
     for ds, acc in [*card["accuracy"].items(), *card.get("accuracy_val", {}).items()]:
         out.print(f"  {ds} ({acc['split']}, {acc['count']} images): {100 * acc['accuracy']:.2f} %")
 

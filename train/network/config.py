@@ -20,7 +20,16 @@ from pydantic import TypeAdapter, ValidationError
 
 Optimizer = Literal["sgd", "adam"]
 Schedule = Literal["cosine", "step", "constant"]
-Arch = Literal["spec", "convnet", "keypoint", "keypoint-s2"]
+Arch = Literal["spec", "convnet", "corners-coarse", "corners"]
+#: The corner networks (`train.network.keypoint`): heat maps at stride 4 (coarse) or 2.
+CORNER_ARCHS = ("corners-coarse", "corners")
+#: Names the corner networks had before 2026-12-05, still read in recipes and checkpoints.
+LEGACY_ARCHS = {"keypoint": "corners-coarse", "keypoint-s2": "corners"}
+
+
+def canonical_arch(name: str) -> str:
+    """The architecture's current name (`LEGACY_ARCHS`), or `name` itself."""
+    return LEGACY_ARCHS.get(name, name)
 
 
 def _opt(default: Any, help: str, **bounds: Any) -> Any:
@@ -40,9 +49,9 @@ class FitConfig:
     batch_size: int = _opt(32, "Images per batch.", min=1)
     arch: Arch = _opt(
         "spec",
-        "Network: spec (SPEC section 8), convnet (train.network.convnet), keypoint "
-        "(train.network.keypoint) or keypoint-s2 (its heat maps at stride 2; with `init` a "
-        "keypoint checkpoint, it starts from that network's weights).",
+        "Network: spec (SPEC section 8), convnet (train.network.convnet), corners-coarse "
+        "(train.network.keypoint, corner heat maps at stride 4) or corners (heat maps at "
+        "stride 2; with `init` a corners-coarse checkpoint, it starts from its weights).",
     )
     optimizer: Optimizer = _opt("sgd", "sgd (with momentum) or adam.")
     lr: float = _opt(0.001, "Learning rate.", min=0.0)
@@ -126,6 +135,8 @@ def load_config(recipe: Path | None, overrides: dict[str, Any]) -> FitConfig:
     """FitConfig from defaults < `recipe` file < `overrides` (None values are not given)."""
     values = read_recipe(recipe) if recipe is not None else {}
     values |= {k: v for k, v in overrides.items() if v is not None and v != []}
+    if isinstance(values.get("arch"), str):
+        values["arch"] = canonical_arch(values["arch"])
     for key in ("datasets", "out"):
         if not values.get(key):
             where = f" (not in {recipe} either)" if recipe else ""

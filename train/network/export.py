@@ -37,16 +37,17 @@ from service.core.onnx_contract import (
 )
 from service.core.paths import REPO_ROOT
 from service.core.regions import NUM_CLASSES, Z_SPLIT_CM, class_descriptions, region_of_class
+from train.network.config import CORNER_ARCHS, canonical_arch
 
 OPSET = 17
 #: What the card says of each architecture (train.network.model.build_network).
 ARCHITECTURES = {
     "spec": "spec: the SPEC section 8 network (tanh, L2 pooling), batch norm folded away",
     "convnet": "convnet: train/network/convnet.py (ReLU, batch norm, max pooling, 3x4 head)",
-    "keypoint": "keypoint: train/network/keypoint.py (U-Net corner heat maps, corners aligned "
-    "to the checker pattern, class from the corners' pose with a prior camera and the squares' "
-    "colour parity)",
-    "keypoint-s2": "keypoint-s2: train/network/keypoint.py with corner heat maps at 80x60 "
+    "corners-coarse": "corners-coarse: train/network/keypoint.py (U-Net corner heat maps, "
+    "corners aligned to the checker pattern, class from the corners' pose with a prior camera "
+    "and the squares' colour parity)",
+    "corners": "corners: train/network/keypoint.py with corner heat maps at 80x60 "
     "(stride 2), corners aligned to the checker pattern (train/network/align.py)",
 }
 
@@ -167,7 +168,8 @@ def build_card(
     profile = profile_card(checkpoint.get("profile", {}))
     z_split = float(profile.get("z_split_cm", Z_SPLIT_CM))
     descriptions = class_descriptions(z_split)
-    keypoint = checkpoint.get("arch", "spec").startswith("keypoint")
+    arch = canonical_arch(checkpoint.get("arch", "spec"))
+    keypoint = arch in CORNER_ARCHS
     training: dict[str, Any] = {
         "data": _data_summary(checkpoint.get("data", [])),
         "seed": checkpoint["config"].get("seed"),
@@ -200,7 +202,7 @@ def build_card(
         "name": name,
         "version": version,
         "date": datetime.now(UTC).isoformat(timespec="seconds"),
-        "architecture": ARCHITECTURES[checkpoint.get("arch", "spec")],
+        "architecture": ARCHITECTURES[arch],
         "input": list(checkpoint["size"]),
         **_io_card(keypoint),
         "classes": [
@@ -323,7 +325,9 @@ def recard(
     `val_datasets`, `export`) and write it with its card's accuracies replaced (training
     provenance unchanged; val figures it is not measured on again are dropped) as
     out_dir/<name>.onnx + .json. With a `version`, a keypoint graph is first exported again
-    from its weights in this version's form (`regraph`) and its card says so."""
+    from its weights in this version's form (`regraph`) and its card says so. Without
+    `eval_datasets` (and no `version`) the model is only renamed: graph, accuracies and
+    dates unchanged, `renamed_from` in the card."""
     import onnx
 
     model = onnx.load(str(onnx_path))
@@ -335,13 +339,18 @@ def recard(
     if version is not None:
         raw = regraph(onnx_path)
         card |= {"version": version, "regraphed_from": card.get("version")} | _io_card(True)
-    card |= {"name": name}
-    predict = _graph_predictor(raw, card)
-    card["accuracy"] = accuracy_on(predict, eval_datasets, split)
-    card.pop("accuracy_val", None)
-    if val_datasets:
-        card["accuracy_val"] = accuracy_on(predict, val_datasets, "val")
-    card["date_measured"] = datetime.now(UTC).isoformat(timespec="seconds")
+    if eval_datasets:
+        card |= {"name": name}
+        predict = _graph_predictor(raw, card)
+        card["accuracy"] = accuracy_on(predict, eval_datasets, split)
+        card.pop("accuracy_val", None)
+        if val_datasets:
+            card["accuracy_val"] = accuracy_on(predict, val_datasets, "val")
+        card["date_measured"] = datetime.now(UTC).isoformat(timespec="seconds")
+    elif version is not None:
+        raise ValueError("a regraphed model must be measured again: give eval data sets")
+    elif card.get("name") != name:
+        card |= {"name": name, "renamed_from": card.get("name")}
     if notes is not None:
         card["notes"] = notes
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -29,7 +29,7 @@ import torch
 import torch.nn.functional as F
 from tqdm import tqdm
 
-from train.network.config import FitConfig
+from train.network.config import FitConfig, canonical_arch
 from train.network.model import (
     NormalisedNet,
     arch_of,
@@ -220,7 +220,7 @@ def load_network(path: Path) -> tuple[NormalisedNet, dict[str, Any]]:
         raise TrainingError(f"{path} is not a readable PyTorch checkpoint: {exc}") from exc
     if not isinstance(checkpoint, dict) or checkpoint.get("format") != CHECKPOINT_FORMAT:
         raise TrainingError(f"{path} is not a planar-pose training checkpoint")
-    arch = str(checkpoint.get("arch", "spec"))
+    arch = canonical_arch(str(checkpoint.get("arch", "spec")))
     net = build_network(arch, tuple(checkpoint["size"]), bool(checkpoint.get("batch_norm")))
     net.load_state_dict(checkpoint["model"])
     return net, checkpoint
@@ -375,7 +375,7 @@ def _initial_network(
         if from_onnx:  # after the size check: the images must fit the network
             sample = np.random.default_rng(config.seed).permutation(len(train.labels))[:1024]
             recalibrate_batch_norm(net, to_input(train.images[np.sort(sample)]))
-        if config.arch == "keypoint-s2" and arch_of(net) == "keypoint":
+        if config.arch == "corners" and arch_of(net) == "corners-coarse":
             return _grown(net, build_network(config.arch, size, profile=profile)), parent
         return net, parent
     try:

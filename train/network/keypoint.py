@@ -89,7 +89,7 @@ BARREL_LIMIT = -0.45
 PARITY_BLUR = KERNELS[2][3]
 _ANCHOR = (PARITY_BLUR[0] - 1) // 2  # cv2's filter anchor: the tap on the output pixel
 PARITY_PAD = (2 * _ANCHOR, 2 * (PARITY_BLUR[0] - 1 - _ANCHOR) + 1)  # taps before / after it, 2x
-STRIDES = (4, 2)  # input pixels per heat-map pixel: 40x30 maps, or 80x60 ("keypoint-s2")
+STRIDES = (4, 2)  # input pixels per heat-map pixel: 40x30 maps, or 80x60 ("corners")
 SQUARES = (10, 7)  # squares of the board along its width (x) and height (y)
 # |corr(image, checker)| at the aligned corners above which the board is taken as present
 # whatever the presence logit says: real photos without a board stay under 0.16 (the

@@ -24,7 +24,7 @@ from torch import nn
 from service.core.inputs import SIZES
 from service.core.regions import NUM_CLASSES
 from train.network.base import NormalisedNet
-from train.network.config import Arch
+from train.network.config import CORNER_ARCHS, Arch, canonical_arch
 from train.network.convnet import ConvNet
 from train.network.keypoint import SQUARES, KeypointNet
 
@@ -153,7 +153,7 @@ def fold_batch_norm(net: PoseNet) -> PoseNet:
 
 
 #: Architectures: "spec" (`PoseNet`, SPEC section 8), "convnet" (`train.network.convnet`),
-#: "keypoint" and "keypoint-s2" (`train.network.keypoint`, heat maps at stride 4 / 2).
+#: "corners-coarse" and "corners" (`train.network.keypoint`, heat maps at stride 4 / 2).
 ARCHS: tuple[str, ...] = get_args(Arch)
 
 
@@ -167,8 +167,9 @@ def build_network(
         return PoseNet(size, batch_norm=batch_norm)
     if arch == "convnet":
         return ConvNet(size)
-    if arch in ("keypoint", "keypoint-s2"):
-        stride = 2 if arch == "keypoint-s2" else 4
+    arch = canonical_arch(arch)
+    if arch in CORNER_ARCHS:
+        stride = 2 if arch == "corners" else 4
         if not profile:
             return KeypointNet(size, stride=stride)
         w_cm, h_cm = float(profile["width_cm"]), float(profile["height_cm"])
@@ -190,7 +191,7 @@ def arch_of(net: NormalisedNet) -> str:
         return "spec"
     if isinstance(net, ConvNet):
         return "convnet"
-    return "keypoint-s2" if getattr(net, "stride", 4) == 2 else "keypoint"
+    return "corners" if getattr(net, "stride", 4) == 2 else "corners-coarse"
 
 
 def export_form(net: NormalisedNet) -> NormalisedNet:

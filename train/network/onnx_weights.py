@@ -1,5 +1,6 @@
 """A shipped keypoint network read back from its ONNX graph, to fine-tune it when its
-training checkpoint is not at hand (`planar-pose train --init models/default.onnx`).
+training checkpoint is not at hand
+(`planar-pose train --init models/chessboard-corners-160x120.onnx`).
 
 The export folds each batch norm into the convolution before it (W' = W g / sqrt(v + eps),
 b' = beta - m g / sqrt(v + eps)) and names the convolution after its torch module
@@ -66,7 +67,7 @@ def keypoint_from_onnx(path: Path) -> tuple[NormalisedNet, dict[str, Any]]:
     inits, convs, card = _graph(path)
     if "heat" not in convs or "input" not in card:
         raise OnnxWeightsError(f"{path} is not a planar-pose keypoint network")
-    arch = "keypoint-s2" if "up0.0" in convs else "keypoint"
+    arch = "corners" if "up0.0" in convs else "corners-coarse"
     size = (int(card["input"][0]), int(card["input"][1]))
     net = build_network(arch, size, profile=card.get("profile"))
     state = net.state_dict()

@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from live_service import API_KEY, MAX_IMAGES, OTHER_MODEL, REAL
+from live_service import API_KEY, DEFAULT_NAME, MAX_IMAGES, OTHER_MODEL, REAL
 from planar_pose_client import PoseClient
 from planar_pose_client.cli import ExitCode, app
 from typer.testing import CliRunner
@@ -157,9 +157,9 @@ def test_installed_script_exits_cleanly(photos, tmp_path):
 def test_models_command_and_the_model_option(folder_url, photos):
     listing = invoke("models", "--url", folder_url)
     assert listing.exit_code == 0, listing.output
-    assert "default" in listing.stdout and OTHER_MODEL in listing.stdout
+    assert DEFAULT_NAME in listing.stdout and OTHER_MODEL in listing.stdout
     as_json = json.loads(invoke("models", "--json", "--url", folder_url).stdout)
-    assert as_json["default"] == "default"
+    assert as_json["default"] == DEFAULT_NAME
     large = OTHER_MODEL
     result = invoke("predict", str(photos[0]), "--model", large, "--json", "--url", folder_url)
     assert result.exit_code == 0, result.output

@@ -12,7 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from live_service import API_KEY, OTHER_MODEL
+from live_service import API_KEY, DEFAULT_NAME, OTHER_MODEL
 from planar_pose_client import (
     AsyncPoseClient,
     AuthError,
@@ -226,7 +226,7 @@ def test_models_and_choosing_one_per_request(folder_url, photos):
     with PoseClient(folder_url, retries=0) as client:
         listing = client.models()
         names = {m.name for m in listing.models}
-        assert listing.default == "default" and {"default", OTHER_MODEL} <= names
+        assert listing.default == DEFAULT_NAME and {DEFAULT_NAME, OTHER_MODEL} <= names
         large = next(m for m in listing.models if m.name == OTHER_MODEL)
         assert len(large.input) == 2 and large.profile == "chessboard" and not large.default
         default = client.predict(photos[0])

@@ -10,8 +10,9 @@ import pytest
 from typer.testing import CliRunner
 
 from service.core.dataset import load_dataset
-from service.core.paths import ASSETS_DIR, REPO_ROOT
+from service.core.paths import ASSETS_DIR
 from service.model import PoseModel
+from service.settings import DEFAULT_MODEL
 from train.cli import app
 from train.compare.detection import detection_variants
 from train.compare.run import camera_focal
@@ -22,7 +23,8 @@ from train.real.calibration import Calibration
 from train.real.realset import build_real_dataset
 
 SOURCE = ASSETS_DIR / "real" / "chessboard-stereo"
-MODEL = REPO_ROOT / "models" / "default.onnx"
+MODEL = DEFAULT_MODEL
+NAME = MODEL.stem  # the model's name in the comparison: its card's
 runner = CliRunner()
 
 
@@ -54,10 +56,10 @@ def test_report_tables_hold_the_measured_numbers(report, real_sets):
     text = report.read_text()
     metrics = json.loads((report.with_suffix("") / "metrics.json").read_text())["results"]
     assert set(metrics) == {
-        "default", "default + fx", "baseline-sift", "opencv-chessboard", "opencv-chessboard@stored"
+        NAME, f"{NAME} + fx", "baseline-sift", "opencv-chessboard", "opencv-chessboard@stored"
     }  # fmt: skip
     for ds in real_sets:
-        for name in ("default", "baseline-sift", "opencv-chessboard"):
+        for name in (NAME, "baseline-sift", "opencv-chessboard"):
             cell = metrics[name][f"chessboard/{ds.name}"]
             assert {"accuracy", "per_class_accuracy", "confusion", "ms_per_image"} <= set(cell)
             assert f"{100 * cell['accuracy']:.1f}" in text
@@ -70,9 +72,9 @@ def test_report_tables_hold_the_measured_numbers(report, real_sets):
         assert f"]({report.stem}/plots/{png})" in text
     # the per-cell details go to the output folder's `details`, named but not linked
     details = report.with_suffix("") / "details"
-    cell = f"## default on chessboard/{real_sets[0].name}"
+    cell = f"## {NAME} on chessboard/{real_sets[0].name}"
     assert cell in (details / "details.md").read_text() and cell not in text
-    assert (details / "plots" / f"default__chessboard_{real_sets[0].name}.png").is_file()
+    assert (details / "plots" / f"{NAME}__chessboard_{real_sets[0].name}.png").is_file()
     assert f"`{(details / 'details.md').as_posix()}`" in text
 
 
@@ -94,7 +96,7 @@ def test_report_has_the_chessboard_peer_rows(report, real_sets):
     (stored,) = metrics["opencv-chessboard@stored"].values()
     assert stored["count"] == 6 and stored["accuracy"] == 1.0  # the photos as stored
     assert "stored photos, no blur (chessboard-stereo photos" in section
-    assert f"At {w}x{h}, real (chessboard-stereo): the network (`default`) is ahead at" in section
+    assert f"At {w}x{h}, real (chessboard-stereo): the network (`{NAME}`) is ahead at" in section
     assert "detector / CNN time" in section and "The detector took" in section
 
 
@@ -111,13 +113,13 @@ def test_given_fx_is_the_model_given_the_detectors_focal_length(report, real_set
         focal = camera_focal(data, model.input_size[0])
         assert np.allclose(focal, np.array(fx) * model.input_size[0] / data.size[0])
         direct = evaluate_predictor(predict, data, focal=focal)
-        assert metrics["default + fx"][f"chessboard/{ds.name}"]["confusion"] == direct["confusion"]
+        assert metrics[f"{NAME} + fx"][f"chessboard/{ds.name}"]["confusion"] == direct["confusion"]
     images, aspect = data.images, data.pixel_aspect()
     assert not np.allclose(predict(images, aspect), predict(images, aspect, focal=focal * 3))
     text = report.read_text()
-    assert "* `default + fx`: `default` given each image's focal length fx" in text
+    assert f"* `{NAME} + fx`: `{NAME}` given each image's focal length fx" in text
     assert "Given the detector's focal length, at " in text
-    assert "the network (`default + fx`) is ahead at" in text
+    assert f"the network (`{NAME} + fx`) is ahead at" in text
 
 
 def test_report_breaks_the_real_photos_down_by_the_cameras_margin(report):
@@ -125,7 +127,7 @@ def test_report_breaks_the_real_photos_down_by_the_cameras_margin(report):
     metrics = json.loads((report.with_suffix("") / "metrics.json").read_text())["results"]
     section = text.split("## Real photographs by the camera's distance")[1].split("\n## ")[0]
     assert "| 0-2 cm % (n) | 2-5 cm % (n) | 5-10 cm % (n) | >= 10 cm % (n) |" in section
-    for name in ("default", "opencv-chessboard"):
+    for name in (NAME, "opencv-chessboard"):
         bands = next(iter(metrics[name].values()))["by_margin"]
         assert sum(b["count"] for b in bands) == 6  # every test photo shows the board
         cells = " | ".join(f"{pct_cell(b['accuracy'])} ({b['count']})" for b in bands)
@@ -134,7 +136,7 @@ def test_report_breaks_the_real_photos_down_by_the_cameras_margin(report):
 
 def test_detection_variants_are_reported(report):
     detections = json.loads((report.with_suffix("") / "detection_metrics.json").read_text())
-    subsets = detections["default"]
+    subsets = detections[NAME]
     counts = {"chessboard-stereo photos, all": 26, "chessboard-stereo photos, test split": 6}
     assert set(subsets) == set(counts)
     for name, per_variant in subsets.items():
@@ -159,7 +161,7 @@ def test_no_given_fx_leaves_the_variant_out(real_sets, tmp_path):
     result = runner.invoke(app, [*args, "--peer", "chessboard", "--no-given-fx"])
     assert result.exit_code == 0, result.output
     metrics = json.loads((tmp_path / "c" / "metrics.json").read_text())["results"]
-    assert "default" in metrics and "default + fx" not in metrics
+    assert NAME in metrics and f"{NAME} + fx" not in metrics
 
 
 def test_cli_errors(real_sets, tmp_path):
@@ -194,8 +196,8 @@ def test_resize_runs_a_model_on_the_data_sets_of_another_size(tmp_path):
         assert result.exit_code == 0, result.output
         results[flag] = json.loads((md.with_suffix("") / "metrics.json").read_text())["results"]
         texts[flag] = md.read_text()
-    resized = results["--resize"]["default"]["chessboard/real-s1-b0"]
+    resized = results["--resize"][NAME]["chessboard/real-s1-b0"]
     assert resized["count"] == 6 and resized["confusion"] == direct["confusion"]
-    assert results["--no-resize"]["default"] == {}  # no set of its size
+    assert results["--no-resize"][NAME] == {}  # no set of its size
     assert "of its input size and its object only" in texts["--no-resize"]
     assert "resized to its input" in texts["--resize"]

@@ -169,7 +169,7 @@ def test_a_keypoint_graph_is_regraphed_with_the_zoom_inputs(tmp_path):
     from train.network.onnx_weights import keypoint_from_onnx
     from train.real.realset import build_real_dataset
 
-    old = REPO_ROOT / "models" / "chessboard-keypoint-s2-real-160x120.onnx"
+    old = REPO_ROOT / "tests" / "fixtures" / "corners-3.4.0-no-offsets.onnx"
     real = tmp_path / "real-s2-b0"
     build_real_dataset(REAL, real, size=2, blur=0, profile="chessboard", seed=0)
     path, card = recard(old, "re", tmp_path, [real], split="all", version="9.9.9")
@@ -200,8 +200,8 @@ def test_a_keypoint_graph_is_regraphed_with_the_zoom_inputs(tmp_path):
     args = ["export", "--name", "x", "--out-dir", str(tmp_path / "cli"), "--regraph"]
     result = runner.invoke(app, [*args, str(tmp_path / "best.pt"), "--eval", str(real)])
     assert result.exit_code == 2 and "--regraph takes a keypoint .onnx model" in result.output
-    convnet = REPO_ROOT / "models" / "chessboard-convnet-160x120.onnx"
-    result = runner.invoke(app, [*args, str(convnet), "--eval", str(real)])
+    spec = REPO_ROOT / "models" / "chessboard-spec-160x120.onnx"
+    result = runner.invoke(app, [*args, str(spec), "--eval", str(real)])
     assert result.exit_code == 1 and "not a planar-pose keypoint network" in result.output
     result = runner.invoke(app, [*args, str(old), "--eval-val", str(tmp_path / "none")])
     assert result.exit_code == 1 and "not a data set (no labels.csv)" in result.output

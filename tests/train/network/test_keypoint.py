@@ -278,8 +278,8 @@ def test_the_exported_graph_decodes_like_torch(stride):
 
 def test_training_mode_outputs_and_build():
     profile = {"width_cm": 25, "height_cm": 17.5, "z_split_cm": 60, "focal_scale": [0.45, 0.8]}
-    net = build_network("keypoint", (160, 120), profile=profile)
-    assert arch_of(net) == "keypoint"
+    net = build_network("corners-coarse", (160, 120), profile=profile)
+    assert arch_of(net) == "corners-coarse"
     net.train()
     logp, corners = net(torch.rand(2, 3, 120, 160))
     assert logp.shape == (2, 9) and corners.shape == (2, 8)
@@ -292,14 +292,16 @@ def test_training_mode_outputs_and_build():
     with pytest.raises(ValueError, match="unsupported heat-map stride 3"):
         KeypointNet(stride=3)
     with pytest.raises(ValueError, match="10 x 7-square checkerboard; profile 'poster'"):
-        build_network("keypoint", (160, 120), profile=profile | {"name": "poster", "height_cm": 20})
+        build_network(
+            "corners-coarse", (160, 120), profile=profile | {"name": "poster", "height_cm": 20}
+        )
 
 
 def test_stride_2_heat_maps_and_growing_from_a_stride_4_network():
     torch.manual_seed(0)
     parent = KeypointNet()
-    net = build_network("keypoint-s2", (160, 120))
-    assert arch_of(net) == "keypoint-s2" and arch_of(parent) == "keypoint"
+    net = build_network("corners", (160, 120))
+    assert arch_of(net) == "corners" and arch_of(parent) == "corners-coarse"
     x = torch.rand(2, 3, 120, 160)
     assert net._encode(x)[0].shape == (2, 4, 60, 80)
     grown = _grown(parent, net)
@@ -314,19 +316,19 @@ def test_fit_grows_a_stride_2_network_from_a_keypoint_checkpoint(tmp_path):
     data = tmp_path / "tiny160"
     make_dataset(data, DatasetSpec("noC", 2, 0, 27, 4, PROFILE))
     base = {"epochs": 1, "batch_size": 8, "progress": False, "threads": 1, "optimizer": "adam"}
-    fit(FitConfig(datasets=[data], out=tmp_path / "kp", arch="keypoint", **base))
+    fit(FitConfig(datasets=[data], out=tmp_path / "kp", arch="corners-coarse", **base))
     init = tmp_path / "kp" / "best.pt"
-    fit(FitConfig(datasets=[data], out=tmp_path / "s2", arch="keypoint-s2", init=init, **base))
+    fit(FitConfig(datasets=[data], out=tmp_path / "s2", arch="corners", init=init, **base))
     parent, _ = load_network(init)
     grown, checkpoint = load_network(tmp_path / "s2" / "last.pt")
-    assert arch_of(grown) == "keypoint-s2" and checkpoint["arch"] == "keypoint-s2"
+    assert arch_of(grown) == "corners" and checkpoint["arch"] == "corners"
     assert checkpoint["parent"]["checkpoint"] == str(init)
     assert grown.heat.weight.shape == (4, 16, 1, 1)
 
 
 def test_a_bfloat16_training_step_keeps_the_corners_and_the_geometry_in_float32():
     torch.manual_seed(0)
-    net = build_network("keypoint-s2", (160, 120)).train()
+    net = build_network("corners", (160, 120)).train()
     x = torch.rand(4, 3, 120, 160)
     log_p, corners = net(x)
     with torch.autocast("cpu", dtype=torch.bfloat16):

@@ -13,15 +13,16 @@ from torch import nn
 
 from service.core.paths import REPO_ROOT
 from service.core.profile import load_profile
+from service.settings import DEFAULT_MODEL
 from train.network.fit import FitConfig, TrainingError, fit, load_network
 from train.network.onnx_weights import OnnxWeightsError, keypoint_from_onnx, recalibrate_batch_norm
 from train.synth.generate import DatasetSpec, make_dataset
 
-DEFAULT = REPO_ROOT / "models" / "default.onnx"
+DEFAULT = DEFAULT_MODEL
 
 
 # a shipped graph of 3.4.0, before the corners' offsets (`KeypointNet.offset`)
-WITHOUT_OFFSETS = REPO_ROOT / "models" / "chessboard-keypoint-s2-real-160x120.onnx"
+WITHOUT_OFFSETS = REPO_ROOT / "tests" / "fixtures" / "corners-3.4.0-no-offsets.onnx"
 
 
 def _graph_probabilities(x: torch.Tensor, path: Path = DEFAULT) -> np.ndarray:
@@ -74,7 +75,7 @@ def test_fine_tuning_from_the_graph_at_learning_rate_0_keeps_its_answers(tmp_pat
 
 def test_what_is_not_a_keypoint_graph_is_refused(tmp_path):
     with pytest.raises(OnnxWeightsError, match="not a planar-pose keypoint network"):
-        keypoint_from_onnx(REPO_ROOT / "models" / "chessboard-noC-80x60.onnx")
+        keypoint_from_onnx(REPO_ROOT / "models" / "chessboard-spec-80x60.onnx")
     junk = tmp_path / "junk.onnx"
     junk.write_bytes(b"not a model")
     with pytest.raises(OnnxWeightsError, match="not a readable ONNX model"):
