@@ -4,6 +4,8 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 [ -x .venv/bin/python ] || python3 -m venv .venv
+# setuptools' note on every editable install (folders named like the package), not actionable
+QUIET_EDITABLE='ignore:Editable installation'
 .venv/bin/python -m pip install -q --upgrade pip
-.venv/bin/python -m pip install -q -e .
+PYTHONWARNINGS=$QUIET_EDITABLE .venv/bin/python -m pip install -q -e .
 exec .venv/bin/planar-pose-serve "$@"

@@ -5,6 +5,8 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 export PIP_NO_CACHE_DIR=1  # torch brings ~5 GB of CUDA libraries: no second copy in pip's cache
 [ -x .venv/bin/python ] || python3 -m venv .venv
+# setuptools' note on every editable install (folders named like the package), not actionable
+QUIET_EDITABLE='ignore:Editable installation'
 .venv/bin/python -m pip install -q --upgrade pip
-.venv/bin/python -m pip install -q -e ".[train,dev]" -e clients/python
+PYTHONWARNINGS=$QUIET_EDITABLE .venv/bin/python -m pip install -q -e ".[train,dev]" -e clients/python
 exec .venv/bin/python -m pytest "$@"

@@ -54,7 +54,7 @@ def test_input_sizes() -> None:
     assert focal_scale(spec_fx(640), 640) == pytest.approx(1.0)
 
 
-@pytest.mark.parametrize("sx, sy, far", itertools.product((1, -1), (1, -1), (False, True)))
+@pytest.mark.parametrize("sx, sy, far", list(itertools.product((1, -1), (1, -1), (False, True))))
 def test_region_rule_agrees_with_its_words(sx: int, sy: int, far: bool) -> None:
     z_split = 60.0
     centre = np.array([sx * 3.0, sy * 4.0, z_split + (5.0 if far else -5.0)])
