@@ -46,10 +46,11 @@ import torch
 
 from service.core.dataset import LoadedDataset, load_dataset, read_splits
 from service.core.geometry import intrinsics
+from service.core.inputs import SIZES
 from service.core.paths import REPO_ROOT
 from service.core.preprocess import NetworkFrame, to_network_input
 from service.core.profile import load_profile
-from service.core.regions import pose_class
+from service.core.regions import Z_SPLIT_CM, pose_class
 from train.compare.chessboard_peer import ENLARGE, enlarged_grey
 from train.markdown import table, written_by
 from train.network import keypoint
@@ -380,9 +381,9 @@ def portrait_table(net: KeypointNet) -> list[list[str]]:
                 if abs(rgb.shape[1] * 3 - rgb.shape[0] * 4) > 8 or not row.get("cam_z"):
                     continue
                 photos.append(cv2.rotate(rgb, cv2.ROTATE_90_COUNTERCLOCKWISE))
-                labels.append(pose_class(np.array([float(row[f"cam_{a}"]) for a in "xyz"]), 60.0))
+                labels.append(pose_class([float(row[f"cam_{a}"]) for a in "xyz"], Z_SPLIT_CM))
     y = np.array(labels)
-    size = (160, 120)
+    size = SIZES[2]
     squashed = np.stack([cv2.resize(p, size, interpolation=cv2.INTER_AREA) for p in photos])
     turned = np.stack([to_network_input(p, size) for p in photos])
     frames = [NetworkFrame((p.shape[1], p.shape[0]), size) for p in photos]

@@ -17,7 +17,7 @@ from collections.abc import Iterable
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from service.core.inputs import SPEC_FOCAL_160
+from service.core.inputs import spec_camera
 from service.core.regions import RegionGeometry
 
 FloatArray = NDArray[np.float64]
@@ -26,15 +26,11 @@ FloatArray = NDArray[np.float64]
 def intrinsics(size: tuple[int, int], focal_scale: float = 1.0) -> FloatArray:
     """Intrinsic matrix A (3, 3) for an image of `size` = (W, H) pixels.
 
-    The SPEC values for 160x120 scaled by W / 160 (halved for 80x60); `focal_scale` further
-    multiplies fx and fy (a longer or shorter lens with the same principal point).
+    The SPEC camera at that width (`spec_camera`); `focal_scale` further multiplies fx and fy
+    (a longer or shorter lens with the same principal point).
     """
-    w, _ = size
-    s = w / 160.0
-    fx, fy, u0, v0 = SPEC_FOCAL_160
-    return np.array(
-        [[fx * s * focal_scale, 0.0, u0 * s], [0.0, fy * s * focal_scale, v0 * s], [0, 0, 1.0]]
-    )
+    fx, fy, u0, v0 = spec_camera(size[0])
+    return np.array([[fx * focal_scale, 0.0, u0], [0.0, fy * focal_scale, v0], [0, 0, 1.0]])
 
 
 def look_at(c: ArrayLike, t: ArrayLike, roll_rad: float = 0.0) -> FloatArray:

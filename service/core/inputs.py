@@ -26,9 +26,16 @@ def size_index(size: int | tuple[int, int]) -> int:
     raise ValueError(f"size must be 1 (80x60) or 2 (160x120), got {size!r}")
 
 
+def spec_camera(width_px: float) -> tuple[float, float, float, float]:
+    """The SPEC camera's (fx, fy, u0, v0) in pixels of an image `width_px` wide."""
+    s = width_px / SIZES[2][0]
+    fx, fy, u0, v0 = SPEC_FOCAL_160
+    return fx * s, fy * s, u0 * s, v0 * s
+
+
 def spec_fx(width_px: float) -> float:
     """The SPEC camera's fx (px) in an image `width_px` wide."""
-    return SPEC_FOCAL_160[0] * width_px / 160.0
+    return spec_camera(width_px)[0]
 
 
 def focal_scale(fx_px: float, width_px: float) -> float:

@@ -65,7 +65,7 @@ class ConvNet(NormalisedNet):
 
     corner_order = "either"  # `fit._corner_loss`: the better of the two half-turn orders
 
-    def __init__(self, size: tuple[int, int] = (160, 120), dropout: float = 0.2) -> None:
+    def __init__(self, size: tuple[int, int] = SIZES[2], dropout: float = 0.2) -> None:
         super().__init__()
         size = (int(size[0]), int(size[1]))
         if size not in SIZES.values():

@@ -59,12 +59,13 @@ from torch import nn
 
 from service.core.blur import KERNELS, gaussian_taps
 from service.core.geometry import intrinsics
+from service.core.inputs import SIZES
 from service.core.profile import DEFAULT_PROFILE, load_profile
 from service.core.regions import QUADRANT_SIGNS, Z_SPLIT_CM
 from train.network.align import CheckerAlign, Lens, square_homography
 from train.network.base import NormalisedNet, conv_block
 
-SIZE = (160, 120)
+SIZE = SIZES[2]
 # The focal length (`KeypointNet.focal_length`): Zhang's constraints with a prior. The prior
 # and the bounds are x the SPEC camera's focal length, the weight in the units of the
 # normalised constraints; chosen on the corpus's val and train sources with the SPEC-camera

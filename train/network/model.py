@@ -72,7 +72,7 @@ def check_size(size: tuple[int, int]) -> tuple[int, int]:
 class PoseNet(NormalisedNet):
     """SPEC network for an input `size` (W, H) of 80x60 or 160x120."""
 
-    def __init__(self, size: tuple[int, int] = (80, 60), batch_norm: bool = False) -> None:
+    def __init__(self, size: tuple[int, int] = SIZES[1], batch_norm: bool = False) -> None:
         super().__init__()
         self.size = check_size(size)
         self.batch_norm = batch_norm

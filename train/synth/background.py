@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 
 from service.core.dataset import corpus_sources, read_splits
+from service.core.frame import object_corners
 from service.core.geometry import apply_homography, dlt_homography
 from service.core.paths import ASSETS_DIR
 from service.core.profile import DEFAULT_PROFILE, load_profile
@@ -111,11 +112,9 @@ def board_polygon(
     `corners_px` (4, 2): the inner-grid rectangle corners in `CORNER_ORDER` as
     in train/assets/real/*/labels.csv; `inner_cm` = (width, height) of that grid.
     """
-    w, h = inner_cm[0] / 2, inner_cm[1] / 2
-    inner = np.array([[-w, -h], [w, -h], [w, h], [-w, h]])
-    H = dlt_homography(inner, corners_px)
-    gw, gh = w + grow_cm, h + grow_cm
-    return apply_homography(H, np.array([[-gw, -gh], [gw, -gh], [gw, gh], [-gw, gh]]))
+    w, h = inner_cm
+    H = dlt_homography(object_corners(w, h), corners_px)
+    return apply_homography(H, object_corners(w + 2 * grow_cm, h + 2 * grow_cm))
 
 
 def free_strips(
