@@ -11,6 +11,7 @@ from rich.markup import escape
 
 from service.core.dataset import SPLITS
 from service.core.inputs import SIZES
+from service.core.profile import load_profile
 
 err = Console(stderr=True)
 out = Console()
@@ -39,8 +40,6 @@ def guard(body: Callable[[], Any], code: int = 1) -> Any:
 
 def profile_or_exit(name_or_path: str) -> Any:
     """The object profile, or exit 1 with the loader's message (unknown profile, bad files)."""
-    from service.core.profile import load_profile
-
     return guard(lambda: load_profile(name_or_path))
 
 

@@ -29,6 +29,8 @@ from train.compare.baseline import (
 from train.compare.baseline import tune as tune_baseline
 from train.compare.chessboard_peer import ChessboardPeer, evaluate_peer
 from train.compare.sets import StoredPhotos, load_part, profile_of
+from train.real.label import chessboard_pattern
+from train.real.realset import read_rgb
 
 PEER_CHOICES = (*FEATURE_CHOICES, "chessboard")
 
@@ -57,8 +59,6 @@ def make_chessboard_peer(
     folder: Path, profile: str | None, enlarge: float
 ) -> ChessboardPeer | None:
     """The chessboard peer for a data set's profile, or None when the profile is no chessboard."""
-    from train.real.label import chessboard_pattern
-
     prof = profile_of(folder, profile)
     pattern = chessboard_pattern(prof)
     if pattern is None:
@@ -124,8 +124,6 @@ def run_reference(
 ) -> tuple[dict, dict[str, Any]] | None:
     """The chessboard peer on the stored photographs of `data`'s images, as stored (no
     enlargement, no blur), with their own intrinsics; None when the profile is no chessboard."""
-    from train.real.realset import read_rgb
-
     peer = make_chessboard_peer(data.path, profile, enlarge=1)
     if peer is None:
         return None

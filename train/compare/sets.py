@@ -18,7 +18,10 @@ import numpy as np
 
 from service.core.dataset import LoadedDataset, load_dataset
 from service.core.paths import REPO_ROOT
+from service.core.profile import load_profile
+from service.core.regions import pose_class
 from train.real.calibration import Calibration, Camera, default_camera
+from train.real.realset import moment_of, split_moments
 
 #: Where a corpus data set's stored photos live, below the corpus folder: <kind>/<source>/.
 CORPUS_KINDS = ("boards", "negatives")
@@ -60,8 +63,6 @@ def describe(folder: Path, images: np.ndarray) -> dict[str, Any]:
 
 def profile_of(folder: Path, override: str | None) -> Any:
     """The object profile of a data set (its manifest's, or `override`, a name or folder)."""
-    from service.core.profile import load_profile
-
     if override:
         return load_profile(override)
     entry = manifest_of(folder).get("profile")
@@ -101,9 +102,6 @@ def photo_set(folder: Path, z_split: float) -> tuple[list[bytes], np.ndarray, li
     The split is the one `planar-pose realset` gives with its default seed (0): by stereo
     moment, so it matches the real data sets built from the same folder.
     """
-    from service.core.regions import pose_class
-    from train.real.realset import moment_of, split_moments
-
     with (folder / "labels.csv").open(newline="") as fh:
         rows = list(csv.DictReader(fh))
     data, labels = [], []

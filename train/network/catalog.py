@@ -11,19 +11,21 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+from service.settings import DEFAULT_MODEL_NAME
 from train.markdown import machine, pct, table
+from train.network.config import canonical_arch
 from train.network.report import framing_line, margin_line, source_table
 
-INTRO = """# Shipped models
+INTRO = f"""# Shipped models
 
 Every `<name>.onnx` here has its model card beside it (`<name>.json`, also inside the ONNX
 metadata as `model_card`): object profile, input size, classes, training data and recipe, and
-the accuracies measured on the exported graph. `default.onnx` is what the service answers
-with unless asked for another model. Input: `image` float32 [N, 3, H, W], RGB in [0, 1]
-(portraits turned a quarter clockwise first) and, for the keypoint networks of 3.4.0 on,
-`pixel_aspect` float32 [N] (default 1; 4/3 for a 16:9 photo resized to the input); output:
-`probabilities` float32 [N, 9] and, for the keypoint networks, `corners` float32 [N, 4, 2]
-(the object's corners in input pixels, order (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y)).
+the accuracies measured on the exported graph. `{DEFAULT_MODEL_NAME}.onnx` is what the service
+answers with unless asked for another model. The graphs' inputs and outputs are
+`service/core/onnx_contract.py`'s: `image` float32 [N, 3, H, W], RGB in [0, 1] (portraits
+turned a quarter clockwise first) -> `probabilities` float32 [N, 9]; the corner networks also
+take `pixel_aspect`, `view` and `focal` (each with a default) and give `corners` [N, 4, 2]
+(input pixels, order (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y)) and `pattern` [N].
 
 Accuracy columns are test splits: real = the corpus's test sources (cameras never used for
 training or model selection), free / noC = renders of corpus-like cameras, spec = renders of
@@ -45,22 +47,24 @@ def _cell(card: dict[str, Any], key: str) -> str:
     return pct(entry["accuracy"]) if entry else ""
 
 
-def _row(card: dict[str, Any]) -> list[Any]:
+def _row(card: dict[str, Any], repo: Path) -> list[Any]:
+    """The table row of a card: name, network (its current name, `canonical_arch`), input,
+    profile, recipe (linked where `repo`, the models folder's parent, still has it) and the
+    `COLUMNS` accuracies."""
     w, h = card["input"]
     s = 1 if (w, h) == (80, 60) else 2
     recipe = card.get("training", {}).get("recipe") or ""
+    linked = (repo / recipe).is_file()
     return [
         f"`{card['name']}`",
-        card.get("architecture", "spec").split(":")[0],
+        canonical_arch(card.get("architecture", "spec").split(":")[0]),
         f"{w}x{h}",
         card.get("profile", {}).get("name", ""),
-        f"[{Path(recipe).name}](../{recipe})" if recipe else "",
+        f"[{Path(recipe).name}](../{recipe})"
+        if recipe and linked
+        else f"`{recipe}`" * bool(recipe),
         *(_cell(card, f"{d}-s{s}-b{b}") for d, b in COLUMNS),
     ]
-
-
-#: The card whose per-source figures the page shows (the service's default model).
-DEFAULT = "default"
 
 
 def source_sections(card: dict[str, Any]) -> list[str]:
@@ -87,8 +91,9 @@ def source_sections(card: dict[str, Any]) -> list[str]:
 def write_catalog(models_dir: Path) -> Path:
     """Write models_dir/README.md from the cards there; return its path.
 
-    Per-source tables (`source_sections`) only for the `DEFAULT` model, or for every model
-    when the folder has none; each model's notes as its card gives them.
+    Per-source tables (`source_sections`) only for the service's default model
+    (`service.settings.DEFAULT_MODEL_NAME`), or for every model when the folder has none;
+    each model's notes as its card gives them.
     """
     cards = []
     for path in sorted(models_dir.glob("*.json")):
@@ -97,9 +102,10 @@ def write_catalog(models_dir: Path) -> Path:
             cards.append(card)
     if not cards:
         raise ValueError(f"no model card (*.json) in {models_dir}")
-    detailed = [c["name"] for c in cards if c["name"] == DEFAULT] or [c["name"] for c in cards]
+    names = [c["name"] for c in cards]
+    detailed = [DEFAULT_MODEL_NAME] if DEFAULT_MODEL_NAME in names else names
     header = ["model", "network", "input", "profile", "recipe", *(f"{d} b{b}" for d, b in COLUMNS)]
-    lines = [INTRO, *table(header, [_row(c) for c in cards]), ""]
+    lines = [INTRO, *table(header, [_row(c, models_dir.parent) for c in cards]), ""]
     for card in cards:
         version = f" ({card['version']})" if card.get("version") else ""
         lines += [f"## `{card['name']}`{version}", "", card.get("notes", ""), ""]

@@ -23,6 +23,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+from service.core.dataset import load_dataset
 from service.core.onnx_contract import (
     CARD_KEY,
     CORNERS,
@@ -36,6 +37,7 @@ from service.core.onnx_contract import (
     io_description,
 )
 from service.core.paths import REPO_ROOT
+from service.core.profile import load_profile
 from service.core.regions import NUM_CLASSES, Z_SPLIT_CM, class_descriptions, region_of_class
 from train.network.config import CORNER_ARCHS, canonical_arch
 
@@ -103,8 +105,6 @@ def profile_card(profile: dict[str, Any]) -> dict[str, Any]:
     """
     card = dict(profile)
     try:
-        from service.core.profile import load_profile
-
         full = load_profile(profile["name"])
         card.setdefault("box_min_cm", list(full.geometry.box_min))
         card.setdefault("box_max_cm", list(full.geometry.box_max))
@@ -232,7 +232,6 @@ def accuracy_on(predict: Any, datasets: list[Path], split: str) -> dict[str, dic
     """{data set folder name: {accuracy, class0_accuracy, count, split, by_margin,
     by_framing[, by_source]}} of a predictor (`train.network.evaluate.compute_metrics`; real
     sets: `source_breakdown`)."""
-    from service.core.dataset import load_dataset
     from train.network.evaluate import compute_metrics, predict_all, source_breakdown
 
     out: dict[str, dict[str, Any]] = {}

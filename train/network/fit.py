@@ -29,6 +29,8 @@ import torch
 import torch.nn.functional as F
 from tqdm import tqdm
 
+from service.core.blur import blur_image
+from service.core.dataset import load_dataset
 from train.network.config import FitConfig, canonical_arch
 from train.network.model import (
     NormalisedNet,
@@ -74,8 +76,6 @@ def load_split(paths: list[Path], split: str) -> tuple[Split, list[dict[str, Any
 
     Raises TrainingError for a missing folder, mixed image sizes or an empty split.
     """
-    from service.core.dataset import load_dataset
-
     images, labels, blurs, corners, aspects, infos = [], [], [], [], [], []
     for path in paths:
         if not (path / "labels.csv").is_file():
@@ -175,8 +175,6 @@ class Augmenter:
     ) -> tuple[torch.Tensor, np.ndarray]:
         """Augmented network input float32 [B, 3, H, W] in [0, 1] (channels-last, as
         `to_input`) and the corners [B, 8] px (nan if not given)."""
-        from service.core.blur import blur_image
-
         n = len(images)
         out = images.copy()
         corners = np.full((n, 8), np.nan, np.float32) if corners is None else corners.copy()

@@ -33,7 +33,7 @@ from service.core.geometry import (
     project_points,
     translation,
 )
-from service.core.profile import Profile
+from service.core.profile import Profile, load_profile
 from service.core.regions import pose_class
 from train.synth.background import BackgroundPool
 
@@ -365,8 +365,6 @@ class Renderer:
 
 @cache
 def _plain_renderer(profile_path: str, size: tuple[int, int]) -> Renderer:
-    from service.core.profile import load_profile
-
     profile = load_profile(profile_path)
     grey = np.full((size[1], size[0], 3), 127, np.uint8)
     return Renderer(profile, size, jitter=False, backgrounds=BackgroundPool(size, [grey]))
