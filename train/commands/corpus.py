@@ -1,4 +1,4 @@
-"""CLI of the real-photo corpus: `corpus add | check | sets | report`.
+"""CLI of the real-photo corpus: `corpus add | frames | charuco | check | sets | report`.
 
 No torch here: labelling is OpenCV.
 """
@@ -171,6 +171,48 @@ def run_check(corpus: Path, prof: Any, originals: Path | None = None) -> dict[st
         "fallbacks": dict(fallbacks),
         "disagreements": disagree,
     }
+
+
+@app.command()
+def frames(
+    video: Annotated[Path, typer.Argument(help="A video file.")],
+    out_dir: Annotated[Path, typer.Argument(help="Folder for the frames (PNG).")],
+    every: Annotated[int, typer.Option(min=1, help="Keep every N-th frame.")] = 1,
+) -> None:
+    """Extract a video's frames as lossless PNGs, to stage them as a source (then run the
+    held-out guard on the folder before labelling it)."""
+    from train.real.charuco import extract_frames
+
+    if not video.is_file():
+        raise fail(f"video not found: {video}")
+    written = guard(lambda: extract_frames(video, out_dir, every))
+    out.print(f"[green]wrote[/] {len(written)} frames to {out_dir}")
+
+
+@app.command()
+def charuco(
+    staged: Annotated[Path, typer.Argument(help="Staged source (images/, LICENSE, source.json).")],
+    dest: Annotated[Path, typer.Argument(help="The labelled source folder to write.")],
+    camera_array: Annotated[
+        Path, typer.Option(help="caliscope camera_array.toml with the camera's calibration.")
+    ],
+    cam: Annotated[int, typer.Option(help="The camera's id in that file.")],
+    profile: Annotated[str, typer.Option(help="Profile with a [charuco] table.")] = "charuco",
+) -> None:
+    """Label the frames of one calibrated camera with the ChArUco detector (train/real/charuco)."""
+    from train.real.charuco import label_video_source, read_camera_array
+
+    prof = profile_or_exit(profile)
+    cameras = guard(lambda: read_camera_array(camera_array))
+    if cam not in cameras:
+        raise fail(f"no camera {cam} in {camera_array} (it has {sorted(cameras)})", code=2)
+    m = guard(lambda: label_video_source(staged, dest, prof, cameras[cam], _progress(staged.name)))
+    check = m["texture_check"]
+    out.print(
+        f"{staged.name}: {m['count']} of {m['photos']} frames labelled, class counts "
+        f"{m['class_counts']}; texture check: {check['found']} posed, "
+        f"{check['class_agrees']} agree on the class"
+    )
 
 
 @app.command()

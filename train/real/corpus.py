@@ -46,6 +46,7 @@ import cv2
 import numpy as np
 
 from service.core.dataset import LABEL_COLUMNS, LABELS_FILE, write_labels, write_manifest
+from service.core.frame import object_corners
 from train.real.calibration import Camera
 from train.real.corners import ChessboardPattern, Correspondences, find_grid, orient_grid, to_grey
 from train.real.label import (
@@ -234,7 +235,7 @@ def contact_sheet(images: list[np.ndarray], path: Path, cols: int = 6, width: in
     cv2.imwrite(str(path), sheet, [cv2.IMWRITE_JPEG_QUALITY, 80])
 
 
-def _prepare(src: Path, out: Path) -> tuple[dict[str, Any], list[Path]]:
+def prepare_source(src: Path, out: Path) -> tuple[dict[str, Any], list[Path]]:
     meta = read_source(src)
     paths = list_images(src / "images")
     if out.exists():
@@ -244,10 +245,13 @@ def _prepare(src: Path, out: Path) -> tuple[dict[str, Any], list[Path]]:
     return meta, paths
 
 
-def _write(out: Path, rows: list[dict[str, Any]], failed: list[str], manifest: dict) -> None:
+def write_source(
+    out: Path, rows: list[dict[str, Any]], failed: list[str], manifest: dict[str, Any]
+) -> dict[str, Any]:
+    """labels.csv, failed.txt and manifest.json of a labelled source; the manifest written."""
     write_labels(out / LABELS_FILE, rows, CORPUS_COLUMNS)
     (out / "failed.txt").write_text("".join(f"{line}\n" for line in failed))
-    write_manifest(out, manifest, rows)
+    return write_manifest(out, manifest, rows)
 
 
 def label_source(
@@ -260,16 +264,13 @@ def label_source(
     pattern = chessboard_pattern(profile)
     if pattern is None:
         raise ValueError(f"profile {profile.name!r} is not a chessboard: label it with corners")
-    meta, paths = _prepare(src, out)
+    meta, paths = prepare_source(src, out)
     failed: list[str] = []
     views = detect_views(progress(paths), pattern, failed)
     by_size: dict[tuple[int, int], list[View]] = {}
     for v in views:
         by_size.setdefault(v.size, []).append(v)
-    corners_xy = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]]) * [
-        profile.width_cm / 2,
-        profile.height_cm / 2,
-    ]
+    corners_xy = object_corners(profile.width_cm, profile.height_cm)
     z_split = float(profile.geometry.z_split_cm)
     rows: list[dict[str, Any]] = []
     overlays, calibrations = [], []
@@ -321,8 +322,7 @@ def label_source(
         "failed": len(failed),
         "failed_by_reason": dict(reasons),
     }
-    _write(out, rows, failed, manifest)
-    return manifest
+    return write_source(out, rows, failed, manifest)
 
 
 def import_negatives(
@@ -333,7 +333,7 @@ def import_negatives(
 ) -> dict[str, Any]:
     """Store the staged class-0 source `src` (photos without the object) into `out`."""
     pattern = chessboard_pattern(profile)
-    meta, paths = _prepare(src, out)
+    meta, paths = prepare_source(src, out)
     failed: list[str] = []
     rows: list[dict[str, Any]] = []
     thumbs = []
@@ -364,5 +364,4 @@ def import_negatives(
         "failed": len(failed),
         "class_counts": [len(rows)] + [0] * 8,
     }
-    _write(out, rows, failed, manifest)
-    return manifest
+    return write_source(out, rows, failed, manifest)
