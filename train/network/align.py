@@ -38,6 +38,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from train.network.pattern import Pattern
+
 
 def square_homography(q: torch.Tensor) -> torch.Tensor:
     """Corners [N, 4, 2] px -> [N, 3, 3] homography of the unit square (0,0), (1,0), (1,1),
@@ -155,12 +157,15 @@ class CheckerAlign(nn.Module):
     """The alignment above for images of `size` (W, H) px and a board of `squares` (along x,
     y), `per_square` points per square and axis; `steps` Gauss-Newton steps (0: corners
     returned unchanged). With a `Lens`, k1 is fitted too (prior sd `radial_sd`, within
-    `k1_range`, at most `max_k1_step` per step)."""
+    `k1_range`, at most `max_k1_step` per step). With a `pattern` that is not the checker
+    (`train.network.pattern`), its cells take the squares' place and the template is its
+    texture blurred by `sigma_sq` cells."""
 
     def __init__(
         self,
         size: tuple[int, int],
         squares: tuple[int, int] = (10, 7),
+        pattern: Pattern | None = None,
         per_square: int = 4,
         inset: float = 0.25,
         sigma_sq: float = 0.2,
@@ -178,13 +183,19 @@ class CheckerAlign(nn.Module):
         self.steps, self.max_step, self.max_move, self.damping = steps, max_step, max_move, damping
         self.radial_sd, self.k1_range, self.max_k1_step = radial_sd, k1_range, max_k1_step
         self.k1_min_corr = k1_min_corr
+        textured = pattern is not None and not pattern.checker
+        if textured:
+            squares = pattern.cells
         axes = []
         for n in squares:
             k = round((n - 2 * inset) * per_square)
             axes.append(inset + (np.arange(k) + 0.5) * (n - 2 * inset) / k)  # squares
         u, v = np.meshgrid(*axes, indexing="xy")
-        template = -_blurred_wave(u.ravel(), sigma_sq) * _blurred_wave(v.ravel(), sigma_sq)
         st = np.stack([u.ravel() / squares[0], v.ravel() / squares[1]], 1)
+        if textured:
+            template = pattern.sample(st, blur_cells=sigma_sq)
+        else:
+            template = -_blurred_wave(u.ravel(), sigma_sq) * _blurred_wave(v.ravel(), sigma_sq)
         self.register_buffer("st", torch.tensor(st, dtype=torch.float32), persistent=False)
         self.register_buffer(
             "template", torch.tensor(template, dtype=torch.float32), persistent=False

@@ -53,6 +53,7 @@ from __future__ import annotations
 import math
 from typing import Any, NamedTuple
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -64,6 +65,7 @@ from service.core.profile import DEFAULT_PROFILE, load_profile
 from service.core.regions import QUADRANT_SIGNS, Z_SPLIT_CM
 from train.network.align import CheckerAlign, Lens, square_homography
 from train.network.base import NormalisedNet, conv_block
+from train.network.pattern import Pattern
 
 SIZE = SIZES[2]
 # The focal length (`KeypointNet.focal_length`): Zhang's constraints with a prior. The prior
@@ -154,6 +156,7 @@ class KeypointNet(NormalisedNet):
         focal_scale: float = FOCAL_PRIOR,
         self_calibrate: bool = True,
         stride: int = 4,
+        pattern: Pattern | None = None,
     ) -> None:
         super().__init__()
         size = (int(size[0]), int(size[1]))
@@ -176,7 +179,10 @@ class KeypointNet(NormalisedNet):
         # stride 2: one more decoder step, on the stem's 80x60 features
         self.up0 = conv_block(32 + 16, 16) if stride == 2 else None
         self.heat = nn.Conv2d(16 if stride == 2 else 32, 4, 1)
-        self.align = CheckerAlign(size, SQUARES)  # no weights: geometry only
+        # the object's texture as the half turn and the alignment read it (default: the checker)
+        self.textured = pattern is not None and not pattern.checker
+        cells = pattern.cells if self.textured else SQUARES
+        self.align = CheckerAlign(size, SQUARES, pattern)  # no weights: geometry only
         self.presence = nn.Sequential(
             nn.Flatten(), nn.Linear(2 * 128, 64), nn.ReLU(), nn.Linear(64, 1)
         )
@@ -211,18 +217,24 @@ class KeypointNet(NormalisedNet):
             "to_unit",
             torch.tensor([[1 / bw, 0, 0.5], [0, 1 / bh, 0.5], [0, 0, 1.0]], dtype=torch.float32),
         )
-        i, j = torch.meshgrid(torch.arange(SQUARES[0]), torch.arange(SQUARES[1]), indexing="xy")
+        i, j = torch.meshgrid(torch.arange(cells[0]), torch.arange(cells[1]), indexing="xy")
         self.register_buffer(
             "square_st",
-            torch.stack([(i + 0.5) / SQUARES[0], (j + 0.5) / SQUARES[1]], -1).reshape(-1, 2),
+            torch.stack([(i + 0.5) / cells[0], (j + 0.5) / cells[1]], -1).reshape(-1, 2),
         )
         third = torch.tensor([-1.0, 0.0, 1.0]) / 3
-        shifts = torch.stack(
-            torch.meshgrid(third / SQUARES[0], third / SQUARES[1], indexing="xy"), -1
-        )
+        shifts = torch.stack(torch.meshgrid(third / cells[0], third / cells[1], indexing="xy"), -1)
         self.register_buffer("parity_shifts", shifts.reshape(-1, 2), persistent=False)
-        # +1 on white squares; the square at corner 0 (-X, -Y) is black
-        self.register_buffer("checker", (((i + j) % 2) * 2 - 1).reshape(-1).float())
+        if self.textured:
+            # the texture at the 9 shifted grids of cell centres, in the order read and half
+            # turned ((s, t) -> (1 - s, 1 - t)): [2, 9, cells]
+            st = (self.square_st[None] + self.parity_shifts[:, None]).reshape(-1, 2).numpy()
+            both = [pattern.sample(st), pattern.sample(1.0 - st)]
+            templates = torch.tensor(np.stack(both), dtype=torch.float32)
+            self.register_buffer("templates", templates.reshape(2, 9, -1), persistent=False)
+        else:
+            # +1 on white squares; the square at corner 0 (-X, -Y) is black
+            self.register_buffer("checker", (((i + j) % 2) * 2 - 1).reshape(-1).float())
         # the blurs of `blurred_checker` along the input's width and height
         self.register_buffer("blur_u", _parity_blur_matrices(size[0]), persistent=False)
         self.register_buffer("blur_v", _parity_blur_matrices(size[1]), persistent=False)
@@ -396,7 +408,10 @@ class KeypointNet(NormalisedNet):
 
     def parity(self, x: torch.Tensor, H_unit: torch.Tensor, blurred: bool = True) -> torch.Tensor:
         """Correlation [N] in [-1, 1] of the grey image at the 70 square centres (through
-        `H_unit`) with the checker pattern: > 0 when the corner order is the true one.
+        `H_unit`) with the checker pattern: > 0 when the corner order is the true one. A
+        textured object (`train.network.pattern`) reads its cells instead: half the
+        difference of the correlations with its template read in order and half turned
+        (for the checker, whose half turn inverts it, exactly the correlation).
 
         The centres are also tried shifted by a third of a square along each axis (9 grids),
         and the grid with the strongest correlation answers: corners a few pixels off put
@@ -413,6 +428,8 @@ class KeypointNet(NormalisedNet):
         grid = ((uv + 0.5) * self.px_to_unit - 1.0).clamp(-2.0, 2.0).reshape(n, 1, -1, 2)
         grey = x.mean(1, keepdim=True)
         samples = F.grid_sample(grey, grid, align_corners=False).reshape(n, 1, -1, k)
+        if self.textured:
+            return self._textured_parity(samples)
         templates = self.checker.expand(n, 1, self.parity_shifts.shape[0], k)  # [N, 1, 9, 70]
         if blurred:
             seen = F.grid_sample(self.blurred_checker(H_unit), grid, align_corners=False)
@@ -423,6 +440,17 @@ class KeypointNet(NormalisedNet):
         corr = ((centred * templates).mean(3) / norm).flatten(1)  # [N, 3 * 9] (or 9)
         best = corr.abs().argmax(1, keepdim=True)
         return torch.gather(corr, 1, best)[:, 0]
+
+    def _textured_parity(self, samples: torch.Tensor) -> torch.Tensor:
+        """Image samples [N, 1, 9, K] at the shifted grids of cell centres -> half the
+        difference [N] of their correlations with the template in order and half turned, of
+        the grid where it is the largest."""
+        centred = samples - samples.mean(3, keepdim=True)
+        norm = centred.pow(2).mean(3).sqrt() + 1e-4  # the templates have unit RMS
+        corr = (centred * self.templates[None]).mean(3) / norm  # [N, 2, 9]
+        diff = 0.5 * (corr[:, 0] - corr[:, 1])  # [N, 9]
+        best = diff.abs().argmax(1, keepdim=True)
+        return torch.gather(diff, 1, best)[:, 0]
 
     def class_probabilities(self, c: torch.Tensor, order_ok: torch.Tensor) -> torch.Tensor:
         """Camera centres [N, 3] cm and P(corner order is the true one) [N] -> P(class 1..8

@@ -26,7 +26,8 @@ from service.core.regions import NUM_CLASSES
 from train.network.base import NormalisedNet
 from train.network.config import CORNER_ARCHS, Arch, canonical_arch
 from train.network.convnet import ConvNet
-from train.network.keypoint import SQUARES, KeypointNet
+from train.network.keypoint import KeypointNet
+from train.network.pattern import pattern_of
 
 #: Supported input sizes (W, H) -> hidden width of the classifier (SPEC section 8 table).
 HIDDEN_UNITS: dict[tuple[int, int], int] = {SIZES[1]: 128, SIZES[2]: 1024}
@@ -162,7 +163,8 @@ def build_network(
 ) -> NormalisedNet:
     """A fresh network of architecture `arch` for input `size` (W, H); `profile` (a data set
     manifest's profile: width_cm, height_cm, z_split_cm) sets the geometry
-    of the keypoint network (default: the chessboard's)."""
+    and the texture (`train.network.pattern`) of the corner network (default: the
+    chessboard's)."""
     if arch == "spec":
         return PoseNet(size, batch_norm=batch_norm)
     if arch == "convnet":
@@ -173,14 +175,12 @@ def build_network(
         if not profile:
             return KeypointNet(size, stride=stride)
         w_cm, h_cm = float(profile["width_cm"]), float(profile["height_cm"])
-        if abs(w_cm / h_cm - SQUARES[0] / SQUARES[1]) > 1e-3:
-            raise ValueError(
-                f"the keypoint network reads a {SQUARES[0]} x {SQUARES[1]}-square checkerboard; "
-                f"profile {profile.get('name', '?')!r} is {w_cm:g} x {h_cm:g} cm "
-                "(use convnet or spec)"
-            )
         return KeypointNet(
-            size, board_cm=(w_cm, h_cm), z_split_cm=float(profile["z_split_cm"]), stride=stride
+            size,
+            board_cm=(w_cm, h_cm),
+            z_split_cm=float(profile["z_split_cm"]),
+            stride=stride,
+            pattern=pattern_of(profile),
         )
     raise ValueError(f"unknown architecture {arch!r}; known: {', '.join(ARCHS)}")
 

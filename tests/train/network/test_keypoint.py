@@ -291,10 +291,8 @@ def test_training_mode_outputs_and_build():
         KeypointNet((80, 60))
     with pytest.raises(ValueError, match="unsupported heat-map stride 3"):
         KeypointNet(stride=3)
-    with pytest.raises(ValueError, match="10 x 7-square checkerboard; profile 'poster'"):
-        build_network(
-            "corners-coarse", (160, 120), profile=profile | {"name": "poster", "height_cm": 20}
-        )
+    with pytest.raises(ValueError, match="cannot read the profile's texture"):
+        build_network("corners", (160, 120), profile=profile | {"texture": "none.png"})
 
 
 def test_stride_2_heat_maps_and_growing_from_a_stride_4_network():
@@ -443,3 +441,44 @@ def test_checkpoints_without_the_offsets_load_with_zero_offsets():
     nn.init.ones_(older.offset.weight)
     older.load_state_dict(state)  # as the checkpoints before 3.9.0
     assert not older.offset.weight.any() and not older.offset.bias.any()
+
+
+def _texture_view(texture: np.ndarray, q: np.ndarray) -> torch.Tensor:
+    """The texture warped onto the corners q [4, 2] (CORNER_ORDER) of a 160x120 image."""
+    h, w = texture.shape[:2]
+    src = np.array([[0, h], [w, h], [w, 0], [0, 0]], np.float32) - 0.5
+    M = cv2.getPerspectiveTransform(src, q.astype(np.float32))
+    img = cv2.warpPerspective(texture, M, (160, 120), flags=cv2.INTER_AREA, borderValue=(0,) * 3)
+    return torch.from_numpy(img).permute(2, 0, 1)[None].float() / 255
+
+
+def test_a_textured_object_reads_its_half_turn_from_its_texture() -> None:
+    """Any texture (`train.network.pattern`): the corners in the object's order correlate
+    with it, the half-turned order anti-correlates; the chessboard stays the checker."""
+    charuco = load_profile("charuco")
+    net = build_network("corners", (160, 120), profile=charuco.manifest_entry()).eval()
+    assert net.textured and net.templates.shape == (2, 9, 80)
+    chess = build_network(
+        "corners", (160, 120), profile=load_profile("chessboard").manifest_entry()
+    )
+    assert not chess.textured and chess.checker.shape == (70,)
+    q = np.array([[50, 105], [112, 100], [108, 15], [55, 20]], np.float32)
+    x = _texture_view(charuco.texture_rgb(), q)
+    Q = torch.from_numpy(q)[None]
+    assert float(net.parity(x, square_homography(Q))) > 0.5
+    assert float(net.parity(x, square_homography(torch.roll(Q, 2, 1)))) < -0.5
+    with torch.no_grad():
+        logp, corners, _ = net.answer(x)
+    assert logp.shape == (1, 9) and corners.shape == (1, 4, 2)
+
+
+def test_a_textured_network_exports_and_answers_like_torch() -> None:
+    charuco = load_profile("charuco")
+    net = build_network("corners", (160, 120), profile=charuco.manifest_entry()).eval()
+    q = np.array([[50, 105], [112, 100], [108, 15], [55, 20]], np.float32)
+    x = _texture_view(charuco.texture_rgb(), q)  # a clear view: no near-tie between grids
+    session = ort.InferenceSession(onnx_bytes(net), providers=["CPUExecutionProvider"])
+    got = session.run(["probabilities"], {"image": x.numpy()})[0]
+    with torch.no_grad():
+        want = net.logits(x).exp().numpy()
+    assert np.abs(got - want).max() < 1e-3
