@@ -438,7 +438,7 @@ def main() -> None:
         + " The constants are in `train/network/keypoint.py` (`FOCAL_PRIOR`, "
         f"`RADIAL_PRIOR` = {keypoint.RADIAL_PRIOR:g}: the prior of the k1 the corner "
         "alignment fits per image, `train/network/align.py`) and `service/preprocess.py` "
-        "(`NetworkFrame`); docs/training.md says why. The rows with a fixed k1 pose every "
+        "(`NetworkFrame`); docs/decisions.md says why. The rows with a fixed k1 pose every "
         "image with it (the corners aligned as the code does).",
         "",
         "## Class accuracy (%) at blur 0 / 1 / 2 / 3",
@@ -460,7 +460,7 @@ def main() -> None:
         f"The code's: {keypoint.FOCAL_PRIOR:g} x SPEC, weight {DEFAULT_PRIOR_WEIGHT:g}.",
         "",
         "The renders of the SPEC's own camera (`chessboard-spec`, focal length 1 x) want a "
-        "longer prior than the real cameras: docs/training.md says what was chosen and why.",
+        "longer prior than the real cameras: docs/decisions.md says what was chosen and why.",
         "",
         *table(["focal prior", *SPLIT_HEADER], focal_prior_table(net, cache)),
         "",

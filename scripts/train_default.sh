@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Reproduce the shipped models of the `chessboard` profile from the recipe files in recipes/
-# (recipes/README.md says what each model is). Every step is seeded; data sets and finished
+# (recipes/README.md says what each recipe trains). Every step is seeded; data sets and finished
 # runs under runs/default are reused, so an interrupted run continues where it stopped
 # (`planar-pose train --resume` continues a run from its last epoch).
 #
@@ -27,7 +27,7 @@
 # bfloat16 units (avx512_bf16 or amx_bf16 in /proc/cpuinfo; BF16=1 / BF16=0 force it on /
 # off): the default's four stages in 1.7 h of steps on this 2-core machine instead of 2.5 h
 # (docs/benchmarks.md), the 2-hour budget; its val accuracy ties float32's
-# (recipes/README.md). The shipped models were trained in float32 (BF16=0).
+# (docs/decisions.md). The shipped models were trained in float32 (BF16=0).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PP=${PP:-.venv/bin/planar-pose}

@@ -144,7 +144,7 @@ def source_breakdown(
     class `accuracy`, the `region_breakdown` shares `detected`, `side` and `distance`, and
     `focal_scale`, the median fx / width of its calibrated photos over the SPEC camera's
     (None without a calibration): the depth of a frontal board follows from it, which one
-    photo cannot tell (docs/training.md). {} for a set without sources."""
+    photo cannot tell (docs/decisions.md). {} for a set without sources."""
     sources = np.array([row.get("source", "") for row in rows])
     out: dict[str, dict[str, float | int | None]] = {}
     for name in sorted(set(sources) - {""}):

@@ -1,4 +1,4 @@
-"""Export a training checkpoint to ONNX with its model card (SPEC section 8, DESIGN "flow").
+"""Export a training checkpoint to ONNX with its model card (SPEC section 8; docs/architecture.md).
 
 The graph takes `image` float32 [N, 3, H, W], RGB in [0, 1] (dynamic N; the normalisation is
 inside) and returns `probabilities` float32 [N, 9] (softmax); the keypoint networks also take

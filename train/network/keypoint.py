@@ -71,7 +71,7 @@ SIZE = SIZES[2]
 # The focal length (`KeypointNet.focal_length`): Zhang's constraints with a prior. The prior
 # and the bounds are x the SPEC camera's focal length, the weight in the units of the
 # normalised constraints; chosen on the corpus's val and train sources with the SPEC-camera
-# and long-lens renders as second checks (docs/camera_model.md, docs/training.md).
+# and long-lens renders as second checks (docs/camera_model.md, docs/decisions.md).
 FOCAL_PRIOR, FOCAL_PRIOR_WEIGHT, FOCAL_BOUNDS = 0.8, 0.01, (0.4, 1.2)
 # The prior of the radial distortion k1 the corner alignment fits per image and the corners
 # are undistorted with before the pose (`lens`, `undistorted`), in normalised coordinates of
