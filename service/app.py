@@ -16,6 +16,7 @@ from fastapi import APIRouter, FastAPI
 from fastapi.middleware.cors import CORSMiddleware
 from pydantic import ValidationError
 
+from service.drain import DrainMiddleware, hold_back_sigterm
 from service.errors import install_error_handlers
 from service.limits import BodyLimitMiddleware
 from service.metrics import MetricsMiddleware
@@ -38,6 +39,7 @@ ROUTERS: list[APIRouter] = [
 async def lifespan(app: FastAPI) -> AsyncIterator[None]:
     """Load the model in the background: /healthz answers at once, /readyz once loaded."""
     state: ServiceState = app.state.pose
+    hold_back_sigterm(state.drain, asyncio.get_running_loop())  # POSE_DRAIN_S
     task = asyncio.create_task(asyncio.to_thread(state.load))
     follow = asyncio.create_task(_follow_after(task, state))
     try:
@@ -76,6 +78,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         getattr(r, "path", "") for r in [*app.routes, *(r for x in ROUTERS for r in x.routes)]
     )
     app.add_middleware(BodyLimitMiddleware, max_bytes=settings.max_upload_bytes)
+    app.add_middleware(DrainMiddleware, drain=state.drain)
     if settings.cors_origins:
         app.add_middleware(
             CORSMiddleware,

@@ -122,10 +122,13 @@ def serve(
         return
     runtime = Path(tempfile.mkdtemp(prefix="planar-pose-serve-"))
     try:
+        from service.supervisor import Supervisor
+
         _worker_environment(settings, overrides, runtime)
-        uvicorn.run(
+        config = uvicorn.Config(
             "service.app:create_app", factory=True, workers=settings.process_count, **options
         )
+        Supervisor(config, sockets=[config.bind_socket()]).run()
     finally:
         shutil.rmtree(runtime, ignore_errors=True)
 

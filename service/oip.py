@@ -1,6 +1,7 @@
 """The Open Inference Protocol (KServe v2) codec: infer requests in, infer responses out.
 
-JSON tensors (`data`: flat or nested, row-major) and the binary tensor data extension that
+JSON tensors (`data`: flat or nested, row-major; the JSON nested at most
+`bounded_json.MAX_DEPTH` deep) and the binary tensor data extension that
 tritonclient uses by default (JSON header of `Inference-Header-Content-Length` bytes, then the
 raw tensors; BYTES elements as 4-byte little-endian length + bytes). In JSON, a BYTES element
 is a string: here the base64 of one encoded image.
@@ -10,13 +11,15 @@ from __future__ import annotations
 
 import base64
 import binascii
-import json
 import math
 import struct
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+
+from service import bounded_json
+from service.bounded_json import JSONTooDeepError
 
 #: FP32 tensors in the binary extension: little-endian float32.
 FP32_LE = np.dtype("<f4")
@@ -80,7 +83,7 @@ def _tensor(spec: dict[str, Any], raw: bytes | None, where: str) -> np.ndarray:
             flat = np.frombuffer(raw, dtype=FP32_LE)
         else:
             flat = np.asarray(spec.get("data"), dtype=np.float32).reshape(-1)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise ProtocolError(400, f"{where}: FP32 'data' must be numbers") from None
     if flat.size != math.prod(shape):
         raise ProtocolError(400, f"{where}: {flat.size} values for shape {shape}")
@@ -90,10 +93,18 @@ def _tensor(spec: dict[str, Any], raw: bytes | None, where: str) -> np.ndarray:
 
 def parse_infer_request(body: bytes, header_length: int | None) -> InferRequest:
     """The request's JSON (and binary tensors after `header_length` bytes), checked."""
+    if header_length is not None and header_length > len(body):
+        raise ProtocolError(
+            400,
+            f"Inference-Header-Content-Length {header_length} is more than the body's "
+            f"{len(body)} bytes",
+        )
     head = body if header_length is None else body[:header_length]
     try:
-        doc = json.loads(head)
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        doc = bounded_json.loads(head)
+    except JSONTooDeepError as exc:
+        raise ProtocolError(400, f"request body is nested too deep: {exc}") from None
+    except ValueError as exc:  # json.JSONDecodeError, UnicodeDecodeError
         raise ProtocolError(400, f"request body is not JSON: {exc}") from None
     inputs = doc.get("inputs") if isinstance(doc, dict) else None
     if not isinstance(inputs, list) or len(inputs) != 1 or not isinstance(inputs[0], dict):
@@ -103,7 +114,10 @@ def parse_infer_request(body: bytes, header_length: int | None) -> InferRequest:
     where = f"input {name!r}"
     if not isinstance(name, str) or datatype not in ("FP32", "BYTES"):
         raise ProtocolError(400, f"{where}: needs a 'name' and datatype FP32 or BYTES")
-    size = (spec.get("parameters") or {}).get("binary_data_size")
+    parameters = spec.get("parameters") or {}
+    if not isinstance(parameters, dict):
+        raise ProtocolError(400, f"{where}: 'parameters' must be an object")
+    size = parameters.get("binary_data_size")
     raw = None
     if size is not None:
         binary = body[len(head) :]
@@ -129,7 +143,11 @@ def parse_infer_request(body: bytes, header_length: int | None) -> InferRequest:
 def _requested_outputs(value: Any) -> list[str]:
     if value is None:
         return list(OUTPUTS)
-    names = [o.get("name") for o in value] if isinstance(value, list) else None
+    names = (
+        [o.get("name") if isinstance(o, dict) else None for o in value]
+        if isinstance(value, list)
+        else None
+    )
     if not names or not all(isinstance(o, str) for o in names):
         raise ProtocolError(400, "'outputs' must be a list of {'name': ...}")
     unknown = [n for n in names if n not in OUTPUTS]

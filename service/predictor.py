@@ -7,6 +7,8 @@ mode: all windows of all images). Thread-safe: the session is shared.
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
 import math
 import time
 from collections.abc import Sequence
@@ -17,7 +19,10 @@ import numpy as np
 from service.core.preprocess import (
     DecodedImage,
     ImageDecodeError,
+    ImageTooLargeError,
     NetworkFrame,
+    decoded_pixels,
+    image_header,
     load_image,
     to_network_input,
 )
@@ -38,8 +43,42 @@ from service.sliding import (
 )
 from service.zoom import detail_decode_size, detail_of, zoomed
 
+_LIBC = ctypes.CDLL(ctypes.util.find_library("c") or None)
+
+
+def give_back_memory() -> None:
+    """Hand the free memory of the C heap back to the OS (glibc's `malloc_trim`; nothing
+    where the C library has no such call): decoding a large image leaves it held."""
+    trim = getattr(_LIBC, "malloc_trim", None)
+    if trim is not None:
+        trim(0)
+
+
 #: (filename or None, encoded image bytes)
 ImageInput = tuple[str | None, bytes]
+
+
+#: The range of a camera's focal length `fx` a request may give, in pixels of its images: a
+#: fisheye of 1 px per radian on a tiny image to a long lens on a large sensor (a 600 mm
+#: lens on a 24 mm wide 8000 px sensor is 200,000 px: 1e5 is f = 300 mm there). Outside,
+#: float32 would turn it to 0 (unknown) or inf.
+FX_MIN_PX, FX_MAX_PX = 1.0, 100_000.0
+#: Decoded pixels of a request beyond which the process hands freed memory back to the OS.
+TRIM_ABOVE_PIXELS = 8_000_000
+
+
+class PixelBudgetError(ImageTooLargeError):
+    """The images of one request would decode to more pixels than its budget
+    (`Settings.max_request_pixels`): refused from their headers, before any is decoded."""
+
+
+def too_large_code(exc: ImageTooLargeError) -> str:
+    """The error code of a refusal by size: the request's budget or one image's limit."""
+    return "pixel_budget_exceeded" if isinstance(exc, PixelBudgetError) else "image_too_large"
+
+
+def _name(index: int, image: ImageInput) -> str:
+    return f"image {index + 1}" + (f" ({image[0]})" if image[0] else "")
 
 
 @dataclass(frozen=True)
@@ -84,8 +123,44 @@ class Predictor:
         try:
             return load_image(image[1], max_pixels=self.settings.max_pixels, min_size=min_size)
         except ImageDecodeError as exc:
-            name = f"image {index + 1}" + (f" ({image[0]})" if image[0] else "")
-            raise type(exc)(f"{name}: {exc}") from None
+            raise type(exc)(f"{_name(index, image)}: {exc}") from None
+
+    def min_size(self, mode: Mode) -> tuple[int, int]:
+        """The least size (W, H) `mode` decodes an image at (a large JPEG is decoded reduced
+        down to it): whole mode the zoom pass's detail, else the working copy's."""
+        size = self.model.input_size
+        if mode == "sliding":
+            return working_min_size(size, self.settings.sliding_resolution)
+        if mode == "proposals":
+            return working_min_size(size, self.settings.proposals_resolution)
+        return detail_decode_size(size)
+
+    def check_pixels(self, images: Sequence[ImageInput], mode: Mode) -> int:
+        """The pixels the images of one request decode to in `mode`, read from their headers;
+        ImageDecodeError (naming the image) for a header that is not an image's,
+        ImageTooLargeError for an image above `max_pixels`, PixelBudgetError when all of
+        them are above `max_request_pixels`."""
+        cfg, min_size, total, largest = self.settings, self.min_size(mode), 0, (0, "")
+        for i, image in enumerate(images):
+            try:
+                header = image_header(image[1])
+            except ImageDecodeError as exc:
+                raise ImageDecodeError(f"{_name(i, image)}: {exc}") from None
+            stored = header.width * header.height
+            if stored > cfg.max_pixels:
+                raise ImageTooLargeError(
+                    f"{_name(i, image)}: image is {header.width}x{header.height} = {stored} "
+                    f"pixels, more than the limit of {cfg.max_pixels}"
+                )
+            pixels = decoded_pixels(header, min_size)
+            total += pixels
+            largest = max(largest, (pixels, f"{header.width}x{header.height}"))
+        if total > cfg.max_request_pixels:
+            raise PixelBudgetError(
+                f"{len(images)} image(s), the largest {largest[1]}, decode to {total} pixels, "
+                f"more than the budget of {cfg.max_request_pixels} pixels per request"
+            )
+        return total
 
     def _infer(self, batch: np.ndarray) -> tuple[np.ndarray, float]:
         """Batch [N, 3, H, W] -> probabilities [N, 9], seconds."""
@@ -103,8 +178,8 @@ class Predictor:
         with `mode` and this model, or None when it can (or is not given)."""
         if fx is None:
             return None
-        if not (math.isfinite(fx) and fx > 0):
-            return f"fx: must be a positive number of pixels, got {fx}"
+        if not (math.isfinite(fx) and FX_MIN_PX <= fx <= FX_MAX_PX):
+            return f"fx: must be {FX_MIN_PX:g} to {FX_MAX_PX:g} pixels, got {fx}"
         if mode != "whole":
             return f"fx: applies to mode=whole only, not mode={mode}"
         if not self.model.takes_focal:
@@ -124,11 +199,16 @@ class Predictor:
         problem = self.focal_problem(mode, fx)
         if problem is not None:
             raise ValueError(problem)
-        if mode == "sliding":
-            return self._detect(images, self.boxes, self.settings.sliding_resolution)
-        if mode == "proposals":
-            return self._detect(images, self._proposals, self.settings.proposals_resolution)
-        return self._whole(images, fx)
+        pixels = self.check_pixels(images, mode)
+        try:
+            if mode == "sliding":
+                return self._detect(images, self.boxes, self.settings.sliding_resolution)
+            if mode == "proposals":
+                return self._detect(images, self._proposals, self.settings.proposals_resolution)
+            return self._whole(images, fx)
+        finally:
+            if pixels > TRIM_ABOVE_PIXELS:
+                give_back_memory()
 
     def _whole(self, images: Sequence[ImageInput], fx: float | None) -> Prediction:
         size, inputs, prep, frames, known = self.model.input_size, [], [], [], []
@@ -158,7 +238,10 @@ class Predictor:
         t0 = time.perf_counter()
         batch = np.stack(inputs)
         if zoom:
-            answer = zoomed(self.model, batch, aspect, self.settings.zoom_search, focal, detail)
+            cfg = self.settings
+            answer = zoomed(
+                self.model, batch, aspect, cfg.zoom_search, focal, detail, cfg.zoom_search_tiles
+            )
         else:
             answer = self.model.run(batch, aspect, focal=focal)
         probs, corners, infer_s = answer.probabilities, answer.corners, time.perf_counter() - t0

@@ -4,8 +4,12 @@ each, reloaded without a restart.
 A reload builds a new name -> Predictor mapping and swaps it in one assignment: a request holds
 the Predictor it started with, so requests in flight finish on the old session. Files whose
 size, mtime and inode are unchanged keep their session; a file that fails to load keeps its
-previous session (when it had one) and is reported. Replace a model file atomically (write a
-temporary file in the same folder, then rename it over the old one).
+previous session (when it had one) and is reported. A file that disappears keeps its session
+for `POSE_MODEL_GRACE_S` seconds (reported meanwhile), so that an `rm` then a slow `cp`
+leaves no gap; if no loadable file of that name comes back by then, the model is dropped.
+Replace a model file atomically all the same (write a temporary file in the same folder,
+then rename it over the old one; or swap the symlink of a Kubernetes volume): a `cp` over
+the file is read while half written, refused, and only the next look loads it.
 """
 
 from __future__ import annotations
@@ -13,6 +17,7 @@ from __future__ import annotations
 import logging
 import re
 import threading
+import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -71,6 +76,7 @@ class ModelRegistry:
         self._served: Mapping[str, Served] = MappingProxyType({})
         self._lock = threading.Lock()
         self.problems: dict[str, str] = {}
+        self._gone: dict[str, float] = {}  # name -> time.monotonic() its file was first missed
 
     def files(self) -> dict[str, Path]:
         """The model files to serve, by name (file stem; POSE_MODEL_PATH as the default)."""
@@ -119,6 +125,7 @@ class ModelRegistry:
                     )
                     if name in old:  # keep serving the last good session
                         new[name] = old[name]
+            self._keep_vanished(old, new, problems)
             self._served = MappingProxyType(dict(sorted(new.items())))
             self.problems = problems
         for name, problem in problems.items():
@@ -127,6 +134,34 @@ class ModelRegistry:
         if loaded or removed:
             log.info("models loaded: %s; removed: %s", loaded or "-", removed or "-")
         return ReloadReport(sorted(new), loaded, removed, problems)
+
+    def _keep_vanished(
+        self, old: Mapping[str, Served], new: dict[str, Served], problems: dict[str, str]
+    ) -> None:
+        """Keep serving the models of `old` whose files are gone (not in `new`) until
+        `model_grace_s` has passed since they were first missed, reported in `problems`."""
+        now, grace = time.monotonic(), self.settings.model_grace_s
+        for name in set(self._gone) - set(old):
+            del self._gone[name]
+        for name in new:
+            self._gone.pop(name, None)
+        for name in sorted(set(old) - set(new)):
+            since = self._gone.setdefault(name, now)
+            if now - since < grace:
+                new[name] = old[name]
+                problems[name] = (
+                    f"model file gone: {old[name].predictor.model.path}; the loaded model "
+                    f"answers until a new file arrives or for {grace:g} s "
+                    f"({grace - (now - since):.0f} s left)"
+                )
+            else:
+                del self._gone[name]
+
+    def grace_ends(self) -> float | None:
+        """When (time.monotonic()) the grace of the first vanished model ends, or None."""
+        if not self._gone:
+            return None
+        return min(self._gone.values()) + self.settings.model_grace_s
 
     def _load(self, path: Path) -> Predictor:
         s = self.settings

@@ -52,6 +52,12 @@ class Settings(BaseSettings):
     model_watch_s: float = Field(
         default=0.0, ge=0, description="Poll the model folder every this many s, 0 = only reload."
     )
+    model_grace_s: float = Field(
+        default=60.0,
+        ge=0,
+        description="A served model whose file disappears keeps answering this many s, "
+        "until a loadable file of its name is back (an rm + cp deploy); then it is dropped.",
+    )
     workers: int = Field(
         default=0, ge=0, description="Server processes (planar-pose-serve), 0 = one per CPU."
     )
@@ -68,6 +74,13 @@ class Settings(BaseSettings):
     )
     max_upload_bytes: int = Field(default=20 * 1024 * 1024, gt=0, description="Body limit.")
     max_pixels: int = Field(default=50_000_000, gt=0, description="Per image, from its header.")
+    max_request_pixels: int = Field(
+        default=64_000_000,
+        gt=0,
+        description="Pixels decoded for one request (all its images; one stream frame), "
+        "from the headers before any is decoded (a large JPEG counts at the reduced size "
+        "libjpeg decodes it at); more: 413.",
+    )
     max_images: int = Field(default=16, gt=0, description="Images per request.")
     intra_op_threads: int = Field(default=1, ge=0, description="onnxruntime threads, 0 = auto.")
     inter_op_threads: int = Field(default=1, ge=0)
@@ -82,8 +95,16 @@ class Settings(BaseSettings):
     )
     zoom_search: bool = Field(
         default=True,
-        description="With ZOOM: also search all 9 tiles of an image where no board was found "
-        "(1 + 9 network inputs for each; off: at most 2 per image, a small board's tile).",
+        description="With ZOOM: also search the tiles of an image where no board was found "
+        "(1 + ZOOM_SEARCH_TILES network inputs for each; off: at most 2 per image, a small "
+        "board's tile).",
+    )
+    zoom_search_tiles: int = Field(
+        default=1,
+        ge=1,
+        le=9,
+        description="Tiles searched where no board was found: those centred nearest the "
+        "whole frame's corner guess (9: all; service/zoom.py).",
     )
     exif_focal: bool = Field(
         default=True,
@@ -110,7 +131,19 @@ class Settings(BaseSettings):
         gt=0,
         description="Proposals working copy scale, in network inputs (4: 320x240 for 80x60).",
     )
-    graceful_timeout_s: int = Field(default=20, ge=0, description="Drain time after SIGTERM.")
+    drain_s: float = Field(
+        default=0.0,
+        ge=0,
+        le=3600,
+        description="After SIGTERM: /readyz 503 at once, requests still accepted and answered "
+        "this many s (a load balancer's time to let go), then the listener closes "
+        "(service/drain.py). 0: it closes at once.",
+    )
+    graceful_timeout_s: int = Field(
+        default=20,
+        ge=0,
+        description="Then: time the requests in flight have to finish before they are cut.",
+    )
     log_level: str = "info"
     access_log: bool = True
 

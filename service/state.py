@@ -5,9 +5,11 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import time
 
 import anyio
 
+from service.drain import Drain
 from service.metrics import Metrics
 from service.predictor import Predictor
 from service.registry import ModelRegistry, ReloadReport
@@ -29,6 +31,7 @@ class ServiceState:
         # CPU-bound jobs beyond one per core only thrash caches and lengthen the tail: queue them.
         self.jobs = anyio.CapacityLimiter(settings.inference_jobs)
         self.models = ModelRegistry(settings)
+        self.drain = Drain(settings.drain_s)
         self.loaded = False
         self.runtime = (
             WorkerRuntime(settings.runtime_dir, settings.process_count)
@@ -54,7 +57,11 @@ class ServiceState:
         return f"model not loaded: no {name}.onnx in {folder} (served: {served})"
 
     def not_ready(self) -> str | None:
-        """None when requests can be answered by every worker, else why not."""
+        """None when requests can be answered by every worker, else why not (also while
+        draining before a shutdown: the load balancer should send no more)."""
+        draining = self.drain.problem()
+        if draining is not None:
+            return draining
         if self.predictor is None:
             return self.problem
         if self.runtime is not None:
@@ -80,7 +87,8 @@ class ServiceState:
 
     async def follow(self) -> None:
         """Background task: reload when another worker was asked to, or (POSE_MODEL_WATCH_S)
-        when a model file changed. Runs until cancelled."""
+        when a model file changed or the grace of a vanished one ended. Runs until
+        cancelled."""
         watch = self.settings.model_watch_s
         if self.runtime is None and watch == 0:
             return
@@ -90,7 +98,9 @@ class ServiceState:
             await asyncio.sleep(interval)
             asked = self.runtime is not None and self.runtime.reload_asked()
             now = await asyncio.to_thread(self.models.folder_signature) if watch else last
-            if asked or now != last:
+            grace = self.models.grace_ends()
+            expired = watch > 0 and grace is not None and time.monotonic() >= grace
+            if asked or now != last or expired:
                 await asyncio.to_thread(self.load)
                 last = now
 

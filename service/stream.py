@@ -35,10 +35,11 @@ import numpy as np
 from prometheus_client import Counter, Gauge
 from starlette.websockets import WebSocket, WebSocketDisconnect, WebSocketState
 
+from service import bounded_json
 from service.core.preprocess import ImageDecodeError, ImageTooLargeError
 from service.core.regions import region_of_class
 from service.metrics import Metrics
-from service.predictor import Predictor
+from service.predictor import Predictor, too_large_code
 from service.schemas import ImageResult, Mode, RegionOut
 
 #: Frames that may wait besides the one being answered; more and the oldest is dropped.
@@ -145,8 +146,8 @@ def _key_of(message: Mapping[str, Any]) -> str | None:
     if message.get("type") == "websocket.disconnect":
         raise WebSocketDisconnect(int(message.get("code", CloseCode.NORMAL)))
     try:
-        body = json.loads(message.get("text") or "")
-    except ValueError:
+        body = bounded_json.loads(message.get("text") or "")
+    except ValueError:  # not JSON, or nested too deep
         return None
     key = body.get("api_key") if isinstance(body, dict) else None
     return key if isinstance(key, str) else None
@@ -381,7 +382,9 @@ class StreamSession:
             )
         except ImageDecodeError as exc:
             self.metrics.frames.labels(mode, "error").inc()
-            code = "image_too_large" if isinstance(exc, ImageTooLargeError) else "undecodable_image"
+            code = (
+                too_large_code(exc) if isinstance(exc, ImageTooLargeError) else "undecodable_image"
+            )
             text = str(exc).removeprefix("image 1: ")
             return _error_json(code, f"frame {frame.seq}: {text}", **where)
         except Exception:  # a bug or a failing session: logged, the stream goes on

@@ -152,6 +152,18 @@ def _jpeg_reduction(header: ImageHeader, min_size: tuple[int, int]) -> int:
     return next((f for f in (8, 4, 2) if short / f >= need), 1)
 
 
+def _reduction(header: ImageHeader, min_size: tuple[int, int] | None) -> int:
+    """The scale-down `load_image` decodes at: libjpeg's for a JPEG with `min_size`, else 1."""
+    return _jpeg_reduction(header, min_size) if header.format == "jpeg" and min_size else 1
+
+
+def decoded_pixels(header: ImageHeader, min_size: tuple[int, int] | None = None) -> int:
+    """The pixels `load_image` allocates for an image of `header` with `min_size`: the stored
+    size, or libjpeg's reduced size for a large JPEG (each side divided, rounded up)."""
+    factor = _reduction(header, min_size)
+    return -(-header.width // factor) * -(-header.height // factor)
+
+
 def load_image(
     data: bytes, *, max_pixels: int | None = None, min_size: tuple[int, int] | None = None
 ) -> DecodedImage:
@@ -168,7 +180,7 @@ def load_image(
             f"image is {header.width}x{header.height} = {pixels} pixels, "
             f"more than the limit of {max_pixels}"
         )
-    factor = _jpeg_reduction(header, min_size) if header.format == "jpeg" and min_size else 1
+    factor = _reduction(header, min_size)
     flags = _REDUCED_RGB[factor] if factor > 1 else cv2.IMREAD_COLOR_RGB
     try:
         rgb = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), flags)

@@ -17,7 +17,7 @@ from service.deps import (
     SettingsDep,
 )
 from service.errors import ApiError
-from service.predictor import Prediction, Predictor
+from service.predictor import FX_MAX_PX, FX_MIN_PX, Prediction, Predictor, too_large_code
 from service.schemas import ERROR_RESPONSES, Mode, PredictResponse
 from service.uploads import read_images
 
@@ -60,7 +60,9 @@ FxQuery = Annotated[
         description="The camera's focal length fx in pixels of the uploaded images (camera "
         "matrix [0, 0] of a calibration at that size; mode=whole, keypoint models): the pose "
         "uses it instead of estimating it from the view. Unset: estimated.",
-        gt=0,
+        ge=FX_MIN_PX,
+        le=FX_MAX_PX,
+        allow_inf_nan=False,
     ),
 ]
 
@@ -79,9 +81,10 @@ async def run_prediction(
         raise ApiError(422, "invalid_parameters", problem)
     images = await read_images(request, max_images)
     try:
+        predictor.check_pixels(images, mode)  # from the headers, before waiting for a job slot
         return await anyio.to_thread.run_sync(predictor.predict, images, mode, fx, limiter=limiter)
     except ImageTooLargeError as exc:
-        raise ApiError(413, "image_too_large", str(exc)) from None
+        raise ApiError(413, too_large_code(exc), str(exc)) from None
     except ImageDecodeError as exc:
         raise ApiError(400, "undecodable_image", str(exc)) from None
 

@@ -25,7 +25,7 @@ from service.deps import (
 )
 from service.errors import ApiError
 from service.oip import InferRequest, ProtocolError, infer_response, parse_infer_request
-from service.predictor import Predictor
+from service.predictor import ImageInput, Predictor, too_large_code
 
 health = APIRouter(tags=["v2"])
 router = APIRouter(tags=["v2"], dependencies=AUTHORISED)
@@ -112,7 +112,7 @@ def _probabilities(predictor: Predictor, infer: InferRequest, max_pixels: int) -
         if not np.isfinite(infer.tensor).all():
             raise ProtocolError(400, f"input {infer.input_name!r}: values must be finite")
         return predictor.model.predict(infer.tensor)
-    images = [(None, data) for data in infer.images or []]
+    images: list[ImageInput] = [(None, data) for data in infer.images or []]
     results = predictor.predict(images, "whole").results
     return np.array([r.probabilities for r in results], dtype=np.float64)
 
@@ -133,18 +133,24 @@ async def infer(
     header = request.headers.get("inference-header-content-length")
     if header is not None and not header.isdigit():
         raise ApiError(400, "bad_request", "Inference-Header-Content-Length must be an integer")
+    body = await request.body()
     try:
-        parsed = parse_infer_request(await request.body(), int(header) if header else None)
+        # a JSON body of megabytes takes a while: parsed in a thread, not on the event loop
+        parsed = await anyio.to_thread.run_sync(
+            parse_infer_request, body, int(header) if header else None
+        )
         count = len(parsed.tensor) if parsed.tensor is not None else len(parsed.images or [])
         if not 0 < count <= settings.max_images:
             raise ProtocolError(400, f"batch of {count}: send 1 to {settings.max_images} items")
+        if parsed.images is not None:  # from the headers, before waiting for a job slot
+            predictor.check_pixels([(None, data) for data in parsed.images], "whole")
         probs = await anyio.to_thread.run_sync(
             _probabilities, predictor, parsed, settings.max_pixels, limiter=limiter
         )
     except ProtocolError as exc:
         raise ApiError(exc.status, "bad_request", exc.message) from None
     except ImageTooLargeError as exc:
-        raise ApiError(413, "image_too_large", str(exc)) from None
+        raise ApiError(413, too_large_code(exc), str(exc)) from None
     except ImageDecodeError as exc:
         raise ApiError(400, "undecodable_image", str(exc)) from None
     metrics.images.labels("v2").inc(count)

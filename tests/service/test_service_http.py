@@ -119,8 +119,13 @@ def test_the_photos_exif_focal_length_is_used_where_the_request_gives_none(
 @pytest.mark.parametrize(
     ("url", "params", "message"),
     [
-        ("/v1/predict", {"fx": "0"}, "fx: Input should be greater than 0"),
-        ("/v1/predict", {"fx": "inf"}, "fx: must be a positive number of pixels, got inf"),
+        ("/v1/predict", {"fx": "0"}, "fx: Input should be greater than or equal to 1"),
+        ("/v1/predict", {"fx": "1e-320"}, "fx: Input should be greater than or equal to 1"),
+        ("/v1/predict", {"fx": "0.5"}, "fx: Input should be greater than or equal to 1"),
+        ("/v1/predict", {"fx": "100001"}, "fx: Input should be less than or equal to 100000"),
+        ("/v1/predict", {"fx": "1e300"}, "fx: Input should be less than or equal to 100000"),
+        ("/v1/predict", {"fx": "inf"}, "fx: Input should be a finite number"),
+        ("/v1/predict", {"fx": "nan"}, "fx: Input should be a finite number"),
         ("/v1/predict", {"fx": "x"}, "fx: Input should be a valid number"),
         (
             "/v1/predict",

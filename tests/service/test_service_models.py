@@ -99,10 +99,13 @@ def test_reload_adds_replaces_refuses_and_removes(served: TestClient, folder: Pa
     (folder / "broken.onnx").write_bytes(b"not onnx")
     (folder / "board-large.onnx").unlink()
     report = served.post("/v1/models/reload", headers=KEY).json()
-    assert report["models"] == [DEFAULT, "extra"]
+    # a vanished file's model answers for POSE_MODEL_GRACE_S more (an rm + cp deploy)
+    assert report["models"] == ["board-large", DEFAULT, "extra"]
     assert sorted(report["loaded"]) == [DEFAULT, "extra"]
-    assert report["removed"] == ["board-large"]
+    assert report["removed"] == []
+    assert "model file gone" in report["problems"]["board-large"]
     assert "not a loadable ONNX model" in report["problems"]["broken"]
+    assert predict(served, "/v1/models/board-large/predict")["model"] == card_of(LARGE)["name"]
     assert predict(served)["model"] == card_of(REPLACEMENT)["name"]
     assert predict(served, "/v1/models/extra/predict")["results"][0]["probabilities"] == first
     assert served.get("/v1/models", headers=KEY).json()["problems"] == report["problems"]
@@ -116,6 +119,25 @@ def test_reload_adds_replaces_refuses_and_removes(served: TestClient, folder: Pa
     assert predict(served, "/v1/models/extra/predict")["results"][0]["probabilities"] == first
     unchanged = served.post("/v1/models/reload", headers=KEY).json()
     assert unchanged["loaded"] == [] and unchanged["removed"] == []
+
+
+def test_a_vanished_file_is_served_for_its_grace_time_only(
+    app_factory: AppFactory, folder: Path
+) -> None:
+    """POSE_MODEL_GRACE_S: the default model's file removed, it still answers (and /readyz
+    says ready) until the grace time has passed; a file back within it is loaded."""
+    with app_factory(model_dir=folder, model_grace_s=0.5, api_key="reload-key") as c:
+        (folder / f"{DEFAULT}.onnx").unlink()
+        report = c.post("/v1/models/reload", headers=KEY).json()
+        assert DEFAULT in report["models"] and "model file gone" in report["problems"][DEFAULT]
+        assert c.get("/readyz").status_code == 200 and predict(c)["model"] == CARD["name"]
+        time.sleep(0.6)
+        report = c.post("/v1/models/reload", headers=KEY).json()
+        assert report["removed"] == [DEFAULT] and DEFAULT not in report["problems"]
+        assert c.get("/readyz").status_code == 503
+        put(folder, DEFAULT, REPLACEMENT)  # a deploy that came too late
+        assert c.post("/v1/models/reload", headers=KEY).json()["loaded"] == [DEFAULT]
+        assert predict(c)["model"] == card_of(REPLACEMENT)["name"]
 
 
 def test_folder_without_a_default_is_not_ready(app_factory: AppFactory, tmp_path: Path) -> None:

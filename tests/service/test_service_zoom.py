@@ -18,6 +18,7 @@ from service.zoom import (
     detail_of,
     enlarged,
     holding_tile,
+    search_order,
     tile_input,
     tile_views,
     zoomed,
@@ -136,14 +137,25 @@ def test_a_small_board_is_answered_from_its_tile(model: PoseModel) -> None:
     assert np.abs(answer.corners[0] - want).max() < 1.5  # px of the frame
 
 
-def test_no_board_looks_at_all_tiles_and_stays_absent(model: PoseModel) -> None:
+def test_no_board_looks_at_the_guessed_tile_and_stays_absent(model: PoseModel) -> None:
     rng = np.random.default_rng(3)
     smooth = cv2.GaussianBlur(rng.random((120, 160, 3), dtype=np.float32), (0, 0), 6)
     batch = np.stack([smooth.transpose(2, 0, 1), np.full((3, 120, 160), 0.4, np.float32)])
+    whole = model.run(batch)
+    assert whole.corners is not None and np.all(whole.probabilities[:, 0] > 0.5)
     spy = Spy(model)
     answer = zoomed(spy, batch, np.ones(2, np.float32))  # type: ignore[arg-type]
-    assert [n for n, _ in spy.calls] == [2, 18]  # every tile of both images, one run
+    assert [n for n, _ in spy.calls] == [2, 2]  # one tile of each image, one run
+    views = tile_views(SIZE)
+    guessed = [views[search_order(c, views, SIZE)[0]] for c in whole.corners]
+    assert np.array_equal(spy.calls[1][1], np.stack(guessed))  # nearest the corners' guess
     assert np.all(answer.probabilities[:, 0] > 0.5)
+    spy = Spy(model)
+    everywhere = zoomed(spy, batch, np.ones(2, np.float32), search_tiles=9)  # type: ignore[arg-type]
+    assert [n for n, _ in spy.calls] == [2, 18]  # every tile of both images, one run
+    assert np.all(everywhere.probabilities[:, 0] > 0.5)
+    with pytest.raises(ValueError, match="search_tiles"):
+        zoomed(spy, batch, None, search_tiles=10)  # type: ignore[arg-type]
     spy = Spy(model)
     unsearched = zoomed(spy, batch, np.ones(2, np.float32), search=False)  # type: ignore[arg-type]
     assert [n for n, _ in spy.calls] == [2]  # the whole frames only
@@ -172,11 +184,15 @@ def test_the_zoom_setting_switches_the_pass_off(model: PoseModel) -> None:
         predictor.predict([(None, png.tobytes())], "whole")
         runs[zoom] = len(spy.calls)
     assert runs == {True: 2, False: 1}
-    # no board in view: the search's 9 tiles, or none with it off
+    # no board in view: the search's tiles (1 by default, POSE_ZOOM_SEARCH_TILES), or none
     blank = cv2.imencode(".png", np.full((120, 160, 3), 128, np.uint8))[1].tobytes()
-    for search, calls in ((True, [1, 9]), (False, [1])):
+    for options, calls in (
+        ({}, [1, 1]),
+        ({"zoom_search_tiles": 9}, [1, 9]),
+        ({"zoom_search": False}, [1]),
+    ):
         spy = Spy(model)
-        Predictor(spy, Settings(zoom_search=search)).predict([(None, blank)], "whole")  # type: ignore[arg-type]
+        Predictor(spy, Settings(**options)).predict([(None, blank)], "whole")  # type: ignore[arg-type]
         assert [n for n, _ in spy.calls] == calls
 
 
