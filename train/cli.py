@@ -12,6 +12,7 @@ from service.cli import app as service_commands
 from train.commands import corpus as corpus_commands
 from train.commands import data as data_commands
 from train.commands import model as model_commands
+from train.commands import object as object_commands
 from train.commands import real as real_commands
 
 app = typer.Typer(
@@ -25,4 +26,5 @@ app.add_typer(model_commands.app)  # train, evaluate, export, realset
 app.add_typer(service_commands)  # serve
 app.add_typer(real_commands.app)  # label, baseline, compare
 app.add_typer(data_commands.app)  # data make | grid | sheet | roll
-app.add_typer(corpus_commands.app)  # corpus add | check | sets | report
+app.add_typer(corpus_commands.app)  # corpus add | frames | charuco | check | sets | report
+app.add_typer(object_commands.app)  # object new | train

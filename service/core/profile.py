@@ -255,3 +255,63 @@ def load_profile(name_or_path: str | Path) -> Profile:
 
 def _lattice_classes(profile: Profile) -> set[int]:
     return {int(k) for k in pose_class(profile.lattice(), profile.geometry.z_split_cm)}
+
+
+#: The profile `write_profile` writes: hand-held objects seen by webcams and phones.
+NEW_PROFILE = """\
+# {name}: {width_cm:g} x {height_cm:g} cm, written by `planar-pose object new`. Format:
+# service/core/profile.py. Edit the ranges to match how the object is seen.
+name = "{name}"
+texture = "texture.png"   # front-on, covering exactly the object ({width_px}x{height_px} px)
+width_cm = {width_cm:g}
+height_cm = {height_cm:g}
+
+[regions]                 # SPEC sections 3-4
+z_split_cm = {z_split_cm:g}
+box_min_cm = [-36.86, -36.86, 10.68]
+box_max_cm = [36.86, 36.86, 92.40]
+
+[camera]
+roll_deg = [-180.0, 180.0]      # hand-held: any roll about the optical axis
+focal_scale = [0.35, 0.9]       # fx / width of webcams and phones, x the SPEC camera's
+distortion_k1 = [-0.45, 0.1]
+lattice_radii_cm = [20.0, 30.0, 40.0, 50.0, 60.0, 70.0, 80.0, 90.0, 100.0]
+lattice_heights_cm = [0.0, 10.0, 20.0, 30.0, 40.0]
+lattice_points = 400
+
+[border]                  # around the texture, not part of the object
+margin_cm = [0.0, 1.0]
+margin_rgb = [238, 238, 232]
+frame_cm = [0.0, 0.6]
+frame_grey = [40, 160]
+"""
+
+
+def write_profile(
+    folder: Path,
+    name: str,
+    texture_rgb: np.ndarray,
+    width_cm: float,
+    height_cm: float,
+    z_split_cm: float = RegionGeometry().z_split_cm,
+) -> Profile:
+    """Write `folder`/profile.toml (`NEW_PROFILE`) and texture.png for an object whose
+    front-on texture RGB uint8 [h, w, 3] covers `width_cm` x `height_cm`; return it loaded
+    (validated). ProfileError if the texture's aspect is not the size's (2 % tolerance)."""
+    h, w = texture_rgb.shape[:2]
+    if not width_cm > 0 or not height_cm > 0:
+        raise ProfileError(f"the size must be positive, got {width_cm:g} x {height_cm:g} cm")
+    if abs((w / h) / (width_cm / height_cm) - 1) > 0.02:
+        raise ProfileError(
+            f"the texture is {w}x{h} px (aspect {w / h:.3f}) but the object "
+            f"{width_cm:g} x {height_cm:g} cm (aspect {width_cm / height_cm:.3f}): crop the "
+            "image to the object or give its size"
+        )
+    folder.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(folder / "texture.png"), cv2.cvtColor(texture_rgb, cv2.COLOR_RGB2BGR))
+    text = NEW_PROFILE.format(
+        name=name, width_cm=width_cm, height_cm=height_cm, width_px=w, height_px=h,
+        z_split_cm=z_split_cm,
+    )  # fmt: skip
+    (folder / PROFILE_FILE).write_text(text, encoding="utf-8")
+    return load_profile(folder)

@@ -219,7 +219,8 @@ def load_network(path: Path) -> tuple[NormalisedNet, dict[str, Any]]:
     if not isinstance(checkpoint, dict) or checkpoint.get("format") != CHECKPOINT_FORMAT:
         raise TrainingError(f"{path} is not a planar-pose training checkpoint")
     arch = canonical_arch(str(checkpoint.get("arch", "spec")))
-    net = build_network(arch, tuple(checkpoint["size"]), bool(checkpoint.get("batch_norm")))
+    size, batch_norm = tuple(checkpoint["size"]), bool(checkpoint.get("batch_norm"))
+    net = build_network(arch, size, batch_norm, checkpoint.get("profile"))
     net.load_state_dict(checkpoint["model"])
     return net, checkpoint
 

@@ -1,0 +1,98 @@
+"""A user's own object end to end, at a test-sized budget: `object new` from a picture,
+`object train` (renders, corner network, export with its card), then the service answers it
+beside the default model (`?model=NAME`)."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+from typer.testing import CliRunner
+
+from service.app import create_app
+from service.settings import DEFAULT_MODEL, Settings
+from train.cli import app
+
+runner = CliRunner()
+
+
+def _picture(path: Path) -> Path:
+    """A textured poster, 300x200 px: smooth noise with a few shapes (features everywhere)."""
+    rng = np.random.default_rng(5)
+    noise = cv2.resize(rng.random((8, 12)).astype(np.float32), (300, 200), cv2.INTER_CUBIC)
+    rgb = (np.stack([noise, noise[::-1], noise[:, ::-1]], -1) * 200 + 30).clip(0, 255)
+    rgb = np.ascontiguousarray(rgb.astype(np.uint8))
+    for _ in range(12):
+        centre = (int(rng.integers(20, 280)), int(rng.integers(20, 180)))
+        colour = tuple(int(c) for c in rng.integers(0, 255, 3))
+        cv2.circle(rgb, centre, int(rng.integers(6, 25)), colour, -1)
+    cv2.putText(rgb, "POSE", (60, 130), cv2.FONT_HERSHEY_SIMPLEX, 2.2, (10, 10, 10), 6)
+    cv2.imwrite(str(path), rgb)
+    return path
+
+
+def test_from_a_picture_to_a_served_model(tmp_path: Path) -> None:
+    picture = _picture(tmp_path / "poster.jpg")
+    profiles, models = tmp_path / "profiles", tmp_path / "models"
+    args = ["object", "new", "poster", "--texture", str(picture), "--profiles", str(profiles)]
+    result = runner.invoke(app, [*args, "--size", "30", "20"])
+    assert result.exit_code == 0, result.output
+    assert (profiles / "poster" / "profile.toml").is_file()
+    assert cv2.imread(str(profiles / "poster" / "samples.png")) is not None
+    again = runner.invoke(app, [*args, "--size", "30", "20"])
+    assert again.exit_code == 1 and "exists" in again.output
+
+    budget = ["--count", "90", "--eval-count", "45", "--epochs", "1", "--batch-size", "16"]
+    run = tmp_path / "run"
+    train = ["object", "train", str(profiles / "poster"), "--run", str(run)]
+    result = runner.invoke(app, [*train, "--models", str(models), *budget, "--no-bf16"])
+    assert result.exit_code == 0, result.output
+    onnx = models / "poster-corners-160x120.onnx"
+    card = json.loads(onnx.with_suffix(".json").read_text())
+    assert card["profile"]["name"] == "poster" and set(card["accuracy"]) == {
+        f"free-s2-b{b}" for b in range(4)
+    }
+    # run again: every step is done, the model is written again from the same weights
+    result = runner.invoke(app, [*train, "--models", str(models), *budget, "--no-bf16"])
+    assert (
+        result.exit_code == 0 and "train:" not in result.output and "renders:" not in result.output
+    )
+
+    (models / DEFAULT_MODEL.name).write_bytes(DEFAULT_MODEL.read_bytes())
+    (models / DEFAULT_MODEL.with_suffix(".json").name).write_bytes(
+        DEFAULT_MODEL.with_suffix(".json").read_bytes()
+    )
+    photo = (run / "data" / "free-s2-b0" / "images").glob("*.png")
+    data = next(iter(sorted(photo))).read_bytes()
+    with TestClient(create_app(Settings(model_dir=models))) as client:
+        for _ in range(600):  # the models load in the background
+            if client.get("/readyz").status_code == 200:
+                break
+            time.sleep(0.05)
+        r = client.post("/v1/models/poster-corners-160x120/predict", files={"image": data})
+        listing = client.get("/v1/models").json()
+    assert r.status_code == 200, r.text
+    assert r.json()["model"] == "poster-corners-160x120"
+    assert {m["name"] for m in listing["models"]} >= {"poster-corners-160x120", DEFAULT_MODEL.stem}
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["Bad Name", "--size", "30", "20"], "use lower-case letters"),
+        (["poster", "--size", "30", "10"], "aspect"),
+        (["poster", "--size", "30", "-20"], "size must be positive"),
+    ],
+)
+def test_object_new_refuses_bad_input(tmp_path: Path, args: list[str], message: str) -> None:
+    picture = _picture(tmp_path / "poster.jpg")
+    result = runner.invoke(
+        app,
+        ["object", "new", *args, "--texture", str(picture), "--profiles", str(tmp_path / "p")],
+    )
+    assert result.exit_code in (1, 2) and message in result.output, result.output

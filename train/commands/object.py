@@ -1,0 +1,125 @@
+"""CLI of a user's own object: `object new | train`.
+
+    planar-pose object new poster --texture poster.jpg --size 42 59.4
+    planar-pose object train poster
+
+No torch at import time (the command modules' rule); `train` imports it when it runs.
+"""
+
+from __future__ import annotations
+
+import re
+import time
+from pathlib import Path
+from typing import Annotated
+
+import cv2
+import typer
+
+from service.core.profile import PROFILES_DIR, ProfileError, write_profile
+from service.core.regions import Z_SPLIT_CM
+from service.settings import DEFAULT_MODEL_DIR
+from train.commands.common import fail, guard, out, profile_or_exit
+
+app = typer.Typer(
+    name="object",
+    help="Your own planar object: a profile from its picture, then its whole training recipe.",
+    no_args_is_help=True,
+)
+#: Profile names: usable in a folder, a file and a URL (`service.registry.NAME_PATTERN`).
+NAME = re.compile(r"[a-z0-9][a-z0-9-]*")
+#: Renders in the sample sheet of `new`.
+SHEET_COUNT = 90
+
+
+@app.command()
+def new(
+    name: Annotated[str, typer.Argument(help="Object name: lower-case letters, digits, '-'.")],
+    texture: Annotated[Path, typer.Option(help="Front-on picture of the object, cropped to it.")],
+    size: Annotated[
+        tuple[float, float], typer.Option(help="Width and height of the object in cm.")
+    ],
+    profiles: Annotated[Path, typer.Option(help="Folder of profiles.")] = PROFILES_DIR,
+    z_split: Annotated[float, typer.Option(help="Near / far split, cm.")] = Z_SPLIT_CM,
+    overwrite: Annotated[bool, typer.Option(help="Replace an existing profile.")] = False,
+) -> None:
+    """Write a validated profile (profile.toml + texture.png) and a sheet of sample renders."""
+    from train.synth.generate import DatasetSpec, make_dataset
+    from train.synth.sheet import contact_sheet
+
+    if not NAME.fullmatch(name):
+        raise fail(f"name {name!r}: use lower-case letters, digits and '-'", code=2)
+    folder = profiles / name
+    if folder.exists() and not overwrite:
+        raise fail(f"profile {folder} exists (--overwrite replaces it)")
+    bgr = cv2.imread(str(texture), cv2.IMREAD_COLOR)
+    if bgr is None:
+        raise fail(f"not a readable image: {texture}")
+    rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+    try:
+        profile = write_profile(folder, name, rgb, size[0], size[1], z_split)
+    except ProfileError as exc:
+        raise fail(str(exc)) from None
+    samples = folder / "samples"
+    spec = DatasetSpec("free", 2, 0, SHEET_COUNT, 0, profile)
+    guard(lambda: make_dataset(samples, spec, overwrite=True))
+    sheet = folder / "samples.png"
+    guard(lambda: contact_sheet(samples, sheet, per_class=8, scale=1))
+    out.print(f"[green]wrote[/] {folder / 'profile.toml'} and {sheet} (look at the renders)")
+    out.print(f"next: planar-pose object train {name}")
+
+
+@app.command("train")
+def train_command(
+    name: Annotated[str, typer.Argument(help="Profile name or path.")],
+    run: Annotated[Path | None, typer.Option(help="Run folder (default runs/NAME).")] = None,
+    models: Annotated[Path, typer.Option(help="Served model folder.")] = DEFAULT_MODEL_DIR,
+    real: Annotated[
+        list[Path] | None,
+        typer.Option(
+            help="Real data sets of the object (planar-pose corpus sets): select on "
+            "their val split, fine-tune on their train split."
+        ),
+    ] = None,  # fmt: skip
+    count: Annotated[int, typer.Option(min=90, help="Training renders.")] = 20000,
+    eval_count: Annotated[int, typer.Option(min=45, help="Renders per evaluation set.")] = 1000,
+    epochs: Annotated[int, typer.Option(min=1, help="Epochs on the renders.")] = 10,
+    fine_tune_epochs: Annotated[int, typer.Option(min=1, help="Epochs on real data.")] = 6,
+    batch_size: Annotated[int, typer.Option(min=2, help="Images per batch.")] = 64,
+    threads: Annotated[int, typer.Option(min=0, help="Torch threads, 0 = default.")] = 0,
+    workers: Annotated[int, typer.Option(min=1, help="Render processes.")] = 1,
+    bf16: Annotated[
+        bool | None,
+        typer.Option(help="bfloat16 autocast (default: where the CPU has bfloat16 units)."),
+    ] = None,
+) -> None:
+    """Render, train, export and measure the object's corner model; resumable (run it again)."""
+    from train.network.pipeline import ObjectRecipe, train_object
+
+    profile = profile_or_exit(name)
+    for path in real or []:
+        if not (path / "labels.csv").is_file():
+            raise fail(f"not a data set (no labels.csv): {path}")
+    recipe = ObjectRecipe(
+        train_count=count, eval_count=eval_count, epochs=epochs,
+        fine_tune_epochs=fine_tune_epochs, batch_size=batch_size, threads=threads,
+        bf16=_has_bf16() if bf16 is None else bf16, workers=workers,
+    )  # fmt: skip
+    start = time.monotonic()
+    run_dir = run or Path("runs") / profile.name
+    path, card = guard(lambda: train_object(profile, run_dir, models, recipe, real, out.print))
+    minutes = (time.monotonic() - start) / 60
+    out.print(
+        f"[green]wrote[/] {path} in {minutes:.1f} min (this run); served as ?model={path.stem}"
+    )
+    for ds, acc in [*card["accuracy"].items(), *card.get("accuracy_val", {}).items()]:
+        out.print(f"  {ds} ({acc['split']}, {acc['count']} images): {100 * acc['accuracy']:.2f} %")
+
+
+def _has_bf16() -> bool:
+    """Whether the CPU computes bfloat16 natively (Linux: avx512_bf16 or amx_bf16)."""
+    try:
+        flags = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return False
+    return "avx512_bf16" in flags or "amx_bf16" in flags
