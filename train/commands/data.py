@@ -13,6 +13,7 @@ from typing import Annotated, Any
 import typer
 from rich.table import Table
 
+from service.core.dataset import SPLITS
 from service.core.inputs import SIZE_HELP
 from train.commands.common import fail, guard, out, profile_or_exit, split_or_exit
 
@@ -58,14 +59,14 @@ def _make(jobs: list[tuple[Any, Path]], overwrite: bool, workers: int) -> list[d
             raise fail(str(exc)) from None
     seconds = time.perf_counter() - start
     table = Table(title=f"{total} images in {seconds:.1f} s ({total / seconds:.0f} img/s)")
-    for column in ("data set", "size", "train", "val", "test", "class counts 0..8"):
+    for column in ("data set", "size", *SPLITS, "class counts 0..8"):
         table.add_column(column)
     for (_, path), m in zip(jobs, manifests, strict=True):
         counts = m["counts"]
         table.add_row(
             str(path),
             "x".join(map(str, m["size"])),
-            *(str(counts[s]) for s in counts),
+            *(str(counts[s]) for s in SPLITS),
             " ".join(map(str, m["class_counts"])),
         )
     out.print(table)
