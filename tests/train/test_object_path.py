@@ -43,7 +43,7 @@ def test_from_a_picture_to_a_served_model(tmp_path: Path) -> None:
     result = runner.invoke(app, [*args, "--size", "30", "20"])
     assert result.exit_code == 0, result.output
     assert (profiles / "poster" / "profile.toml").is_file()
-    assert cv2.imread(str(profiles / "poster" / "samples.png")) is not None
+    assert cv2.imread(str(profiles / "poster" / "samples.jpg")) is not None
     again = runner.invoke(app, [*args, "--size", "30", "20"])
     assert again.exit_code == 1 and "exists" in again.output
 

@@ -9,6 +9,7 @@ No torch at import time (the command modules' rule); `train` imports it when it 
 from __future__ import annotations
 
 import re
+import tempfile
 import time
 from pathlib import Path
 from typing import Annotated
@@ -60,11 +61,11 @@ def new(
         profile = write_profile(folder, name, rgb, size[0], size[1], z_split)
     except ProfileError as exc:
         raise fail(str(exc)) from None
-    samples = folder / "samples"
-    spec = DatasetSpec("free", 2, 0, SHEET_COUNT, 0, profile)
-    guard(lambda: make_dataset(samples, spec, overwrite=True))
-    sheet = folder / "samples.png"
-    guard(lambda: contact_sheet(samples, sheet, per_class=8, scale=1))
+    sheet = folder / "samples.jpg"
+    with tempfile.TemporaryDirectory() as tmp:
+        samples = Path(tmp) / "samples"
+        guard(lambda: make_dataset(samples, DatasetSpec("free", 2, 0, SHEET_COUNT, 0, profile)))
+        guard(lambda: contact_sheet(samples, sheet, per_class=8, scale=1))
     out.print(f"[green]wrote[/] {folder / 'profile.toml'} and {sheet} (look at the renders)")
     out.print(f"next: planar-pose object train {name}")
 
