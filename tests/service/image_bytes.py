@@ -38,3 +38,20 @@ def with_exif_focal(
     with Image.open(io.BytesIO(image)) as decoded:
         decoded.save(out, fmt, exif=exif.tobytes())
     return out.getvalue()
+
+
+def black_png(w: int, h: int) -> bytes:
+    """A real, decodable black RGB PNG of w x h pixels, made without holding its pixels: a
+    decompression bomb (7000 x 7000 is ~145 kB of file for 147 MB of pixels)."""
+    row = bytes(1 + 3 * w)  # filter byte 0, then black pixels
+    deflate = zlib.compressobj(9)
+    rows = 64
+    data = b"".join(deflate.compress(row * min(rows, h - y)) for y in range(0, h, rows))
+    data += deflate.flush()
+
+    def chunk(kind: bytes, body: bytes) -> bytes:
+        crc = struct.pack(">I", zlib.crc32(kind + body))
+        return struct.pack(">I", len(body)) + kind + body + crc
+
+    ihdr = struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0)
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", data) + chunk(b"IEND", b"")

@@ -42,8 +42,9 @@ def test_env_are_real_settings() -> None:
             values[field] = var["value"]
     settings = Settings(**values)
     grace = POD["terminationGracePeriodSeconds"]
-    pre_stop = int(CONTAINER["lifecycle"]["preStop"]["exec"]["command"][-1])
-    assert grace > settings.graceful_timeout_s + pre_stop
+    # the service drains itself after SIGTERM (POSE_DRAIN_S), no preStop sleep before it
+    assert "lifecycle" not in CONTAINER and settings.drain_s >= 5
+    assert grace > settings.drain_s + settings.graceful_timeout_s
 
 
 def test_resources_user_and_selectors() -> None:
