@@ -6,6 +6,8 @@
   a profile that is a chessboard (`train.real.label.chessboard_pattern`); no tuning; reported
   as `opencv-chessboard`. On real sets whose stored photographs are on this machine it is
   also run on those (<= 640 px, not enlarged, no blur) for reference.
+* `charuco`: OpenCV's ChArUco detector + PnP (`train.compare.charuco_peer`), only for a
+  profile with a [charuco] table (`train.real.charuco`); reported as `opencv-charuco`.
 
 Every runner returns (metrics of `train.network.evaluate.compute_metrics`, info) where info
 holds `failures` ({reason for class 0: count}) and `tuning` (None, or what `tune` chose).
@@ -27,23 +29,27 @@ from train.compare.baseline import (
     evaluate_baseline,
 )
 from train.compare.baseline import tune as tune_baseline
+from train.compare.charuco_peer import CharucoPeer
 from train.compare.chessboard_peer import ChessboardPeer, evaluate_peer
 from train.compare.sets import StoredPhotos, load_part, profile_of
+from train.real.charuco import charuco_spec
 from train.real.label import chessboard_pattern
 from train.real.realset import read_rgb
 
-PEER_CHOICES = (*FEATURE_CHOICES, "chessboard")
+#: The object's own OpenCV detector: the kind -> its reported name.
+DETECTORS = {"chessboard": "opencv-chessboard", "charuco": "opencv-charuco"}
+PEER_CHOICES = (*FEATURE_CHOICES, *DETECTORS)
 
 
 def peer_name(kind: str) -> str:
     """The name a peer has in the reports: baseline-sift, ..., opencv-chessboard."""
-    return "opencv-chessboard" if kind == "chessboard" else f"baseline-{kind}"
+    return DETECTORS.get(kind, f"baseline-{kind}")
 
 
 def default_peers(features: str = "sift") -> list[str]:
-    """`compare`'s peers when none are given: the chessboard detector (used on chessboard
+    """`compare`'s peers when none are given: the object's own detectors (each used on its
     profiles only) and the feature baseline."""
-    return ["chessboard", features]
+    return [*DETECTORS, features]
 
 
 def make_baseline(folder: Path, config: BaselineConfig, profile: str | None) -> FeatureBaseline:
@@ -55,15 +61,18 @@ def make_baseline(folder: Path, config: BaselineConfig, profile: str | None) -> 
     )
 
 
-def make_chessboard_peer(
-    folder: Path, profile: str | None, enlarge: float
-) -> ChessboardPeer | None:
-    """The chessboard peer for a data set's profile, or None when the profile is no chessboard."""
+def make_detector_peer(
+    kind: str, folder: Path, profile: str | None, enlarge: float
+) -> ChessboardPeer | CharucoPeer | None:
+    """The detector peer `kind` (`DETECTORS`) for a data set's profile, or None when the
+    profile is not its kind of board."""
     prof = profile_of(folder, profile)
+    z_split = float(prof.geometry.z_split_cm)
+    if kind == "charuco":
+        spec = charuco_spec(prof)
+        return None if spec is None else CharucoPeer(spec, z_split, enlarge)
     pattern = chessboard_pattern(prof)
-    if pattern is None:
-        return None
-    return ChessboardPeer(pattern, float(prof.geometry.z_split_cm), enlarge)
+    return None if pattern is None else ChessboardPeer(pattern, z_split, enlarge)
 
 
 def _bar(total: int, desc: str, verbose: bool) -> tqdm:
@@ -104,15 +113,15 @@ def run_baseline_on(
     return metrics, info
 
 
-def run_chessboard_on(
-    data: LoadedDataset, profile: str | None = None, verbose: bool = False
+def run_detector_on(
+    data: LoadedDataset, kind: str = "chessboard", profile: str | None = None, verbose: bool = False
 ) -> tuple[dict, dict[str, Any]] | None:
-    """The chessboard peer on loaded images (enlarged 4x with their intrinsics), or None when
-    the data set's profile is no chessboard."""
-    peer = make_chessboard_peer(data.path, profile, enlarge=4)
+    """The detector peer `kind` on loaded images (enlarged 4x with their intrinsics), or None
+    when the data set's profile is not its kind of board."""
+    peer = make_detector_peer(kind, data.path, profile, enlarge=4)
     if peer is None:
         return None
-    with _bar(len(data.labels), f"chessboard detector on {data.path.name}", verbose) as bar:
+    with _bar(len(data.labels), f"{kind} detector on {data.path.name}", verbose) as bar:
         metrics, failures = evaluate_peer(
             peer, data.images, data.labels, _cameras(data), bar.update, data.boundary_margin_cm()
         )
@@ -124,7 +133,7 @@ def run_reference(
 ) -> tuple[dict, dict[str, Any]] | None:
     """The chessboard peer on the stored photographs of `data`'s images, as stored (no
     enlargement, no blur), with their own intrinsics; None when the profile is no chessboard."""
-    peer = make_chessboard_peer(data.path, profile, enlarge=1)
+    peer = make_detector_peer("chessboard", data.path, profile, enlarge=1)
     if peer is None:
         return None
     images = [read_rgb(p) for p in photos.paths]
@@ -145,7 +154,7 @@ def run_peer_on(
     it does not apply to the set's object (the chessboard detector on another object)."""
     if kind not in PEER_CHOICES:
         raise ValueError(f"peer must be one of {', '.join(PEER_CHOICES)}, got {kind!r}")
-    if kind == "chessboard":
-        return run_chessboard_on(data, verbose=verbose)
+    if kind in DETECTORS:
+        return run_detector_on(data, kind, verbose=verbose)
     config = BaselineConfig(features=kind)
     return run_baseline_on(data.path, config, split, tune, limit=limit, verbose=verbose)

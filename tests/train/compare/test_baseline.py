@@ -200,14 +200,14 @@ def test_chessboard_peer_on_sharp_full_size_photos():
 
 
 def test_chessboard_peer_at_the_network_size(tmp_path):
-    from train.compare.peers import run_chessboard_on
+    from train.compare.peers import run_detector_on
     from train.compare.sets import load_part, stored_photos
     from train.real.realset import build_real_dataset
 
     ds = tmp_path / "real-s2-b0"
     build_real_dataset(REAL, ds, size=2, blur=0, profile="chessboard", seed=0)
     data = load_part(ds, "test")
-    metrics, info = run_chessboard_on(data)
+    metrics, info = run_detector_on(data)
     assert metrics["count"] == 6 and metrics["accuracy"] >= 5 / 6 and metrics["ms_per_image"] > 0
     assert info["tuning"] is None
     photos = stored_photos(data)
