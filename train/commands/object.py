@@ -89,14 +89,19 @@ def train_command(
     batch_size: Annotated[int, typer.Option(min=2, help="Images per batch.")] = 64,
     threads: Annotated[int, typer.Option(min=0, help="Torch threads, 0 = default.")] = 0,
     workers: Annotated[int, typer.Option(min=1, help="Render processes.")] = 1,
+    device: Annotated[
+        str, typer.Option(help="auto (a CUDA GPU where torch sees one), cuda or cpu.")
+    ] = "auto",
     bf16: Annotated[
         bool | None,
-        typer.Option(help="bfloat16 autocast (default: where the CPU has bfloat16 units)."),
+        typer.Option(help="bfloat16 autocast (default: where the device computes it natively)."),
     ] = None,
 ) -> None:
     """Render, train, export and measure the object's corner model; resumable (run it again)."""
     from train.network.pipeline import ObjectRecipe, train_object
 
+    if device not in ("auto", "cuda", "cpu"):
+        raise fail(f"--device must be auto, cuda or cpu, got {device!r}", code=2)
     profile = profile_or_exit(name)
     for path in real or []:
         if not (path / "labels.csv").is_file():
@@ -104,7 +109,7 @@ def train_command(
     recipe = ObjectRecipe(
         train_count=count, eval_count=eval_count, epochs=epochs,
         fine_tune_epochs=fine_tune_epochs, batch_size=batch_size, threads=threads,
-        bf16=_has_bf16() if bf16 is None else bf16, workers=workers,
+        bf16=_has_bf16(device) if bf16 is None else bf16, workers=workers, device=device,
     )  # fmt: skip
     start = time.monotonic()
     run_dir = run or Path("runs") / profile.name
@@ -117,8 +122,13 @@ def train_command(
         out.print(f"  {ds} ({acc['split']}, {acc['count']} images): {100 * acc['accuracy']:.2f} %")
 
 
-def _has_bf16() -> bool:
-    """Whether the CPU computes bfloat16 natively (Linux: avx512_bf16 or amx_bf16)."""
+def _has_bf16(device: str) -> bool:
+    """Whether the training device computes bfloat16 natively: the GPU says so, or the CPU has
+    avx512_bf16 or amx_bf16 (Linux)."""
+    import torch
+
+    if device != "cpu" and torch.cuda.is_available():
+        return bool(torch.cuda.is_bf16_supported())
     try:
         flags = Path("/proc/cpuinfo").read_text()
     except OSError:

@@ -285,7 +285,7 @@ class CheckerAlign(nn.Module):
         fitted = (corr0.abs() > self.k1_min_corr).to(q.dtype)
         k1 = k0 * fitted
         start = q
-        eye = torch.eye(8 if lens is None else 9, dtype=q.dtype)[None]
+        eye = torch.eye(8 if lens is None else 9, dtype=q.dtype, device=q.device)[None]
         for _ in range(self.steps):
             r, J, _, m = self._fit(image, q, lens, k1)
             if lens is not None:  # k1's column only where it is fitted

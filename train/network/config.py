@@ -21,6 +21,7 @@ from pydantic import TypeAdapter, ValidationError
 Optimizer = Literal["sgd", "adam"]
 Schedule = Literal["cosine", "step", "constant"]
 Arch = Literal["spec", "convnet", "corners-coarse", "corners"]
+Device = Literal["auto", "cpu", "cuda"]
 #: The corner networks (`train.network.keypoint`): heat maps at stride 4 (coarse) or 2.
 CORNER_ARCHS = ("corners-coarse", "corners")
 #: Names the corner networks had before 2026-12-05, still read in recipes and checkpoints.
@@ -73,6 +74,7 @@ class FitConfig:
     )
     batch_norm: bool = _opt(True, "spec: train with batch norm, folded away on export.")
     threads: int = _opt(0, "Torch intra-op threads; 0 = torch default.", min=0)
+    device: Device = _opt("auto", "Where to train: cpu, cuda, or auto (cuda where torch sees one).")
     compile: bool = _opt(False, "torch.compile the training step.")
     bf16: bool = _opt(
         False,

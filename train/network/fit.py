@@ -251,15 +251,26 @@ def _schedule(
     raise TrainingError(f"unknown schedule {config.schedule!r} (cosine, step or constant)")
 
 
+def training_device(name: str) -> torch.device:
+    """The device `FitConfig.device` names: "auto" is CUDA where torch sees a GPU, else CPU."""
+    if name == "auto":
+        name = "cuda" if torch.cuda.is_available() else "cpu"
+    if name == "cuda" and not torch.cuda.is_available():
+        raise TrainingError("--device cuda: torch sees no CUDA GPU on this machine")
+    return torch.device(name)
+
+
 @torch.no_grad()
 def evaluate_split(net: NormalisedNet, split: Split, batch: int = 256) -> tuple[float, float]:
-    """(mean NLL loss, accuracy) of `net` on a split, no augmentation."""
+    """(mean NLL loss, accuracy) of `net` on a split, no augmentation, on the net's device."""
     net.eval()
+    device = next(net.parameters()).device
     loss, correct = 0.0, 0
     for i in range(0, len(split.labels), batch):
-        y = torch.from_numpy(split.labels[i : i + batch])
-        x = to_input(split.images[i : i + batch])
-        out = log_probabilities(net, x, torch.from_numpy(split.pixel_aspect[i : i + batch]))
+        y = torch.from_numpy(split.labels[i : i + batch]).to(device)
+        x = to_input(split.images[i : i + batch]).to(device)
+        aspect = torch.from_numpy(split.pixel_aspect[i : i + batch]).to(device)
+        out = log_probabilities(net, x, aspect)
         loss += F.nll_loss(out, y, reduction="sum").item()
         correct += int((out.argmax(1) == y).sum())
     n = max(len(split.labels), 1)
@@ -287,7 +298,8 @@ def fit(config: FitConfig, resume: bool = False) -> dict[str, Any]:
 
     torch.manual_seed(config.seed)
     net, parent = _initial_network(config, train, size, train_info[0].get("profile"))
-    net = net.to(memory_format=torch.channels_last)
+    device = training_device(config.device)
+    net = net.to(device, memory_format=torch.channels_last)
     opt = _optimiser(config, net)
     sched = _schedule(config, opt)
     augmenter = Augmenter(size, p_squash=config.squash) if config.augment else None
@@ -471,8 +483,9 @@ def _train_epoch(
             x, corners = augmenter(images, train.blur[idx], rng, corners)
         else:
             x = to_input(images)
-        y = torch.from_numpy(train.labels[idx])
-        with torch.autocast("cpu", dtype=torch.bfloat16, enabled=config.bf16):
+        device = next(net.parameters()).device
+        x, y = x.to(device), torch.from_numpy(train.labels[idx]).to(device)
+        with torch.autocast(device.type, dtype=torch.bfloat16, enabled=config.bf16):
             out = net(x)
         if isinstance(out, tuple):  # (log-probabilities, corners) of a net with a corner head
             out, predicted = out[0].float(), out[1].float()
@@ -518,11 +531,11 @@ def _corner_loss(
     corner 0 is higher in the image than corner 2, a rule a heat map can follow (with "either",
     a soft-argmax that cannot decide averages two opposite corners).
     """
-    known = torch.from_numpy(np.isfinite(corners).all(axis=1))
+    known = torch.from_numpy(np.isfinite(corners).all(axis=1)).to(predicted.device)
     if not bool(known.any()):
         return predicted.sum() * 0.0
     scale = np.tile([2.0 / w, 2.0 / h], 4).astype(np.float32)
-    target = torch.from_numpy(np.nan_to_num(corners) * scale - 1.0)[known]
+    target = torch.from_numpy(np.nan_to_num(corners) * scale - 1.0).to(predicted.device)[known]
     turned = torch.roll(target, shifts=4, dims=1)  # corners 2, 3, 0, 1
     pred = predicted[known]
     if order == "upper":

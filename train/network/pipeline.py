@@ -45,6 +45,7 @@ class ObjectRecipe:
     threads: int = 0
     bf16: bool = False
     workers: int = 1
+    device: str = "auto"
 
 
 def model_name(profile: Profile) -> str:
@@ -78,6 +79,7 @@ def train_object(
     common: dict[str, Any] = {
         "arch": "corners", "batch_size": recipe.batch_size, "optimizer": "adam",
         "weight_decay": 0.0, "schedule": "cosine", "patience": 0, "threads": recipe.threads,
+        "device": recipe.device,
         "bf16": recipe.bf16, "corner_weight": 5.0, "corner_beta": 0.01, "squash": 0.25,
         "extra": {"recipe": f"planar-pose object train {profile.name}"},
     }  # fmt: skip
