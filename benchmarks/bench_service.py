@@ -18,7 +18,26 @@ req/s) and the targets (whole mode, c=8: HTTP overhead with N workers <= 1.3x, p
 The load generator shares the CPUs with the server. `--write-docs` puts the result into
 docs/benchmarks.md (section "Service"), with the date and the machine.
 
+Then, in the same run, the service under stress (section "Service under stress"):
+
+* a photo without the board (a 640x480 real photo of the corpus's negatives) against the
+  board photo, through N workers at c=8 with the same load generator: requests/s, latency,
+  server CPU ms per request and the ratio no board / board, with the zoom pass's default
+  search (POSE_ZOOM_SEARCH_TILES=1) and with all 9 tiles (what it searched before; target
+  <= 2x);
+* the bomb: 16 black 7000x7000 PNGs in one multipart request (2.3 MB, 49 MP each): its
+  answer and time, and the worker processes' RSS after a burst of them against before
+  (target: 413 within 100 ms, or an answer within 2 s with RSS within 20 %); the same for
+  the largest request the budget lets through, one such PNG;
+* with `--recall SETS` (a folder of `planar-pose corpus sets SETS --size 2`): the accuracy
+  the zoom pass buys on the real val and test sources, blur 0-3 (the evaluation path:
+  `train.network.evaluate.network_batch`, then the graph with the pass off, searching 9
+  tiles, searching the default's), and on the corpus photos as stored (blur 0) through
+  `service.predictor.Predictor`, whose tiles are cut from the upload (target: the gain
+  within 1 point of the 9-tile search's).
+
     .venv/bin/python benchmarks/bench_service.py [--seconds 3] [--repeat 2] [--write-docs]
+        [--recall SETS] [--stress-only]
 """
 
 from __future__ import annotations
@@ -45,6 +64,7 @@ import cv2
 import httpx
 import numpy as np
 import psutil
+from docs_section import write_section  # benchmarks/, the script's own folder
 
 from service.model import PoseModel
 from service.predictor import Predictor
@@ -57,6 +77,12 @@ MARKERS = ("<!-- bench_service:start -->", "<!-- bench_service:end -->")
 CONCURRENCY = (1, 8, 32)
 MODES = ("whole", "sliding")
 TARGET_OVERHEAD, TARGET_P99_MS = 1.3, 50.0
+TARGET_NO_BOARD = 2.0  # a photo without the board, at most this many times a board photo
+NEGATIVES = ROOT / "train" / "assets" / "real" / "corpus" / "negatives"
+NO_BOARD = (
+    NEGATIVES / "azure-samples__cognitive-services-sample-data-files" / "images" / "Colmar.jpg"
+)
+STRESS_KEY, STRESS_TITLE = "bench_service_stress", "Service under stress"
 
 WRK_SCRIPT = """
 local f = assert(io.open(os.getenv("BENCH_BODY"), "rb"))
@@ -185,9 +211,11 @@ def in_process(
     return Run(len(ms) / wall, *np.percentile(ms, [50, 99]).tolist())
 
 
-def start_server(port: int, workers: int) -> subprocess.Popen[bytes]:
+def start_server(port: int, workers: int, **settings: str) -> subprocess.Popen[bytes]:
+    """`planar-pose-serve` with `workers` and POSE_* `settings`, once /readyz answers 200."""
     env = {k: v for k, v in os.environ.items() if not k.startswith("POSE_")}
     env["POSE_ACCESS_LOG"] = "false"
+    env.update({f"POSE_{k.upper()}": v for k, v in settings.items()})
     exe = str(Path(sys.executable).with_name("planar-pose-serve"))
     command = [exe, "--port", str(port), "--workers", str(workers), "--log-level", "warning"]
     proc = subprocess.Popen(command, env=env, cwd=ROOT)
@@ -287,6 +315,231 @@ def verdict(one: Cells, many: Cells, local: Cells, n: int) -> list[str]:
     ]
 
 
+def no_board_jpeg() -> bytes:
+    """A 640x480 photo without the board, re-encoded as photo_jpeg's."""
+    image = cv2.imread(str(NO_BOARD), cv2.IMREAD_COLOR)
+    ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 90])
+    assert ok and image.shape[:2] == (480, 640)
+    return buf.tobytes()
+
+
+def bomb_body(count: int) -> tuple[bytes, str]:
+    """A multipart body of `count` black 7000x7000 PNGs and its content type."""
+    png = cv2.imencode(".png", np.zeros((7000, 7000, 3), np.uint8))[1].tobytes()
+    boundary = "bench-bomb"
+    part = (
+        f'--{boundary}\r\nContent-Disposition: form-data; name="image"; filename="b.png"\r\n'
+        "Content-Type: image/png\r\n\r\n"
+    ).encode()
+    body = b"".join(part + png + b"\r\n" for _ in range(count)) + f"--{boundary}--\r\n".encode()
+    return body, f"multipart/form-data; boundary={boundary}"
+
+
+def workers_rss(server: subprocess.Popen[bytes]) -> float:
+    """MB resident in the worker processes of a `planar-pose-serve --workers N`."""
+    total = 0
+    for proc in psutil.Process(server.pid).children():
+        try:
+            if "spawn_main" in " ".join(proc.cmdline()):
+                total += proc.memory_info().rss
+        except psutil.NoSuchProcess:
+            continue
+    return total / 1e6
+
+
+def burst(
+    url: str, body: bytes, media: str, requests: int, at_once: int
+) -> list[tuple[int, float]]:
+    """(status, seconds) of `requests` POSTs of `body`, `at_once` at a time."""
+
+    def one(_: int) -> tuple[int, float]:
+        t0 = time.perf_counter()
+        r = httpx.post(url, content=body, headers={"content-type": media}, timeout=300)
+        return r.status_code, time.perf_counter() - t0
+
+    with ThreadPoolExecutor(at_once) as pool:
+        return list(pool.map(one, range(requests)))
+
+
+def bomb_lines(server: subprocess.Popen[bytes], url: str, body: Path) -> list[str]:
+    """The bomb request (one after another, then 4 at once) and the largest one the budget
+    lets through, against `server`: status, time, and the workers' RSS after a burst
+    against before (warmed up)."""
+    burst(url, body.read_bytes(), "image/jpeg", 40, 4)
+    lines = []
+    for count, requests, at_once in ((16, 10, 1), (16, 20, 4), (1, 8, 2)):
+        payload, media = bomb_body(count)
+        before = workers_rss(server)
+        answers = burst(url, payload, media, requests, at_once)
+        time.sleep(0.5)
+        after = workers_rss(server)
+        statuses = sorted({s for s, _ in answers})
+        seconds = np.array([t for _, t in answers])
+        lines.append(
+            f"| {count} x 7000x7000 PNG ({len(payload) / 1e6:.1f} MB) | {requests}, "
+            f"{'one after another' if at_once == 1 else f'{at_once} at once'} | "
+            f"{', '.join(map(str, statuses))} | {1e3 * np.median(seconds):.0f} | "
+            f"{1e3 * seconds.max():.0f} | {before:.0f} | {after:.0f} | {after / before:.2f}x |"
+        )
+    return lines
+
+
+def stress(workers: int, body: Path, generate: object, args: object) -> list[str]:
+    """The no-board photo against the board photo through `workers` workers at c=8, with the
+    zoom pass's default search and with all 9 tiles, and the bomb requests (module doc)."""
+    seconds, repeat = args.seconds, args.repeat  # type: ignore[attr-defined]
+    no_board = body.with_name("no-board.jpg")
+    no_board.write_bytes(no_board_jpeg())
+    configs = {"default": {}, "9 tiles (before)": {"zoom_search_tiles": "9"}}
+    ports = {name: free_port() for name in configs}
+    servers = {name: start_server(ports[name], workers, **cfg) for name, cfg in configs.items()}
+    cells: dict[tuple[str, str], Run] = {}
+    try:
+        photos = {"board": body, "no board": no_board}
+        for name in configs:
+            url = f"http://127.0.0.1:{ports[name]}/v1/predict"
+            for photo in photos.values():
+                generate(url, photo, 8, 1.0)  # type: ignore[operator]  # warm up
+        rounds = [
+            {
+                (name, kind): http_cell(
+                    servers[name],
+                    f"http://127.0.0.1:{ports[name]}/v1/predict",
+                    photo,
+                    8,
+                    seconds,
+                    generate,
+                )
+                for name in configs
+                for kind, photo in photos.items()
+            }
+            for _ in range(repeat)
+        ]
+        cells = {key: best([r[key] for r in rounds]) for key in rounds[0]}
+        bombs = bomb_lines(
+            servers["default"], f"http://127.0.0.1:{ports['default']}/v1/predict", body
+        )
+    finally:
+        for server in servers.values():
+            server.send_signal(signal.SIGTERM)
+        for server in servers.values():
+            server.wait(timeout=60)
+    lines = [
+        f"No board vs board, 640x480 JPEGs, {workers} workers, c=8, {seconds:g} s per cell, "
+        f"best of {repeat}, the same load generator:",
+        "",
+        "| zoom search | photo | req/s | p50 ms | p99 ms | errors | server CPU ms/req |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for (name, kind), run in cells.items():
+        lines.append(
+            f"| {name} | {kind} | {run.rps:.1f} | {run.p50_ms:.1f} | {run.p99_ms:.1f} | "
+            f"{run.errors} | {run.cpu_ms:.2f} |"
+        )
+    lines.append("")
+    for name in configs:
+        board, empty = cells[name, "board"], cells[name, "no board"]
+        by_rate, by_cpu = board.rps / empty.rps, empty.cpu_ms / board.cpu_ms
+        lines.append(
+            f"- {name}: a photo without the board costs {by_rate:.2f}x the board photo per "
+            f"request by req/s, {by_cpu:.2f}x by server CPU (target <= {TARGET_NO_BOARD:g}x: "
+            f"{'met' if max(by_rate, by_cpu) <= TARGET_NO_BOARD else 'MISSED'})."
+        )
+    lines += [
+        "",
+        "The bomb, against the default's workers (RSS: the worker processes, warmed up by 40 "
+        "board photos; after: 0.5 s after the burst):",
+        "",
+        "| request | requests | status | median ms | max ms | RSS before MB | after MB | "
+        "after / before |",
+        "|---|---|---|---|---|---|---|---|",
+        *bombs,
+    ]
+    return lines
+
+
+def recall_lines(sets: Path) -> list[str]:
+    """The zoom pass's accuracy on the real val and test sources (module doc)."""
+    from service.core.dataset import load_dataset
+    from service.zoom import GRID, SEARCH_TILES, zoomed
+    from train.network.evaluate import network_batch
+
+    model = PoseModel.load(Settings().resolved_model_path)
+    variants = {"off": 0, "9 tiles": GRID * GRID, f"{SEARCH_TILES} tile(s)": SEARCH_TILES}
+    lines = [
+        f"The zoom pass on the real val and test sources (`{sets}`, `planar-pose corpus sets "
+        "--size 2`: the evaluation path, tiles enlarged from the 160x120 images), accuracy %:",
+        "",
+        "| split | blur | photos | pass off | search 9 tiles | search "
+        f"{SEARCH_TILES} | gain, 9 tiles | gain, {SEARCH_TILES} | kept within 1 point |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for split in ("val", "test"):
+        for blur in range(4):
+            data = load_dataset(sets / f"real-s2-b{blur}", split=split)
+            acc = {}
+            for name, tiles in variants.items():
+                right = 0
+                for i in range(0, len(data.labels), 32):
+                    batch = network_batch(data.images[i : i + 32], model.input_size)
+                    aspect = data.pixel_aspect()[i : i + 32]
+                    if tiles:
+                        answer = zoomed(model, batch, aspect, search_tiles=tiles)
+                    else:
+                        answer = model.run(batch, aspect)
+                    right += int((answer.probabilities.argmax(1) == data.labels[i : i + 32]).sum())
+                acc[name] = 100 * right / len(data.labels)
+            a = list(acc.values())
+            lines.append(
+                f"| {split} | {blur} | {len(data.labels)} | {a[0]:.1f} | {a[1]:.1f} | {a[2]:.1f} "
+                f"| {a[1] - a[0]:+.1f} | {a[2] - a[0]:+.1f} | "
+                f"{'yes' if a[2] - a[0] >= a[1] - a[0] - 1 else 'NO'} |"
+            )
+    lines += ["", *service_recall_lines(sets, model, variants)]
+    return lines
+
+
+def service_recall_lines(sets: Path, model: PoseModel, variants: dict[str, int]) -> list[str]:
+    """The same through `Predictor` on the corpus photos as stored (blur 0; tiles cut from
+    the upload where it has the pixels)."""
+    from service.core.dataset import load_dataset
+
+    corpus = ROOT / "train" / "assets" / "real" / "corpus"
+    lines = [
+        "The same through the service's `Predictor` on the corpus photos as stored (at most "
+        "640 px wide, blur 0; the tiles cut from the upload):",
+        "",
+        "| split | photos | " + " | ".join(variants) + " | kept within 1 point |",
+        "|---|---|" + "---|" * len(variants) + "---|",
+    ]
+    for split in ("val", "test"):
+        rows = load_dataset(sets / "real-s2-b0", split=split).rows
+        photos = []
+        for row in rows:
+            source = row["source"]
+            stem = Path(row["file"]).stem.removeprefix(source + "__")
+            kind = "boards" if (corpus / "boards" / source).is_dir() else "negatives"
+            (path,) = (corpus / kind / source / "images").glob(stem + ".*")
+            photos.append(((None, path.read_bytes()), int(row["class"])))
+        acc = []
+        for tiles in variants.values():
+            settings = Settings(exif_focal=False, zoom=tiles > 0, zoom_search_tiles=max(1, tiles))
+            predictor = Predictor(model, settings)
+            right = 0
+            for i in range(0, len(photos), 16):
+                chunk = photos[i : i + 16]
+                results = predictor.predict([p for p, _ in chunk], "whole").results
+                right += sum(r.class_id == y for r, (_, y) in zip(results, chunk, strict=True))
+            acc.append(100 * right / len(photos))
+        kept = acc[2] - acc[0] >= acc[1] - acc[0] - 1
+        lines.append(
+            f"| {split} | {len(photos)} | "
+            + " | ".join(f"{a:.1f}" for a in acc)
+            + f" | {'yes' if kept else 'NO'} |"
+        )
+    return lines
+
+
 def write_docs(lines: list[str]) -> None:
     """Replace the service section of docs/benchmarks.md (create the file if needed)."""
     text = DOCS.read_text() if DOCS.exists() else "# Benchmarks\n"
@@ -306,6 +559,8 @@ def main() -> None:
         "--loadgen", choices=("wrk", "httpx"), default="wrk" if shutil.which("wrk") else "httpx"
     )
     parser.add_argument("--write-docs", action="store_true", help="update docs/benchmarks.md")
+    parser.add_argument("--recall", type=Path, help="real data sets folder: the zoom's accuracy")
+    parser.add_argument("--stress-only", action="store_true", help="only 'Service under stress'")
     args = parser.parse_args()
     if args.workers < 2:
         raise SystemExit("error: --workers must be at least 2 (it is compared with 1 worker)")
@@ -319,8 +574,35 @@ def main() -> None:
     load0, started = os.getloadavg()[0], datetime.now(UTC)
     print(f"640x480 JPEG, {len(data)} bytes; load generator: {args.loadgen}; {cpu_count()} CPUs")
 
-    one, many, local = measure(args.workers, body, data, predictor, generate, args)
     cpu = platform.processor() or platform.machine()
+    if not args.stress_only:
+        table_section(args, body, data, predictor, generate, load0, started, cpu)
+    stress_lines = stress(args.workers, body, generate, args)
+    if args.recall is not None:
+        stress_lines += ["", *recall_lines(args.recall)]
+    command = " ".join(["benchmarks/bench_service.py", *sys.argv[1:]])
+    head = (
+        f"`.venv/bin/python {command}`, {started:%Y-%m-%d %H:%M} UTC: {cpu}, {cpu_count()} "
+        f"CPUs, load generator {args.loadgen} (on the same CPUs), load average {load0:.2f} at "
+        f"start and {os.getloadavg()[0]:.2f} at end."
+    )
+    print("\n".join([head, "", *stress_lines]))
+    if args.write_docs:
+        write_section(DOCS, STRESS_KEY, STRESS_TITLE, [head, "", *stress_lines])
+
+
+def table_section(
+    args: argparse.Namespace,
+    body: Path,
+    data: bytes,
+    predictor: Predictor,
+    generate: object,
+    load0: float,
+    started: datetime,
+    cpu: str,
+) -> None:
+    """The table of the section "Service" (module doc), printed and written with --write-docs."""
+    one, many, local = measure(args.workers, body, data, predictor, generate, args)
     lines = [
         f"_Written by `benchmarks/bench_service.py{' --write-docs' if args.write_docs else ''}` "
         f"on {started:%Y-%m-%d %H:%M} UTC: {cpu}, {cpu_count()} CPUs, Python "
