@@ -8,7 +8,7 @@ import secrets
 from typing import Annotated
 
 import anyio
-from fastapi import Depends, Request
+from fastapi import Depends, Query, Request
 
 from service.errors import ApiError
 from service.metrics import Metrics
@@ -40,8 +40,17 @@ async def get_limiter(state: StateDep) -> anyio.CapacityLimiter:
     return state.jobs
 
 
-async def get_predictor(state: StateDep) -> Predictor:
-    """The default model's predictor, or 503 `not_ready` with the reason."""
+async def get_predictor(
+    state: StateDep,
+    model: Annotated[
+        str | None,
+        Query(description="A served model's name (GET /v1/models); default: the default model."),
+    ] = None,
+) -> Predictor:
+    """The predictor of `?model=` (404 listing the known names) or of the default model;
+    503 `not_ready` with the reason while it is not loaded."""
+    if model is not None:
+        return await get_named_predictor(model, state)
     predictor = state.predictor
     if predictor is None:
         raise ApiError(503, "not_ready", state.problem)

@@ -74,10 +74,12 @@ def test_from_a_picture_to_a_served_model(tmp_path: Path) -> None:
             if client.get("/readyz").status_code == 200:
                 break
             time.sleep(0.05)
-        r = client.post("/v1/models/poster-corners-160x120/predict", files={"image": data})
+        r = client.post("/v1/predict?model=poster-corners-160x120", files={"image": data})
+        unknown = client.post("/v1/predict?model=nope", files={"image": data})
         listing = client.get("/v1/models").json()
     assert r.status_code == 200, r.text
     assert r.json()["model"] == "poster-corners-160x120"
+    assert unknown.status_code == 404 and "poster-corners-160x120" in unknown.text
     assert {m["name"] for m in listing["models"]} >= {"poster-corners-160x120", DEFAULT_MODEL.stem}
 
 
