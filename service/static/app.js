@@ -62,13 +62,45 @@ function authHeaders() {
   return key ? { "X-API-Key": key } : {};
 }
 
-// --- the model card --------------------------------------------------------------------
+// --- the models and the chosen one's card ----------------------------------------------
+
+// The served model chosen in the Object list ("" for the default model).
+function chosenModel() {
+  return $("#model-name").value;
+}
+
+// The query that sends a request to the chosen model ("" for the default model).
+function modelQuery() {
+  return chosenModel() ? `model=${encodeURIComponent(chosenModel())}` : "";
+}
+
+// Fill the Object list from GET /v1/models: one entry per served model, its object named.
+async function loadModels() {
+  let response;
+  try {
+    response = await fetch("v1/models", { headers: authHeaders() });
+  } catch (_) {
+    return;
+  }
+  if (!response.ok) return;
+  const select = $("#model-name");
+  const chosen = select.value;
+  const models = (await response.json()).models || [];
+  if (!models.length) return;
+  // the default model first, as "" (the requests then name no model)
+  models.sort((a, b) => Number(b.default) - Number(a.default));
+  select.replaceChildren(...models.map((m) => new Option(
+    `${m.profile || "object"}: ${m.name}${m.default ? " (default)" : ""}`, m.default ? "" : m.name)));
+  select.value = chosen;
+}
 
 async function loadCard() {
   const status = $("#model-status");
+  status.hidden = false;
+  status.textContent = "Loading the model card…";
   let response;
   try {
-    response = await fetch("v1/model", { headers: authHeaders() });
+    response = await fetch(`v1/model?${modelQuery()}`, { headers: authHeaders() });
   } catch (_) {
     status.textContent = explain("network");
     return;
@@ -298,7 +330,7 @@ async function predictFile(file) {
   const mode = $("#mode").value;
   let response;
   try {
-    response = await fetch(`v1/predict?mode=${encodeURIComponent(mode)}`, {
+    response = await fetch(`v1/predict?mode=${encodeURIComponent(mode)}&${modelQuery()}`, {
       method: "POST", body: form, headers: authHeaders() });
   } catch (_) {
     showResultError(card, explain("network"));
@@ -352,6 +384,7 @@ function streamUrl() {
   url.protocol = url.protocol === "https:" ? "wss:" : "ws:";
   url.searchParams.set("mode", $("#mode").value);
   url.searchParams.set("smooth", $("#smooth").value);
+  if (chosenModel()) url.searchParams.set("model", chosenModel());
   return url.toString();
 }
 
@@ -456,6 +489,8 @@ function setUpCamera() {
 document.addEventListener("DOMContentLoaded", () => {
   setUpDrop();
   setUpCamera();
-  $("#api-key").addEventListener("change", loadCard);
+  $("#api-key").addEventListener("change", () => { loadModels(); loadCard(); });
+  $("#model-name").addEventListener("change", loadCard);
+  loadModels();
   loadCard();
 });

@@ -24,6 +24,8 @@ from live_support import API_KEY, PHOTO, Server
 from PIL import Image
 from PIL.ExifTags import IFD, Base
 
+from service.settings import DEFAULT_MODEL_NAME
+
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 CHROMEDRIVER = shutil.which("chromedriver") or (
     "/usr/bin/chromedriver" if Path("/usr/bin/chromedriver").exists() else None
@@ -257,7 +259,7 @@ def test_the_webcam_goes_through_the_stream(
     live = wait_for(browser, "#live .result[data-class-id]")
     WebDriverWait(browser, WAIT_S).until(lambda d: "frames/s" in d.find_element(By.ID, "fps").text)
     assert int(live.get_attribute("data-class-id")) in range(9)
-    assert "Streaming to default" in browser.find_element(By.ID, "camera-status").text
+    assert f"Streaming to {DEFAULT_MODEL_NAME}" in browser.find_element(By.ID, "camera-status").text
     screenshot(browser, tmp_path, "webcam.png")
     browser.find_element(By.ID, "camera").click()
     urls = assert_only_local(browser, server)
@@ -300,3 +302,24 @@ def test_with_an_api_key_the_page_asks_for_it_then_uses_it(
     wait_for(browser, "#live .result[data-class-id]")
     browser.find_element(By.ID, "camera").click()
     assert_only_local(browser, secured)
+
+
+def test_the_person_picks_the_object_and_its_model_answers(
+    browser: WebDriver, server: Server
+) -> None:
+    """The Object list holds every served model; the one picked gives the card and the
+    answers (`?model=` on /v1/predict)."""
+    served = httpx.get(server.url + "/v1/models", timeout=30).json()["models"]
+    other = next(m["name"] for m in served if not m["default"])
+    browser.get(server.url + "/")
+    wait_for(browser, "#model-card:not([hidden])")
+    options = Select(browser.find_element(By.ID, "model-name"))
+    WebDriverWait(browser, WAIT_S).until(lambda d: len(options.options) == len(served))
+    options.select_by_value(other)
+    WebDriverWait(browser, WAIT_S).until(
+        lambda d: other in d.find_element(By.CSS_SELECTOR, "#model-card").text
+    )
+    drop_file(browser, PHOTO.read_bytes(), PHOTO.name, "image/jpeg")
+    wait_for(browser, ".result[data-state='done']")
+    urls = assert_only_local(browser, server)
+    assert any("/v1/predict?" in u and f"model={other}" in u for u in urls), urls
