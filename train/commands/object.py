@@ -98,10 +98,12 @@ def train_command(
     ] = None,
 ) -> None:
     """Render, train, export and measure the object's corner model; resumable (run it again)."""
+    from train.network.fit import training_device
     from train.network.pipeline import ObjectRecipe, train_object
 
     if device not in ("auto", "cuda", "cpu"):
         raise fail(f"--device must be auto, cuda or cpu, got {device!r}", code=2)
+    guard(lambda: training_device(device), code=2)  # before any render: no GPU is a clear error
     profile = profile_or_exit(name)
     for path in real or []:
         if not (path / "labels.csv").is_file():
