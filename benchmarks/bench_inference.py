@@ -32,6 +32,7 @@ from docs_section import write_section  # benchmarks/, the script's own folder
 
 from service.core.preprocess import to_network_input
 from service.model import PoseModel
+from service.settings import DEFAULT_MODEL_NAME
 from service.zoom import detail_of, zoomed
 from train.markdown import table
 
@@ -150,19 +151,20 @@ def main() -> None:
         ),
         "",
         "graph: `PoseModel.run` on the network input; service: preprocessing of the photo, the "
-        "graph and the zoom pass (models with its inputs: a second look at a small board, all "
-        "nine tiles of a frame where no board was found). The SPEC network of each input size "
-        "is the reference of the ratio (graph, batch 1).",
+        "graph and the zoom pass (models with its inputs: a second look at a small board, and "
+        "where no board was found the tile nearest the frame's corner guess, "
+        "POSE_ZOOM_SEARCH_TILES). The SPEC network of each input size is the reference of the "
+        "ratio (graph, batch 1).",
     ]
-    default = next((r for r in rows if r["name"] == "default"), None)
+    default = next((r for r in rows if r["name"] == DEFAULT_MODEL_NAME), None)
     if default is not None and default["size"] in spec:
         lines += [
             "",
-            f"- default: {default['mb']:.2f} MB, its graph "
+            f"- the default ({DEFAULT_MODEL_NAME}): {default['mb']:.2f} MB, its graph "
             f"{default['graph 1'] / spec[default['size']]:.2f}x the SPEC network's at "
             f"{default['size'][0]}x{default['size'][1]}; the service's answer on a photo "
             f"without the board costs {default['service no board'] / default['graph 1']:.1f}x "
-            "its graph (the zoom pass's search of nine tiles).",
+            "its graph (the zoom pass's search).",
         ]
     print("\n".join(lines))
     if args.write_docs:
