@@ -36,7 +36,14 @@ from docs_section import write_section  # benchmarks/, the script's own folder
 
 from train.markdown import table
 from train.network.config import load_config, read_recipe
-from train.network.fit import Augmenter, FitConfig, Split, _optimiser, _train_epoch
+from train.network.fit import (
+    Augmenter,
+    FitConfig,
+    Split,
+    _optimiser,
+    _train_epoch,
+    cpu_bf16_flags,
+)
 from train.network.model import PoseNet, build_network
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -136,12 +143,10 @@ def default_stages() -> list[tuple[str, str, FitConfig]]:
 
 
 def bf16_units() -> str:
-    """What the CPU has for bfloat16 (Linux /proc/cpuinfo flags), in words."""
-    try:
-        flags = set(Path("/proc/cpuinfo").read_text().split())
-    except OSError:
+    """What the CPU has for bfloat16 (`train.network.fit.cpu_bf16_flags`), in words."""
+    found = cpu_bf16_flags()
+    if found is None:
         return "has unknown bfloat16 support"
-    found = [f for f in ("amx_bf16", "avx512_bf16") if f in flags]
     return f"has {' and '.join(found)}" if found else "has no bfloat16 units"
 
 

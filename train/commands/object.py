@@ -98,7 +98,7 @@ def train_command(
     ] = None,
 ) -> None:
     """Render, train, export and measure the object's corner model; resumable (run it again)."""
-    from train.network.fit import training_device
+    from train.network.fit import native_bf16, training_device
     from train.network.pipeline import ObjectRecipe, train_object
 
     if device not in ("auto", "cuda", "cpu"):
@@ -111,7 +111,7 @@ def train_command(
     recipe = ObjectRecipe(
         train_count=count, eval_count=eval_count, epochs=epochs,
         fine_tune_epochs=fine_tune_epochs, batch_size=batch_size, threads=threads,
-        bf16=_has_bf16(device) if bf16 is None else bf16, workers=workers, device=device,
+        bf16=native_bf16(device) if bf16 is None else bf16, workers=workers, device=device,
     )  # fmt: skip
     start = time.monotonic()
     run_dir = run or Path("runs") / profile.name
@@ -122,17 +122,3 @@ def train_command(
     )
     for ds, acc in [*card["accuracy"].items(), *card.get("accuracy_val", {}).items()]:
         out.print(f"  {ds} ({acc['split']}, {acc['count']} images): {100 * acc['accuracy']:.2f} %")
-
-
-def _has_bf16(device: str) -> bool:
-    """Whether the training device computes bfloat16 natively: the GPU says so, or the CPU has
-    avx512_bf16 or amx_bf16 (Linux)."""
-    import torch
-
-    if device != "cpu" and torch.cuda.is_available():
-        return bool(torch.cuda.is_bf16_supported())
-    try:
-        flags = Path("/proc/cpuinfo").read_text()
-    except OSError:
-        return False
-    return "avx512_bf16" in flags or "amx_bf16" in flags

@@ -260,6 +260,24 @@ def training_device(name: str) -> torch.device:
     return torch.device(name)
 
 
+def cpu_bf16_flags() -> list[str] | None:
+    """The CPU's bfloat16 units among amx_bf16, avx512_bf16 (Linux /proc/cpuinfo flags);
+    None where the flags cannot be read."""
+    try:
+        flags = set(Path("/proc/cpuinfo").read_text().split())
+    except OSError:
+        return None
+    return [f for f in ("amx_bf16", "avx512_bf16") if f in flags]
+
+
+def native_bf16(device: str) -> bool:
+    """Whether the training device (`training_device`'s name) computes bfloat16 natively:
+    the GPU says so, or the CPU has bfloat16 units (`cpu_bf16_flags`)."""
+    if device != "cpu" and torch.cuda.is_available():
+        return bool(torch.cuda.is_bf16_supported())
+    return bool(cpu_bf16_flags())
+
+
 @torch.no_grad()
 def evaluate_split(net: NormalisedNet, split: Split, batch: int = 256) -> tuple[float, float]:
     """(mean NLL loss, accuracy) of `net` on a split, no augmentation, on the net's device."""
@@ -470,6 +488,7 @@ def _train_epoch(
     lr = opt.param_groups[0]["lr"]
     start = time.perf_counter()
     n_batches = max(1, len(order) // config.batch_size)
+    device = next(net.parameters()).device
     bar = tqdm(
         range(0, n_batches * config.batch_size, config.batch_size),
         desc=f"epoch {epoch}/{config.epochs}",
@@ -483,7 +502,6 @@ def _train_epoch(
             x, corners = augmenter(images, train.blur[idx], rng, corners)
         else:
             x = to_input(images)
-        device = next(net.parameters()).device
         x, y = x.to(device), torch.from_numpy(train.labels[idx]).to(device)
         with torch.autocast(device.type, dtype=torch.bfloat16, enabled=config.bf16):
             out = net(x)

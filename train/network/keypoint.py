@@ -65,7 +65,7 @@ from service.core.profile import DEFAULT_PROFILE, load_profile
 from service.core.regions import QUADRANT_SIGNS, Z_SPLIT_CM
 from train.network.align import CheckerAlign, Lens, square_homography
 from train.network.base import NormalisedNet, conv_block
-from train.network.pattern import Pattern
+from train.network.pattern import CHECKER_SQUARES, Pattern
 
 SIZE = SIZES[2]
 # The focal length (`KeypointNet.focal_length`): Zhang's constraints with a prior. The prior
@@ -93,7 +93,7 @@ PARITY_BLUR = KERNELS[2][3]
 _ANCHOR = (PARITY_BLUR[0] - 1) // 2  # cv2's filter anchor: the tap on the output pixel
 PARITY_PAD = (2 * _ANCHOR, 2 * (PARITY_BLUR[0] - 1 - _ANCHOR) + 1)  # taps before / after it, 2x
 STRIDES = (4, 2)  # input pixels per heat-map pixel: 40x30 maps, or 80x60 ("corners")
-SQUARES = (10, 7)  # squares of the board along its width (x) and height (y)
+SQUARES = CHECKER_SQUARES  # squares of the board along its width (x) and height (y)
 # |corr(image, checker)| at the aligned corners above which the board is taken as present
 # whatever the presence logit says: real photos without a board stay under 0.16 (the
 # corpus's train and val sources), with one mostly over 0.6

@@ -76,7 +76,7 @@ def _is_checker(grey: np.ndarray) -> bool:
     u = np.clip((st[:, 0] * w).astype(int), 0, w - 1)
     v = np.clip(((1 - st[:, 1]) * h).astype(int), 0, h - 1)
     means = grey[v, u]
-    i, j = np.meshgrid(np.arange(10), np.arange(7), indexing="xy")
+    i, j = np.meshgrid(*(np.arange(n) for n in CHECKER_SQUARES), indexing="xy")
     white = ((i + j) % 2 == 1).ravel()
     return bool(np.all(means[white] > 0.7) and np.all(means[~white] < 0.3))
 

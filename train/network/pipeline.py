@@ -23,6 +23,8 @@ from pathlib import Path
 from typing import Any
 
 from service.core.blur import BLUR_LEVELS
+from service.core.dataset import MANIFEST_FILE
+from service.core.inputs import SIZES
 from service.core.profile import Profile
 from train.network.config import FitConfig
 from train.network.export import export
@@ -50,7 +52,8 @@ class ObjectRecipe:
 
 def model_name(profile: Profile) -> str:
     """The served name of the object's corner model: object, network, input size."""
-    return f"{profile.name}-corners-160x120"
+    w, h = SIZES[2]
+    return f"{profile.name}-corners-{w}x{h}"
 
 
 def train_object(
@@ -71,7 +74,7 @@ def train_object(
         (DatasetSpec("free", 2, b, recipe.eval_count, EVAL_SEED + b, profile), path)
         for b, path in zip(BLUR_LEVELS, evals, strict=True)
     ]
-    todo = [(spec, out) for spec, out in jobs if not (out / "manifest.json").is_file()]
+    todo = [(spec, out) for spec, out in jobs if not (out / MANIFEST_FILE).is_file()]
     if todo:
         say(f"renders: {len(todo)} data set(s) in {data}")
         make_datasets(todo, overwrite=True, workers=recipe.workers)

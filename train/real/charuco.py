@@ -25,7 +25,6 @@ independent check, the pose found by feature matching against the front-on textu
 from __future__ import annotations
 
 import tomllib
-from collections import Counter
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
@@ -40,12 +39,12 @@ from train.real.calibration import Camera
 from train.real.corners import Correspondences, TextureMatcher
 from train.real.corpus import (
     contact_sheet,
+    failure_reasons,
     prepare_source,
-    scale_label,
-    store_image,
+    store_labelled,
     write_source,
 )
-from train.real.label import draw_overlay, label_from_points, row_of
+from train.real.label import label_from_points
 
 #: Fewest ChArUco corners a pose is computed from.
 MIN_CORNERS = 6
@@ -232,15 +231,10 @@ def label_video_source(
             failed.append(f"{path.name}: reprojection RMS {lab.rms:.2f} px too large")
             continue
         checks.append(_texture_check(matcher, rgb, cam, corners_xy, z_split, lab))
-        name = f"images/{path.stem}.jpg"
-        small, scale = store_image(rgb, out / name)
-        stored = scale_label(lab, scale, (small.shape[1], small.shape[0]))
-        row = row_of(name, stored, (small.shape[1], small.shape[0]), "")
-        row |= {"original": path.name, "reproj_rms_px": f"{lab.rms * scale:.4f}"}
+        row, overlay = store_labelled(rgb, lab, out, path, profile)
         rows.append(row)
-        overlays.append(draw_overlay(small, stored, profile.width_cm, profile.height_cm))
+        overlays.append(overlay)
     contact_sheet(overlays, out / "overlays.jpg")
-    reasons = Counter(line.split(": ", 1)[1].split(" (")[0] for line in failed)
     found = [c for c in checks if c is not None]
     manifest = {
         "generator": "planar-pose corpus charuco",
@@ -255,7 +249,7 @@ def label_video_source(
         "count": len(rows),
         "photos": len(paths),
         "failed": len(failed),
-        "failed_by_reason": dict(reasons),
+        "failed_by_reason": failure_reasons(failed),
         "texture_check": {
             "found": len(found),
             "class_agrees": sum(c["agree"] for c in found),

@@ -235,6 +235,26 @@ def contact_sheet(images: list[np.ndarray], path: Path, cols: int = 6, width: in
     cv2.imwrite(str(path), sheet, [cv2.IMWRITE_JPEG_QUALITY, 80])
 
 
+def store_labelled(
+    rgb: np.ndarray, lab: Label, out: Path, original: Path, profile: Any
+) -> tuple[dict[str, Any], np.ndarray]:
+    """Store a labelled photo RGB uint8 [H, W, 3] of the file `original` as
+    out/images/<stem>.jpg (`store_image`) -> (its labels.csv row, with the label scaled to
+    the stored size; its overlay, BGR)."""
+    name = f"images/{original.stem}.jpg"
+    small, scale = store_image(rgb, out / name)
+    size = (small.shape[1], small.shape[0])
+    stored = scale_label(lab, scale, size)
+    row = row_of(name, stored, size, "")
+    row |= {"original": original.name, "reproj_rms_px": f"{lab.rms * scale:.4f}"}
+    return row, draw_overlay(small, stored, profile.width_cm, profile.height_cm)
+
+
+def failure_reasons(failed: list[str]) -> dict[str, int]:
+    """failed.txt lines "<file>: <reason> (<details>)" -> {reason: count}."""
+    return dict(Counter(line.split(": ", 1)[1].split(" (")[0] for line in failed))
+
+
 def prepare_source(src: Path, out: Path) -> tuple[dict[str, Any], list[Path]]:
     meta = read_source(src)
     paths = list_images(src / "images")
@@ -301,16 +321,10 @@ def label_source(
             if pattern_continues(grey, lab, pattern):
                 failed.append(f"{v.path.name}: the checker pattern goes on outside the board")
                 continue
-            name = f"images/{v.path.stem}.jpg"
-            small, scale = store_image(v.rgb, out / name)
-            stored = scale_label(lab, scale, (small.shape[1], small.shape[0]))
-            row = row_of(name, stored, (small.shape[1], small.shape[0]), "")
-            row |= {"parity_confidence": f"{parity:.3f}", "original": v.path.name}
-            row["reproj_rms_px"] = f"{lab.rms * scale:.4f}"
-            rows.append(row)
-            overlays.append(draw_overlay(small, stored, profile.width_cm, profile.height_cm))
+            row, overlay = store_labelled(v.rgb, lab, out, v.path, profile)
+            rows.append(row | {"parity_confidence": f"{parity:.3f}"})
+            overlays.append(overlay)
     contact_sheet(overlays, out / "overlays.jpg")
-    reasons = Counter(line.split(": ", 1)[1].split(" (")[0] for line in failed)
     manifest = {
         "generator": "planar-pose label (corpus source)",
         "kind": "board",
@@ -320,7 +334,7 @@ def label_source(
         "count": len(rows),
         "photos": len(paths),
         "failed": len(failed),
-        "failed_by_reason": dict(reasons),
+        "failed_by_reason": failure_reasons(failed),
     }
     return write_source(out, rows, failed, manifest)
 
