@@ -10,9 +10,11 @@ from typing import Annotated
 import anyio
 from fastapi import Depends, Query, Request
 
+from service.cameras import CameraNotFound, CameraStore, CameraStoreError, KnownFocal
+from service.core.cells import RegionGrid
 from service.errors import ApiError
 from service.metrics import Metrics
-from service.predictor import Predictor
+from service.predictor import FX_MAX_PX, FX_MIN_PX, Predictor
 from service.registry import ModelRegistry, UnknownModel
 from service.settings import Settings
 from service.state import ServiceState
@@ -80,6 +82,79 @@ LimiterDep = Annotated[anyio.CapacityLimiter, Depends(get_limiter)]
 PredictorDep = Annotated[Predictor, Depends(get_predictor)]
 NamedPredictorDep = Annotated[Predictor, Depends(get_named_predictor)]
 ModelsDep = Annotated[ModelRegistry, Depends(get_models)]
+
+
+async def get_cameras(state: StateDep) -> CameraStore:
+    return state.cameras
+
+
+CamerasDep = Annotated[CameraStore, Depends(get_cameras)]
+
+
+def stored_camera(cameras: CameraStore, camera_id: str) -> KnownFocal:
+    """The stored camera `camera_id`'s intrinsics; 404 unknown, 503 store unavailable."""
+    try:
+        return KnownFocal.of(cameras.get(camera_id))
+    except CameraNotFound as exc:
+        raise ApiError(404, "camera_not_found", str(exc)) from None
+    except CameraStoreError as exc:
+        raise ApiError(503, "camera_store_unavailable", str(exc)) from None
+
+
+async def get_focal(
+    cameras: CamerasDep,
+    fx: Annotated[
+        float | None,
+        Query(
+            description="The camera's focal length fx in pixels of the uploaded images "
+            "(camera matrix [0, 0] of a calibration at that size; mode=whole, corner models): "
+            "the class and the pose use it instead of estimating it. Unset: estimated.",
+            ge=FX_MIN_PX,
+            le=FX_MAX_PX,
+            allow_inf_nan=False,
+        ),
+    ] = None,
+    camera: Annotated[
+        str | None,
+        Query(
+            description="A stored camera's id (POST /v1/cameras): its intrinsics, scaled to "
+            "each image's size, instead of estimating them.",
+            max_length=64,
+        ),
+    ] = None,
+) -> KnownFocal | None:
+    """The focal length the request knows: `fx=` or the stored camera `camera=` (422 both)."""
+    if fx is not None and camera is not None:
+        raise ApiError(422, "invalid_parameters", "fx and camera: give one of them")
+    if camera is not None:
+        return stored_camera(cameras, camera)
+    return None if fx is None else KnownFocal(fx, "query")
+
+
+async def get_grid(
+    settings: SettingsDep,
+    regions: Annotated[
+        str | None,
+        Query(
+            description="Finer regions: AxE or AxExD1,D2,... (azimuth sectors x elevation "
+            "bands x distance splits in cm, docs/pose.md); the answer's `cell`. Default: "
+            "POSE_REGIONS (unset: none).",
+            max_length=200,
+        ),
+    ] = None,
+) -> RegionGrid | None:
+    """The grid of `regions=` (else the settings'), 422 for one that does not parse."""
+    text = regions or settings.regions
+    if not text:
+        return None
+    try:
+        return RegionGrid.parse(text)
+    except ValueError as exc:
+        raise ApiError(422, "invalid_parameters", str(exc)) from None
+
+
+FocalDep = Annotated[KnownFocal | None, Depends(get_focal)]
+GridDep = Annotated[RegionGrid | None, Depends(get_grid)]
 
 
 async def authorise(request: Request, settings: SettingsDep) -> None:

@@ -90,6 +90,18 @@ class PoseModel:
     def name(self) -> str:
         return str(self.card["name"])
 
+    @property
+    def object_size_cm(self) -> tuple[float, float] | None:
+        """The object's (width, height) cm from the card's profile (None: not stated)."""
+        profile = self.card.get("profile")
+        if not isinstance(profile, dict):
+            return None
+        try:
+            size = (float(profile["width_cm"]), float(profile["height_cm"]))
+        except (KeyError, TypeError, ValueError):
+            return None
+        return size if all(0 < v < 1e4 for v in size) else None
+
     @classmethod
     def load(
         cls,

@@ -16,6 +16,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from service.cameras import KnownFocal
+from service.core.cells import RegionGrid
+from service.core.pose import fit_focal
 from service.core.preprocess import (
     DecodedImage,
     ImageDecodeError,
@@ -28,9 +31,10 @@ from service.core.preprocess import (
 )
 from service.core.regions import region_of_class
 from service.exif import exif_focal
-from service.model import PoseModel
+from service.model import Answer, PoseModel
+from service.posing import Focal, cell_of, focal_of, object_points, pose_of
 from service.proposals import propose_boxes
-from service.schemas import Box, Detection, FocalSource, ImageResult, Mode, RegionOut
+from service.schemas import Box, Detection, ImageResult, Mode, RegionOut
 from service.settings import Settings
 from service.sliding import (
     BoxGenerator,
@@ -79,6 +83,19 @@ def too_large_code(exc: ImageTooLargeError) -> str:
 
 def _name(index: int, image: ImageInput) -> str:
     return f"image {index + 1}" + (f" ({image[0]})" if image[0] else "")
+
+
+@dataclass(frozen=True)
+class _JointFocal(KnownFocal):
+    """A same-camera request's fitted focal length and the range (lo, hi) px its photos
+    allow, px of images of its `size`."""
+
+    interval: tuple[float, float] | None = None
+
+
+def frames_to_image(frames: Sequence[NetworkFrame], corners: np.ndarray) -> np.ndarray:
+    """Corners [N, 4, 2] in input px of each image's frame -> px of the uploaded images."""
+    return np.stack([f.to_image(q) for f, q in zip(frames, corners, strict=True)])
 
 
 @dataclass(frozen=True)
@@ -173,30 +190,48 @@ class Predictor:
         w, h = self.model.input_size
         return propose_boxes(image, w / h, self.settings.proposals_max)
 
-    def focal_problem(self, mode: Mode, fx: float | None) -> str | None:
-        """Why the camera's focal length `fx` (px of the uploaded images) cannot be used
-        with `mode` and this model, or None when it can (or is not given)."""
-        if fx is None:
+    def focal_problem(
+        self, mode: Mode, focal: KnownFocal | None, same_camera: bool = False
+    ) -> str | None:
+        """Why the known focal length `focal` (or a `same_camera` fit) cannot be used with
+        `mode` and this model, or None when it can (or neither is asked for)."""
+        if focal is None and not same_camera:
             return None
-        if not (math.isfinite(fx) and FX_MIN_PX <= fx <= FX_MAX_PX):
-            return f"fx: must be {FX_MIN_PX:g} to {FX_MAX_PX:g} pixels, got {fx}"
+        what = (
+            "same_camera"
+            if focal is None
+            else {"query": "fx", "camera": "camera"}.get(focal.source, "fx")
+        )
+        if focal is not None and same_camera:
+            return f"same_camera: the focal length is known already ({what}); give one of them"
+        if focal is not None and not (
+            math.isfinite(focal.fx) and FX_MIN_PX <= focal.fx <= FX_MAX_PX
+        ):
+            return f"fx: must be {FX_MIN_PX:g} to {FX_MAX_PX:g} pixels, got {focal.fx}"
         if mode != "whole":
-            return f"fx: applies to mode=whole only, not mode={mode}"
+            return f"{what}: applies to mode=whole only, not mode={mode}"
         if not self.model.takes_focal:
-            return f"fx: model {self.model.name} does not take a focal length"
+            return f"{what}: model {self.model.name} does not take a focal length"
         return None
 
     def predict(
-        self, images: Sequence[ImageInput], mode: Mode, fx: float | None = None
+        self,
+        images: Sequence[ImageInput],
+        mode: Mode,
+        focal: KnownFocal | None = None,
+        same_camera: bool = False,
+        grid: RegionGrid | None = None,
     ) -> Prediction:
         """Answer every image; raises ImageDecodeError/ImageTooLargeError naming the image,
-        ValueError for an `fx` that `focal_problem` refuses.
+        ValueError for a `focal` / `same_camera` that `focal_problem` refuses.
 
         whole: the image as one input; sliding: the window grid; proposals: object proposals.
-        `fx`: the camera's focal length in pixels of the images (the calibration's camera
-        matrix [0, 0] at the images' size), which the pose then uses instead of estimating it.
+        `focal`: the camera's focal length (px of the images, scaled to each one's size), which
+        the class and the pose then use instead of estimating it; `same_camera`: the images
+        are one camera's, whose focal length is fitted to all their corners (whole mode,
+        corner models). `grid`: the finer regions each pose's `cell` is named in.
         """
-        problem = self.focal_problem(mode, fx)
+        problem = self.focal_problem(mode, focal, same_camera)
         if problem is not None:
             raise ValueError(problem)
         pixels = self.check_pixels(images, mode)
@@ -205,12 +240,18 @@ class Predictor:
                 return self._detect(images, self.boxes, self.settings.sliding_resolution)
             if mode == "proposals":
                 return self._detect(images, self._proposals, self.settings.proposals_resolution)
-            return self._whole(images, fx)
+            return self._whole(images, focal, same_camera, grid)
         finally:
             if pixels > TRIM_ABOVE_PIXELS:
                 give_back_memory()
 
-    def _whole(self, images: Sequence[ImageInput], fx: float | None) -> Prediction:
+    def _whole(
+        self,
+        images: Sequence[ImageInput],
+        focal: KnownFocal | None,
+        same_camera: bool,
+        grid: RegionGrid | None,
+    ) -> Prediction:
         size, inputs, prep, frames, known = self.model.input_size, [], [], [], []
         zoom = self.settings.zoom and self.model.zooms
         detail: list[np.ndarray | None] = []  # the zoom pass's frames at 2x the input size
@@ -223,50 +264,108 @@ class Predictor:
             if zoom:
                 detail.append(detail_of(decoded.rgb, size))
             frames.append(NetworkFrame((decoded.width, decoded.height), size))
-            known.append(self._known_focal(image[1], (decoded.width, decoded.height), fx))
+            known.append(focal or self._exif_focal(image[1], (decoded.width, decoded.height)))
             prep.append(time.perf_counter() - t0)
-        aspect = np.array([f.pixel_aspect for f in frames], dtype=np.float32)
-        focal = None  # 0 for an image: unknown, estimated (`PoseModel.run`)
-        if any(k is not None for k in known):
-            focal = np.array(
-                [
-                    0.0 if k is None else f.input_focal(k[0])
-                    for f, k in zip(frames, known, strict=True)
-                ],
-                np.float32,
-            )
         t0 = time.perf_counter()
         batch = np.stack(inputs)
-        if zoom:
-            cfg = self.settings
-            answer = zoomed(
-                self.model, batch, aspect, cfg.zoom_search, focal, detail, cfg.zoom_search_tiles
-            )
-        else:
-            answer = self.model.run(batch, aspect, focal=focal)
-        probs, corners, infer_s = answer.probabilities, answer.corners, time.perf_counter() - t0
+        answer = self._run(batch, frames, known, detail if zoom else None)
+        corners = None if answer.corners is None else frames_to_image(frames, answer.corners)
+        joint = None
+        if same_camera and corners is not None:
+            joint = self._joint_focal(answer, corners, frames)
+            if joint is not None:
+                known = [joint] * len(images)
+                answer = self._run(batch, frames, known, detail if zoom else None)
+                corners = (
+                    None if answer.corners is None else frames_to_image(frames, answer.corners)
+                )
+        probs, infer_s = answer.probabilities, time.perf_counter() - t0
         share = infer_s / len(images)
         results = []
         for i, (image, p, t, k) in enumerate(zip(images, probs, prep, known, strict=True)):
             result = _result(image[0], int(p.argmax()), p, t + share)
             if corners is not None and result.class_id != 0:
-                result.corners = frames[i].to_image(corners[i]).tolist()
+                result.corners = corners[i].tolist()
+                self._add_pose(result, corners[i], frames[i].image_size, k, joint, grid)
             if k is not None:
-                result.fx, result.fx_source = k
+                result.fx = k.camera(frames[i].image_size).fx
+                result.fx_source = k.source
             results.append(result)
         return Prediction(results, infer_s)
 
-    def _known_focal(
-        self, data: bytes, size: tuple[int, int], fx: float | None
-    ) -> tuple[float, FocalSource] | None:
-        """The focal length (px of an image of `size` (W, H)) the pose uses for it and where it
-        came from: the request's `fx`, else its EXIF's (`exif_focal`), else None (estimated)."""
-        if fx is not None:
-            return fx, "query"
+    def _run(
+        self,
+        batch: np.ndarray,
+        frames: list[NetworkFrame],
+        known: Sequence[KnownFocal | None],
+        detail: list[np.ndarray | None] | None,
+    ) -> Answer:
+        """The network's answer for the inputs [N, 3, H, W] of `frames`, with the focal length
+        of each where it is known, through the zoom pass where `detail` is given."""
+        aspect = np.array([f.pixel_aspect for f in frames], dtype=np.float32)
+        focal = None  # 0 for an image: unknown, estimated (`PoseModel.run`)
+        if any(k is not None for k in known):
+            focal = np.array(
+                [
+                    0.0 if k is None else f.input_focal(k.camera(f.image_size).fx)
+                    for f, k in zip(frames, known, strict=True)
+                ],
+                np.float32,
+            )
+        if detail is not None:
+            cfg = self.settings
+            return zoomed(
+                self.model, batch, aspect, cfg.zoom_search, focal, detail, cfg.zoom_search_tiles
+            )
+        return self.model.run(batch, aspect, focal=focal)
+
+    def _joint_focal(
+        self, answer: Answer, corners: np.ndarray, frames: list[NetworkFrame]
+    ) -> _JointFocal | None:
+        """One focal length fitted to the corners of every image the object was found in
+        (`fit_focal`, in px of the first one's size), or None with fewer than 2 of them."""
+        size_cm = self.model.object_size_cm
+        found = [i for i, p in enumerate(answer.probabilities) if p.argmax() != 0]
+        if size_cm is None or len(found) < 2:
+            return None
+        size = frames[found[0]].image_size
+        views = [corners[i] * max(size) / max(frames[i].image_size) for i in found]
+        fit = fit_focal(views, object_points(size_cm), size)
+        return _JointFocal(fit.fx, "estimated", size, interval=fit.interval)
+
+    def _add_pose(
+        self,
+        result: ImageResult,
+        corners: np.ndarray,
+        size: tuple[int, int],
+        known: KnownFocal | None,
+        joint: _JointFocal | None,
+        grid: RegionGrid | None,
+    ) -> None:
+        """The `pose` (and with `grid` the `cell`) of an image whose object was found."""
+        size_cm = self.model.object_size_cm
+        if size_cm is None:
+            return
+        focal = focal_of(corners, size, size_cm, known)
+        if joint is not None and joint.interval is not None:
+            s = joint.scale(size)
+            focal = Focal(
+                focal.camera, focal.source, (joint.interval[0] * s, joint.interval[1] * s)
+            )
+        try:
+            result.pose = pose_of(corners, size_cm, focal)
+            if grid is not None:
+                result.cell = cell_of(grid, corners, size_cm, focal)
+        except (ValueError, np.linalg.LinAlgError):  # corners that give no pose (degenerate)
+            result.pose = result.cell = None
+
+    def _exif_focal(self, data: bytes, size: tuple[int, int]) -> KnownFocal | None:
+        """The focal length of the photo's EXIF (`exif_focal`), px of its `size` (W, H), or
+        None (unknown, or EXIF focal lengths off)."""
         if self.settings.exif_focal and self.model.takes_focal:
             exif_fx = exif_focal(data, size)
             if exif_fx is not None:
-                return exif_fx, "exif"
+                return KnownFocal(exif_fx, "exif", size)
         return None
 
     def _detect(

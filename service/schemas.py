@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, Field, model_validator
 
 Mode = Literal["whole", "sliding", "proposals"]
-FocalSource = Literal["query", "exif"]  # where a known focal length came from
+#: Where the focal length of a pose came from: the request's `fx`, a stored camera
+#: (`camera=`), the photo's EXIF, the stream's learned camera, or the view itself.
+FocalSource = Literal["query", "camera", "exif", "stream", "estimated"]
 
 
 class RegionOut(BaseModel):
@@ -38,6 +40,51 @@ class Detection(BaseModel):
     box: Box
 
 
+class Pose(BaseModel):
+    """The camera's pose relative to the object (docs/pose.md): object frame in cm (origin at
+    the object's centre, +x right and +y up on its texture, +z out of its face), OpenCV's
+    camera frame (x right, y down, z forward)."""
+
+    camera_cm: list[float] = Field(description="Camera centre in the object frame, cm.")
+    distance_cm: float = Field(description="|camera_cm|: from the object's centre, cm.")
+    azimuth_deg: float = Field(description="atan2(y, x) of the centre: 0 = +x side, 90 = top.")
+    elevation_deg: float = Field(description="asin(z / distance): 90 = head-on, 0 = grazing.")
+    rvec: list[float] = Field(description="OpenCV rotation vector, object -> camera.")
+    tvec_cm: list[float] = Field(description="OpenCV translation, object -> camera, cm.")
+    fx: float = Field(description="The focal length the pose used, px of the uploaded image.")
+    fx_source: FocalSource
+    fx_range: list[float] | None = Field(
+        default=None,
+        description="fx estimated: the focal lengths [lo, hi] px the view allows (the corners "
+        "fit within their noise); null where fx is known.",
+    )
+    distance_range_cm: list[float] | None = Field(
+        default=None, description="fx estimated: the distance over `fx_range`, cm."
+    )
+    residual_px: float = Field(description="RMS reprojection error of the corners, px.")
+
+
+class CellShare(BaseModel):
+    index: int
+    probability: float
+
+
+class CellOut(BaseModel):
+    """The finer region of the pose in the grid `regions=` asked for (docs/pose.md)."""
+
+    grid: str = Field(examples=["8x3x60"])
+    index: int
+    azimuth_deg: list[float]
+    elevation_deg: list[float]
+    distance_cm: list[float | None] = Field(description="[lo, hi) cm; hi null: no limit.")
+    label: str
+    probability: float = Field(description="Share of the pose's samples in this cell.")
+    neighbours: list[CellShare] = Field(
+        description="Other cells the pose may be in (the corners' noise and the focal range "
+        "sampled), most likely first; empty where the pose is sure."
+    )
+
+
 class ImageResult(BaseModel):
     """The answer for one image."""
 
@@ -61,13 +108,21 @@ class ImageResult(BaseModel):
     )
     fx: float | None = Field(
         default=None,
-        description="Whole mode: the camera's focal length the pose used, in pixels of the "
-        "uploaded image, where it was known; null where the pose estimated it.",
+        description="Whole mode: the camera's focal length the class used, in pixels of the "
+        "uploaded image, where it was known; null where the network estimated it.",
     )
     fx_source: FocalSource | None = Field(
         default=None,
-        description="Where `fx` came from: the request's fx parameter or the photo's EXIF "
-        "35 mm equivalent focal length (service/exif.py); null where it was estimated.",
+        description="Where `fx` came from: the request's fx, a stored camera, the photo's "
+        "EXIF 35 mm equivalent focal length (service/exif.py), the stream's learned camera or "
+        "the photos of a same_camera request; null where it was estimated.",
+    )
+    pose: Pose | None = Field(
+        default=None,
+        description="Whole mode, corner models, object in view: the camera's full pose.",
+    )
+    cell: CellOut | None = Field(
+        default=None, description="With regions=GRID and a pose: the pose's finer region."
     )
     elapsed_ms: float = Field(
         description="Decoding and preprocessing this image plus its share of the batched "
@@ -102,11 +157,65 @@ ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {
         400: "Undecodable or empty image, malformed body.",
         401: "API key missing or wrong (when POSE_API_KEY is set).",
         413: "Body too large, too many images, or too many pixels in an image.",
+        404: "Unknown model or camera.",
         415: "Unsupported content type.",
         422: "Bad parameters (e.g. mode).",
         503: "Model not loaded (yet).",
     }.items()
 }
+
+
+class CameraIn(BaseModel):
+    """A camera's intrinsics (POST /v1/cameras as JSON), px of images `width` x `height`."""
+
+    model_config = {"extra": "forbid"}
+
+    fx: float = Field(ge=1.0, le=100_000.0, allow_inf_nan=False)
+    fy: float | None = Field(default=None, ge=1.0, le=100_000.0, allow_inf_nan=False)
+    cx: float | None = Field(default=None, allow_inf_nan=False)
+    cy: float | None = Field(default=None, allow_inf_nan=False)
+    dist: list[Annotated[float, Field(allow_inf_nan=False)]] | None = Field(
+        default=None,
+        min_length=4,
+        max_length=8,
+        description="OpenCV distortion coefficients k1, k2, p1, p2[, k3[, k4, k5, k6]].",
+    )
+    width: int | None = Field(default=None, ge=1, le=100_000, description="Image width, px.")
+    height: int | None = Field(default=None, ge=1, le=100_000, description="Image height, px.")
+    name: str | None = Field(default=None, max_length=100)
+
+    @model_validator(mode="after")
+    def _sized(self) -> CameraIn:
+        if (self.width is None) != (self.height is None):
+            raise ValueError("width and height: give both or neither")
+        if self.width is None and (self.cx is not None or self.cy is not None):
+            raise ValueError("cx, cy: give the image's width and height with them")
+        return self
+
+
+class CameraOut(BaseModel):
+    """A stored camera (docs/pose.md)."""
+
+    id: str
+    name: str | None
+    fx: float
+    fy: float | None
+    cx: float | None
+    cy: float | None
+    dist: list[float] | None
+    width: int | None
+    height: int | None
+    source: Literal["intrinsics", "photos"]
+    photos_used: int
+    residual_px: float | None
+    fx_range: list[float] | None = Field(
+        default=None, description="From photos: the focal lengths [lo, hi] px they allow."
+    )
+    created: str
+
+
+class CameraList(BaseModel):
+    cameras: list[CameraOut]
 
 
 class ModelInfo(BaseModel):

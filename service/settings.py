@@ -13,6 +13,7 @@ from typing import Annotated, Any
 from pydantic import Field, SecretStr, field_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
+from service.core.cells import RegionGrid
 from service.core.paths import REPO_ROOT
 
 DEFAULT_MODEL_DIR = REPO_ROOT / "models"
@@ -111,6 +112,20 @@ class Settings(BaseSettings):
         description="Whole mode, models that take a focal length: where a request gives no "
         "fx, use the one of the photo's EXIF 35 mm equivalent focal length (service/exif.py).",
     )
+    camera_db: Path | None = Field(
+        default=None,
+        description="The SQLite file of the cameras the service learns (/v1/cameras), shared "
+        "by the worker processes; default $XDG_STATE_HOME/planar-pose/cameras.sqlite3 "
+        "(~/.local/state/...).",
+    )
+    max_cameras: int = Field(
+        default=1000, ge=1, description="Cameras the store holds at most; more: 409."
+    )
+    regions: str | None = Field(
+        default=None,
+        description="The finer-regions grid every whole-mode answer names its pose's cell in "
+        "(docs/pose.md, e.g. 8x3x60) where the request gives no regions=; unset: none.",
+    )
     sliding_scales: Annotated[list[float], NoDecode] = Field(
         default_factory=lambda: [1.0, 0.8, 0.65],
         description="Window sizes as fractions of the largest input-aspect window in the image.",
@@ -159,6 +174,13 @@ class Settings(BaseSettings):
             raise ValueError("sliding scales must be a non-empty list of numbers in (0, 1]")
         return value
 
+    @field_validator("regions")
+    @classmethod
+    def _grid(cls, value: str | None) -> str | None:
+        if value:
+            RegionGrid.parse(value)
+        return value or None
+
     @field_validator("api_key", mode="before")
     @classmethod
     def _empty_key(cls, value: Any) -> Any:
@@ -173,6 +195,14 @@ class Settings(BaseSettings):
     def process_count(self) -> int:
         """Server processes: `workers` or one per CPU."""
         return self.workers or cpu_count()
+
+    @property
+    def resolved_camera_db(self) -> Path:
+        """`camera_db`, or cameras.sqlite3 in the user's state folder."""
+        if self.camera_db is not None:
+            return self.camera_db
+        state = os.environ.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
+        return Path(state) / "planar-pose" / "cameras.sqlite3"
 
     @property
     def resolved_model_dir(self) -> Path:

@@ -9,6 +9,7 @@ import time
 
 import anyio
 
+from service.cameras import CameraStore
 from service.drain import Drain
 from service.metrics import Metrics
 from service.predictor import Predictor
@@ -32,6 +33,7 @@ class ServiceState:
         self.jobs = anyio.CapacityLimiter(settings.inference_jobs)
         self.models = ModelRegistry(settings)
         self.drain = Drain(settings.drain_s)
+        self.cameras = CameraStore(settings.resolved_camera_db, settings.max_cameras)
         self.loaded = False
         self.runtime = (
             WorkerRuntime(settings.runtime_dir, settings.process_count)

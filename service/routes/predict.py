@@ -7,9 +7,13 @@ from typing import Annotated, Any
 import anyio
 from fastapi import APIRouter, Query, Request
 
+from service.cameras import KnownFocal
+from service.core.cells import RegionGrid
 from service.core.preprocess import ImageDecodeError, ImageTooLargeError
 from service.deps import (
     AUTHORISED,
+    FocalDep,
+    GridDep,
     LimiterDep,
     MetricsDep,
     NamedPredictorDep,
@@ -17,7 +21,7 @@ from service.deps import (
     SettingsDep,
 )
 from service.errors import ApiError
-from service.predictor import FX_MAX_PX, FX_MIN_PX, Prediction, Predictor, too_large_code
+from service.predictor import Prediction, Predictor, too_large_code
 from service.schemas import ERROR_RESPONSES, Mode, PredictResponse
 from service.uploads import read_images
 
@@ -54,15 +58,11 @@ ModeQuery = Annotated[
     ),
 ]
 
-FxQuery = Annotated[
-    float | None,
+SameCameraQuery = Annotated[
+    bool,
     Query(
-        description="The camera's focal length fx in pixels of the uploaded images (camera "
-        "matrix [0, 0] of a calibration at that size; mode=whole, keypoint models): the pose "
-        "uses it instead of estimating it from the view. Unset: estimated.",
-        ge=FX_MIN_PX,
-        le=FX_MAX_PX,
-        allow_inf_nan=False,
+        description="The images are one camera's: one focal length fitted to the corners of "
+        "all of them (whole mode, corner models, 2 or more images showing the object).",
     ),
 ]
 
@@ -73,16 +73,22 @@ async def run_prediction(
     mode: Mode,
     max_images: int,
     limiter: anyio.CapacityLimiter,
-    fx: float | None = None,
+    focal: KnownFocal | None = None,
+    same_camera: bool = False,
+    grid: RegionGrid | None = None,
 ) -> Prediction:
     """Read the request's images and classify them in a worker thread; errors as ApiError."""
-    problem = predictor.focal_problem(mode, fx)
+    problem = predictor.focal_problem(mode, focal, same_camera)
     if problem is not None:
         raise ApiError(422, "invalid_parameters", problem)
     images = await read_images(request, max_images)
+    if same_camera and len(images) < 2:
+        raise ApiError(422, "invalid_parameters", "same_camera: send 2 or more images")
     try:
         predictor.check_pixels(images, mode)  # from the headers, before waiting for a job slot
-        return await anyio.to_thread.run_sync(predictor.predict, images, mode, fx, limiter=limiter)
+        return await anyio.to_thread.run_sync(
+            predictor.predict, images, mode, focal, same_camera, grid, limiter=limiter
+        )
     except ImageTooLargeError as exc:
         raise ApiError(413, too_large_code(exc), str(exc)) from None
     except ImageDecodeError as exc:
@@ -102,14 +108,18 @@ async def predict(
     settings: SettingsDep,
     limiter: LimiterDep,
     metrics: MetricsDep,
+    focal: FocalDep,
+    grid: GridDep,
     mode: ModeQuery = "whole",
-    fx: FxQuery = None,
+    same_camera: SameCameraQuery = False,
 ) -> PredictResponse:
     """Send images as multipart field `image` (repeat it for many) or one raw image body.
 
     All images of a request go through one batched network call.
     """
-    prediction = await run_prediction(request, predictor, mode, settings.max_images, limiter, fx)
+    prediction = await run_prediction(
+        request, predictor, mode, settings.max_images, limiter, focal, same_camera, grid
+    )
     metrics.observe(mode, len(prediction.results), prediction.inference_s)
     return PredictResponse(model=predictor.model.name, mode=mode, results=prediction.results)
 
@@ -117,7 +127,7 @@ async def predict(
 @router.post(
     "/v1/models/{name}/predict",
     response_model=PredictResponse,
-    responses={**ERROR_RESPONSES, 404: {"description": "No model of that name (known listed)."}},
+    responses={**ERROR_RESPONSES, 404: {"description": "No model or camera of that name."}},
     openapi_extra=PREDICT_BODY,
     summary="Pose class of one or many images, with the model `name`",
 )
@@ -127,10 +137,14 @@ async def predict_with(
     settings: SettingsDep,
     limiter: LimiterDep,
     metrics: MetricsDep,
+    focal: FocalDep,
+    grid: GridDep,
     mode: ModeQuery = "whole",
-    fx: FxQuery = None,
+    same_camera: SameCameraQuery = False,
 ) -> PredictResponse:
     """As /v1/predict, answered by the served model `name` (see GET /v1/models)."""
-    prediction = await run_prediction(request, predictor, mode, settings.max_images, limiter, fx)
+    prediction = await run_prediction(
+        request, predictor, mode, settings.max_images, limiter, focal, same_camera, grid
+    )
     metrics.observe(mode, len(prediction.results), prediction.inference_s)
     return PredictResponse(model=predictor.model.name, mode=mode, results=prediction.results)

@@ -1,0 +1,283 @@
+"""The camera pose from the object's four corners, and the focal length from one or many views.
+
+Frames and units as `service.core.geometry`: the object frame in cm (origin at the object's
+centre, the object in z = 0, +z out of its printed face), OpenCV's camera frame (x right, y
+down, z forward), image pixels with the origin at the top-left pixel's centre. A camera here
+is a pinhole with square pixels, its principal point at the image centre unless given, and
+(optionally) OpenCV's distortion coefficients.
+
+    solve_pose       corners [4, 2] px + camera -> `CameraPose` (IPPE PnP, the face seen)
+    focal_interval   views -> the focal lengths they allow: where the corners fit within
+                     their noise (a head-on view allows a wide range, an oblique one a narrow)
+    estimate_focal   one view -> the focal length its pose takes: the network's prior, kept
+                     within the range the view allows
+    zhang_focal      views -> fx of Zhang's constraints on their homographies, closed form
+    fit_focal        views -> one camera's fx: Zhang, refined by `cv2.calibrateCamera` (fx = fy,
+                     principal point fixed, no distortion), views that do not fit dropped
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from service.core.inputs import spec_fx
+
+#: The network's focal-length prior and bounds, x the SPEC camera's fx at the image's width:
+#: where the view says little, the estimate is drawn to the prior (`train.network.keypoint`).
+FOCAL_PRIOR, FOCAL_BOUNDS = 0.8, (0.4, 1.2)
+#: The focal lengths a camera learned from several views may have, x the same: a fisheye-like
+#: webcam to a short telephoto.
+CAMERA_BOUNDS = (0.3, 3.0)
+#: The corner network's corner noise, px of its 160-px-wide input (~1 px median on renders and
+#: real train frames): what "the corners fit" means in `focal_interval` and `fit_focal`.
+CORNER_NOISE_INPUT_PX = 1.0
+#: Focal lengths tried by `focal_interval` across the bounds (log-spaced).
+FOCAL_STEPS = 61
+#: A view whose RMS reprojection error at the joint fx is above this many times the median's
+#: (and above the corner noise) is dropped from `fit_focal`.
+OUTLIER_FACTOR = 3.0
+
+
+@dataclass(frozen=True)
+class Camera:
+    """A pinhole camera for images of `size` (W, H) px: fx, fy (None: fx) px, principal point
+    (None: the image centre) and OpenCV's distortion coefficients (None: none)."""
+
+    fx: float
+    size: tuple[int, int]
+    fy: float | None = None
+    cx: float | None = None
+    cy: float | None = None
+    dist: tuple[float, ...] | None = None
+
+    @property
+    def matrix(self) -> np.ndarray:
+        """K (3, 3)."""
+        w, h = self.size
+        cx = (w - 1) / 2.0 if self.cx is None else self.cx
+        cy = (h - 1) / 2.0 if self.cy is None else self.cy
+        fy = self.fx if self.fy is None else self.fy
+        return np.array([[self.fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+
+    @property
+    def coefficients(self) -> np.ndarray | None:
+        return None if self.dist is None else np.asarray(self.dist, np.float64)
+
+
+@dataclass(frozen=True)
+class CameraPose:
+    """A camera's pose relative to the object: OpenCV's rvec (3,) and tvec (3,) cm (object ->
+    camera), the camera centre (3,) cm in the object frame, and the corners' RMS reprojection
+    error px."""
+
+    rvec: np.ndarray
+    tvec: np.ndarray
+    centre: np.ndarray
+    residual_px: float
+
+    @property
+    def distance_cm(self) -> float:
+        return float(np.linalg.norm(self.centre))
+
+    @property
+    def azimuth_deg(self) -> float:
+        """atan2(c_y, c_x): 0 = seen from the object's +x side, 90 = from its top (+y)."""
+        return math.degrees(math.atan2(self.centre[1], self.centre[0]))
+
+    @property
+    def elevation_deg(self) -> float:
+        """asin(c_z / |c|): 90 = straight on, 0 = grazing."""
+        return math.degrees(math.asin(max(-1.0, min(1.0, self.centre[2] / self.distance_cm))))
+
+
+def corner_noise_px(size: tuple[int, int]) -> float:
+    """The corner network's corner noise in px of an image of `size` (W, H): its input is the
+    image's longer side brought to 160 px."""
+    return CORNER_NOISE_INPUT_PX * max(size) / 160.0
+
+
+def focal_bounds(
+    size: tuple[int, int], factors: tuple[float, float] = FOCAL_BOUNDS
+) -> tuple[float, float]:
+    """The focal lengths (px) an estimate keeps within for an image of `size` (W, H): the
+    `factors` (the network's bounds) x the SPEC camera's fx at the image's longer side."""
+    f = spec_fx(max(size))
+    return factors[0] * f, factors[1] * f
+
+
+def focal_prior(size: tuple[int, int]) -> float:
+    """The network's prior focal length (px) for an image of `size` (W, H)."""
+    return FOCAL_PRIOR * spec_fx(max(size))
+
+
+def _as_points(corners: np.ndarray) -> np.ndarray:
+    q = np.asarray(corners, np.float64).reshape(-1, 2)
+    if q.shape != (4, 2) or not np.isfinite(q).all():
+        raise ValueError(f"corners: four finite (x, y) points, got shape {q.shape}")
+    return q
+
+
+def solve_pose(corners: np.ndarray, object_points: np.ndarray, camera: Camera) -> CameraPose:
+    """Corners [4, 2] px (in the order of `object_points` [4, 3] cm) seen by `camera` -> the
+    pose: IPPE's two solutions, the one with the camera on the printed side (c_z > 0) and the
+    smaller reprojection error."""
+    q = _as_points(corners)
+    obj = np.asarray(object_points, np.float64).reshape(4, 3)
+    K, dist = camera.matrix, camera.coefficients
+    _, rvecs, tvecs, errors = cv2.solvePnPGeneric(obj, q, K, dist, flags=cv2.SOLVEPNP_IPPE)
+    best: CameraPose | None = None
+    for rvec, tvec, error in zip(rvecs, tvecs, np.ravel(errors), strict=True):
+        R, _ = cv2.Rodrigues(rvec)
+        centre = -R.T @ tvec.ravel()
+        pose = CameraPose(rvec.ravel(), tvec.ravel(), centre, float(error))
+        key = (centre[2] <= 0, pose.residual_px)
+        if best is None or key < (best.centre[2] <= 0, best.residual_px):
+            best = pose
+    if best is None:
+        raise ValueError("corners: no pose fits them")
+    return best
+
+
+def _residuals(
+    views: Sequence[np.ndarray], object_points: np.ndarray, size: tuple[int, int], fx: float
+) -> np.ndarray:
+    """The RMS reprojection error px [V] of each view's best pose with focal length `fx`."""
+    camera = Camera(fx, size)
+    return np.array([solve_pose(q, object_points, camera).residual_px for q in views])
+
+
+def focal_interval(
+    views: Sequence[np.ndarray],
+    object_points: np.ndarray,
+    size: tuple[int, int],
+    noise_px: float | None = None,
+    factors: tuple[float, float] = FOCAL_BOUNDS,
+) -> tuple[float, float]:
+    """Views (corners [4, 2] px each, one camera, images of `size` (W, H)) -> the focal
+    lengths (lo, hi) px within `focal_bounds` (of `factors`) they allow: those whose sum of
+    squared reprojection errors over all corners is within 4 noise^2 of the best one's
+    (chi-square, 2 sigma; `noise_px` per coordinate, default `corner_noise_px`). More views
+    narrow it; head-on views leave it wide."""
+    lo, hi = focal_bounds(size, factors)
+    fs = np.geomspace(lo, hi, FOCAL_STEPS)
+    # solvePnP's error is the RMS over the 4 corners of the distance: 4 rms^2 per view
+    cost = np.array([4.0 * np.sum(_residuals(views, object_points, size, f) ** 2) for f in fs])
+    noise = corner_noise_px(size) if noise_px is None else noise_px
+    allowed = fs[cost <= cost.min() + 4.0 * noise**2]
+    return float(allowed.min()), float(allowed.max())
+
+
+def zhang_focal(
+    views: Sequence[np.ndarray], object_points: np.ndarray, size: tuple[int, int]
+) -> float | None:
+    """Views (corners [4, 2] px each) -> the focal length px that best makes the images of the
+    object's x and y axes orthogonal and of equal length in all of them (Zhang's two
+    constraints per homography, principal point at the image centre, square pixels; least
+    squares in z = 1 / f^2), or None when they do not give a positive z (head-on views)."""
+    w, h = size
+    centre = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
+    f0 = focal_prior(size)  # pixel units of the prior keep the system well scaled
+    obj = np.asarray(object_points, np.float64).reshape(4, 3)[:, :2]
+    a, b = [], []
+    for q in views:
+        H = cv2.getPerspectiveTransform(
+            obj.astype(np.float32), (_as_points(q) - centre).astype(np.float32)
+        )
+        Hn = np.vstack([H[:2] / f0, H[2:]])
+        Hn /= np.linalg.norm(Hn[:, :2])
+        h1, h2 = Hn[:, 0], Hn[:, 1]
+        a += [h1[0] * h2[0] + h1[1] * h2[1], h1[0] ** 2 + h1[1] ** 2 - h2[0] ** 2 - h2[1] ** 2]
+        b += [h1[2] * h2[2], h1[2] ** 2 - h2[2] ** 2]
+    av, bv = np.array(a), np.array(b)
+    denominator = float(av @ av)
+    z = -float(av @ bv) / denominator if denominator > 0 else 0.0
+    return f0 / math.sqrt(z) if z > 0 else None
+
+
+@dataclass(frozen=True)
+class FocalFit:
+    """`fit_focal`'s answer: fx px, the RMS reprojection error px of the views used, which
+    views were used [V] bool, and the focal lengths (lo, hi) px those views allow."""
+
+    fx: float
+    residual_px: float
+    used: np.ndarray
+    interval: tuple[float, float]
+
+
+def fit_focal(
+    views: Sequence[np.ndarray], object_points: np.ndarray, size: tuple[int, int]
+) -> FocalFit:
+    """Views of the object by one camera (corners [4, 2] px each, images of `size` (W, H)) ->
+    its focal length: `zhang_focal` (else the prior) refined by `cv2.calibrateCamera` with
+    fx = fy, the principal point at the centre and no distortion; views whose error at that
+    fx is above `OUTLIER_FACTOR` x the median's (and the corner noise) are dropped and the
+    rest fitted again. ValueError for fewer than 2 views."""
+    if len(views) < 2:
+        raise ValueError(f"need at least 2 views, got {len(views)}")
+    qs = [_as_points(q) for q in views]
+    used = np.ones(len(qs), bool)
+    obj = np.asarray(object_points, np.float64).reshape(4, 3)
+    fx, residual = 0.0, 0.0
+    for _ in range(2):
+        kept = [q for q, u in zip(qs, used, strict=True) if u]
+        fx, residual = _calibrated(kept, obj, size, zhang_focal(kept, obj, size))
+        errors = _residuals(qs, obj, size, fx)
+        limit = max(OUTLIER_FACTOR * float(np.median(errors[used])), corner_noise_px(size))
+        again = errors <= limit
+        if again.sum() < 2 or np.array_equal(again, used):
+            break
+        used = again
+    kept = [q for q, u in zip(qs, used, strict=True) if u]
+    return FocalFit(fx, residual, used, focal_interval(kept, obj, size, factors=CAMERA_BOUNDS))
+
+
+def estimate_focal(
+    corners: np.ndarray, object_points: np.ndarray, size: tuple[int, int]
+) -> tuple[float, tuple[float, float]]:
+    """One view's corners [4, 2] px -> the focal length px the pose takes and the range (lo,
+    hi) px the view allows (`focal_interval` within the `CAMERA_BOUNDS`): the network's prior
+    where it lies in that range, else the range's end nearest it (a head-on view keeps the prior, an oblique one
+    decides)."""
+    lo, hi = focal_interval([corners], object_points, size, factors=CAMERA_BOUNDS)
+    return float(np.clip(focal_prior(size), lo, hi)), (lo, hi)
+
+
+#: `cv2.calibrateCamera` with one unknown: fx = fy from the guess, nothing else.
+_FX_ONLY = (
+    cv2.CALIB_USE_INTRINSIC_GUESS
+    | cv2.CALIB_FIX_PRINCIPAL_POINT
+    | cv2.CALIB_FIX_ASPECT_RATIO
+    | cv2.CALIB_ZERO_TANGENT_DIST
+    | cv2.CALIB_FIX_K1
+    | cv2.CALIB_FIX_K2
+    | cv2.CALIB_FIX_K3
+)
+
+
+def _calibrated(
+    views: Sequence[np.ndarray], obj: np.ndarray, size: tuple[int, int], guess: float | None
+) -> tuple[float, float]:
+    """fx px and the RMS reprojection error px of `cv2.calibrateCamera` from `guess` (None:
+    the prior), kept within the `CAMERA_BOUNDS`."""
+    lo, hi = focal_bounds(size, CAMERA_BOUNDS)
+    start = float(np.clip(focal_prior(size) if guess is None else guess, lo, hi))
+    K = Camera(start, size).matrix
+    rms, K, *_ = cv2.calibrateCamera(
+        [obj.astype(np.float32)] * len(views),
+        [q.reshape(4, 1, 2).astype(np.float32) for q in views],
+        size,
+        K,
+        None,
+        flags=_FX_ONLY,
+    )
+    fx = float(K[0, 0])
+    if not (math.isfinite(fx) and lo <= fx <= hi):
+        fx = start
+        rms = float(np.sqrt(np.mean(_residuals(views, obj, size, fx) ** 2)))
+    return fx, float(rms)

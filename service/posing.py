@@ -1,0 +1,135 @@
+"""The `pose` and `cell` of an answer, from the object's corners (docs/pose.md).
+
+The corners are the network's, in px of the uploaded image; the object's size is its model
+card's profile. The focal length is the request's where it knows one (`KnownFocal`: query,
+camera, EXIF, stream), else a joint fit over a same-camera request's photos, else the one
+view's estimate (`service.core.pose.estimate_focal`), which also gives the range of focal
+lengths, and so of distances, the view allows.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from service.cameras import KnownFocal
+from service.core.cells import RegionGrid
+from service.core.frame import object_corners
+from service.core.pose import Camera, CameraPose, corner_noise_px, estimate_focal, solve_pose
+from service.schemas import CellOut, CellShare, FocalSource, Pose
+
+#: Poses sampled for a cell's probabilities: the corners' noise and the focal range drawn.
+CELL_SAMPLES = 64
+#: A neighbouring cell holding less than this share of the samples is not named.
+NEIGHBOUR_SHARE = 0.02
+
+
+@dataclass(frozen=True)
+class Focal:
+    """The focal length a pose takes: its camera, where it came from, and the range of fx px
+    (lo, hi) the views allow where it was estimated (None: known)."""
+
+    camera: Camera
+    source: FocalSource
+    interval: tuple[float, float] | None = None
+
+
+def object_points(size_cm: tuple[float, float]) -> np.ndarray:
+    """The object's corners [4, 3] cm in the corners' order, z = 0."""
+    return object_corners(size_cm[0], size_cm[1], z=True)
+
+
+def focal_of(
+    corners: np.ndarray,
+    size: tuple[int, int],
+    size_cm: tuple[float, float],
+    known: KnownFocal | None,
+) -> Focal:
+    """The focal length of one image of `size` (W, H) px: `known`'s, else estimated from its
+    corners [4, 2] px."""
+    if known is not None:
+        return Focal(known.camera(size), known.source)
+    fx, interval = estimate_focal(corners, object_points(size_cm), size)
+    return Focal(Camera(fx, size), "estimated", interval)
+
+
+def _round(values: np.ndarray | list[float], digits: int = 3) -> list[float]:
+    return [round(float(v), digits) for v in values]
+
+
+def pose_of(corners: np.ndarray, size_cm: tuple[float, float], focal: Focal) -> Pose:
+    """Corners [4, 2] px of the uploaded image, the object's size (W, H) cm and the focal
+    length -> the answer's `pose`."""
+    obj = object_points(size_cm)
+    pose = solve_pose(corners, obj, focal.camera)
+    distances = None
+    if focal.interval is not None:
+        ends = [
+            solve_pose(corners, obj, _with_fx(focal.camera, f)).distance_cm for f in focal.interval
+        ]
+        distances = _round(sorted([min(ends + [pose.distance_cm]), max(ends + [pose.distance_cm])]))
+    return Pose(
+        camera_cm=_round(pose.centre),
+        distance_cm=round(pose.distance_cm, 3),
+        azimuth_deg=round(pose.azimuth_deg, 3),
+        elevation_deg=round(pose.elevation_deg, 3),
+        rvec=_round(pose.rvec, 6),
+        tvec_cm=_round(pose.tvec),
+        fx=round(focal.camera.fx, 3),
+        fx_source=focal.source,
+        fx_range=None if focal.interval is None else _round(list(focal.interval)),
+        distance_range_cm=distances,
+        residual_px=round(pose.residual_px, 3),
+    )
+
+
+def _with_fx(camera: Camera, fx: float) -> Camera:
+    """`camera` with the focal length `fx` (fy alike)."""
+    return Camera(fx, camera.size, None, camera.cx, camera.cy, camera.dist)
+
+
+def cell_of(
+    grid: RegionGrid,
+    corners: np.ndarray,
+    size_cm: tuple[float, float],
+    focal: Focal,
+    pose: CameraPose | None = None,
+) -> CellOut:
+    """The pose's cell of `grid` and the share of `CELL_SAMPLES` poses in it and its
+    neighbours: the corners moved by their noise (`corner_noise_px`) and, where fx is
+    estimated, fx drawn log-uniformly over its range (a fixed seed: the same image gets the
+    same answer)."""
+    obj = object_points(size_cm)
+    pose = pose or solve_pose(corners, obj, focal.camera)
+    rng = np.random.default_rng(0)
+    noise = corner_noise_px(focal.camera.size)
+    jitter = rng.normal(0.0, noise, (CELL_SAMPLES, 4, 2))
+    lo, hi = focal.interval or (focal.camera.fx, focal.camera.fx)
+    fxs = np.exp(rng.uniform(math.log(lo), math.log(hi), CELL_SAMPLES))
+    centres = np.array(
+        [
+            solve_pose(corners + dq, obj, _with_fx(focal.camera, f)).centre
+            for dq, f in zip(jitter, fxs, strict=True)
+        ]
+    )
+    index = int(grid.indices(pose.centre[None])[0])
+    shares = grid.shares(centres)
+    cell = grid.cell(index)
+    neighbours = [
+        CellShare(index=i, probability=round(p, 3))
+        for i, p in shares.items()
+        if i != index and p >= NEIGHBOUR_SHARE
+    ]
+    far = cell.distance_cm[1]
+    return CellOut(
+        grid=str(grid),
+        index=index,
+        azimuth_deg=list(cell.azimuth_deg),
+        elevation_deg=list(cell.elevation_deg),
+        distance_cm=[cell.distance_cm[0], None if math.isinf(far) else far],
+        label=cell.label,
+        probability=round(shares.get(index, 0.0), 3),
+        neighbours=neighbours,
+    )
