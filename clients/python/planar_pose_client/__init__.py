@@ -5,6 +5,8 @@
     with PoseClient("http://127.0.0.1:8000") as client:
         pred = client.predict("photo.jpg")          # or bytes, a binary file, a numpy array
         print(pred.class_id, pred.label, f"{pred.confidence:.2f}")
+        if pred.pose is not None:                   # whole mode, corner models
+            print(pred.pose.distance_cm, pred.pose.azimuth_deg, pred.pose.elevation_deg)
 
 `AsyncPoseClient` has the same methods as coroutines. Failures raise `PoseError` subclasses.
 """
@@ -14,8 +16,10 @@ from .client import AsyncPoseClient, PoseClient
 from .errors import (
     AuthError,
     BadImageError,
+    CameraNotFoundError,
     InvalidRequestError,
     ModelNotFoundError,
+    NotFoundError,
     PoseConnectionError,
     PoseError,
     ServiceUnavailable,
@@ -25,12 +29,18 @@ from .errors import (
 from .images import ImageInput, encode_png
 from .models import (
     Box,
+    Camera,
+    CameraList,
+    Cell,
+    CellNeighbour,
     ClassInfo,
     Detection,
+    FxSource,
     Mode,
     ModelCard,
     ModelInfo,
     ModelList,
+    Pose,
     Prediction,
     PredictResponse,
     Region,
@@ -40,16 +50,24 @@ __all__ = [
     "AsyncPoseClient",
     "AuthError",
     "BadImageError",
+    "Box",
+    "Camera",
+    "CameraList",
+    "CameraNotFoundError",
+    "Cell",
+    "CellNeighbour",
     "ClassInfo",
     "Detection",
-    "Box",
+    "FxSource",
     "ImageInput",
     "InvalidRequestError",
     "ModelCard",
-    "ModelNotFoundError",
     "ModelInfo",
     "ModelList",
+    "ModelNotFoundError",
     "Mode",
+    "NotFoundError",
+    "Pose",
     "PoseClient",
     "PoseConnectionError",
     "PoseError",

@@ -5,9 +5,10 @@ response parsing. Only the act of sending (and sleeping between attempts) differ
 from __future__ import annotations
 
 import math
+import numbers
 import random
 import re
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
@@ -16,11 +17,17 @@ from pydantic import BaseModel, ValidationError
 
 from .errors import PoseConnectionError, PoseError, error_from_response
 from .images import ImageInput, is_single_image, to_upload
-from .models import Mode, ModelCard, ModelList, Prediction, PredictResponse
+from .models import Camera, CameraList, Mode, ModelCard, ModelList, Prediction, PredictResponse
 
 DEFAULT_TIMEOUT_S = 30.0
 #: What the service accepts as a model name in a URL.
 MODEL_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
+#: What a camera id looks like (the service's are e.g. "c-3f2a9b1c"); it goes into URLs too.
+CAMERA_ID = MODEL_NAME
+#: `regions=`: A azimuth sectors x E elevation bands [x distance splits D1,D2,... in cm].
+REGIONS = re.compile(r"[1-9][0-9]*x[1-9][0-9]*(x[0-9]+(\.[0-9]+)?(,[0-9]+(\.[0-9]+)?)*)?")
+#: Transport errors raised before the request left: retrying cannot repeat a change.
+_NOT_SENT = (httpx.ConnectError, httpx.ConnectTimeout, httpx.PoolTimeout)
 
 M = TypeVar("M", bound=BaseModel)
 
@@ -78,16 +85,36 @@ class ClientCore:
 
     @staticmethod
     def predict_request(
-        images: Iterable[ImageInput], mode: Mode, model: str | None = None, fx: float | None = None
+        images: Iterable[ImageInput],
+        mode: Mode,
+        model: str | None = None,
+        fx: float | None = None,
+        camera: str | None = None,
+        regions: str | None = None,
+        same_camera: bool = False,
     ) -> dict[str, Any]:
         """Keyword arguments of `request()` for POST /v1/predict (or, with `model`,
         /v1/models/{model}/predict): every image as one multipart field `image`, in order,
-        and the camera's focal length `fx` (px of the images) if given. Reads and encodes all
-        images first, so a bad one fails here."""
-        if model is not None and not MODEL_NAME.fullmatch(model):
-            raise ValueError(f"not a model name: {model!r} (letters, digits, '.', '_', '-')")
-        if fx is not None and not (math.isfinite(fx) and fx > 0):
-            raise ValueError(f"fx must be a positive number of pixels, got {fx}")
+        and the query: the camera's focal length `fx` (px of the images) or a stored `camera`
+        id, the `regions` grid, `same_camera` (one joint fx for all the images). Reads and
+        encodes all images first, so a bad one fails here."""
+        check_model(model)
+        params: dict[str, Any] = {"mode": mode}
+        if fx is not None:
+            params["fx"] = check_positive(fx, "fx")
+        if camera is not None:
+            if fx is not None:
+                raise ValueError("give fx or camera, not both (the camera has its own fx)")
+            params["camera"] = check_camera_id(camera)
+        if regions is not None:
+            if not REGIONS.fullmatch(regions):
+                raise ValueError(
+                    f"regions must be AxE or AxExD1,D2,... (e.g. 8x3 or 8x3x60,120), "
+                    f"got {regions!r}"
+                )
+            params["regions"] = regions
+        if same_camera:
+            params["same_camera"] = "true"
         if is_single_image(images):
             raise TypeError("predict_many takes a list of images; use predict for one image")
         uploads = [to_upload(image, i) for i, image in enumerate(images)]
@@ -96,9 +123,67 @@ class ClientCore:
         return {
             "method": "POST",
             "url": "/v1/predict" if model is None else f"/v1/models/{model}/predict",
-            "params": {"mode": mode} if fx is None else {"mode": mode, "fx": fx},
+            "params": params,
             "files": [("image", tuple(upload)) for upload in uploads],
         }
+
+    @staticmethod
+    def create_camera_request(
+        fx: float,
+        fy: float | None = None,
+        cx: float | None = None,
+        cy: float | None = None,
+        dist: Sequence[float] | None = None,
+        width: int | None = None,
+        height: int | None = None,
+        name: str | None = None,
+    ) -> dict[str, Any]:
+        """Keyword arguments of `request()` for POST /v1/cameras with the intrinsics as JSON
+        (fields left None are not sent)."""
+        body: dict[str, Any] = {"fx": check_positive(fx, "fx")}
+        if fy is not None:
+            body["fy"] = check_positive(fy, "fy")
+        for key, value in (("cx", cx), ("cy", cy)):
+            if value is not None:
+                body[key] = check_finite(value, key)
+        if dist is not None:
+            if isinstance(dist, (str, bytes)) or not dist:
+                raise ValueError("dist must be a non-empty list of numbers [k1, k2, p1, p2, k3]")
+            body["dist"] = [check_finite(k, "dist") for k in dist]
+        for key, size in (("width", width), ("height", height)):
+            if size is not None:
+                if isinstance(size, bool) or not isinstance(size, numbers.Integral) or size <= 0:
+                    raise ValueError(f"{key} must be a whole number of pixels > 0, got {size!r}")
+                body[key] = int(size)
+        if name is not None:
+            body["name"] = name
+        return {"method": "POST", "url": "/v1/cameras", "json": body}
+
+    @staticmethod
+    def learn_camera_request(
+        photos: Iterable[ImageInput], model: str | None = None, name: str | None = None
+    ) -> dict[str, Any]:
+        """Keyword arguments of `request()` for POST /v1/cameras with photos of the object
+        taken by the camera (multipart, field `image` repeated), `model` the corner model
+        that finds the object in them."""
+        check_model(model)
+        if is_single_image(photos):
+            raise TypeError("learn_camera takes a list of photos (3 or more, all of one size)")
+        uploads = [to_upload(photo, i) for i, photo in enumerate(photos)]
+        if not uploads:
+            raise ValueError("learn_camera needs photos (3 or more, all of one size)")
+        params = {k: v for k, v in (("model", model), ("name", name)) if v is not None}
+        return {
+            "method": "POST",
+            "url": "/v1/cameras",
+            "params": params,
+            "files": [("image", tuple(upload)) for upload in uploads],
+        }
+
+    @staticmethod
+    def camera_url(camera_id: str) -> str:
+        """/v1/cameras/{id}, the id checked first."""
+        return f"/v1/cameras/{check_camera_id(camera_id)}"
 
     def after_attempt(
         self,
@@ -106,11 +191,16 @@ class ClientCore:
         response: httpx.Response | None,
         error: httpx.TransportError | None,
         retries: int | None = None,
+        idempotent: bool = True,
     ) -> httpx.Response | float:
         """Judge attempt number `retry` (0 = the first): the successful response to return,
         or the seconds to wait before trying again. Raises the mapped PoseError when the
-        attempt failed for good. `retries` overrides the policy's count (0 for probes)."""
+        attempt failed for good. `retries` overrides the policy's count (0 for probes). A call
+        that changes something (`idempotent` False) is tried again after a transport error
+        only when the request never left (connection refused), so it cannot happen twice."""
         left = (self.retry.retries if retries is None else retries) - retry
+        if response is None and not idempotent and not isinstance(error, _NOT_SENT):
+            left = 0
         if response is None:
             if left > 0:
                 return self.retry.delay(retry)
@@ -145,6 +235,46 @@ class ClientCore:
     @staticmethod
     def parse_model_list(response: httpx.Response) -> ModelList:
         return _parse(ModelList, response)
+
+    @staticmethod
+    def parse_camera(response: httpx.Response) -> Camera:
+        return _parse(Camera, response)
+
+    @staticmethod
+    def parse_camera_list(response: httpx.Response) -> list[Camera]:
+        return _parse(CameraList, response).cameras
+
+
+def check_model(model: str | None) -> None:
+    """ValueError unless `model` is None or a name the service accepts in a URL."""
+    if model is not None and not MODEL_NAME.fullmatch(model):
+        raise ValueError(f"not a model name: {model!r} (letters, digits, '.', '_', '-')")
+
+
+def check_camera_id(camera_id: str) -> str:
+    """`camera_id`, or ValueError when it cannot be a camera id."""
+    if not isinstance(camera_id, str) or not CAMERA_ID.fullmatch(camera_id):
+        raise ValueError(f"not a camera id: {camera_id!r} (e.g. 'c-3f2a9b1c'; see cameras())")
+    return camera_id
+
+
+def check_finite(value: float, name: str, what: str = "a finite number") -> float:
+    """`value` as a float, or ValueError when it is not a finite number."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise ValueError(f"{name} must be {what}, got {value!r}")
+    number = float(value)
+    if not math.isfinite(number):
+        raise ValueError(f"{name} must be {what}, got {value!r}")
+    return number
+
+
+def check_positive(value: float, name: str) -> float:
+    """`value` as a float, or ValueError when it is not a positive number of pixels."""
+    what = "a positive number of pixels"
+    number = check_finite(value, name, what)
+    if number <= 0:
+        raise ValueError(f"{name} must be {what}, got {value!r}")
+    return number
 
 
 def _parse(model: type[M], response: httpx.Response) -> M:

@@ -11,7 +11,7 @@ from __future__ import annotations
 import asyncio
 import time
 from abc import ABC, abstractmethod
-from collections.abc import AsyncIterable, AsyncIterator, Iterable, Iterator
+from collections.abc import AsyncIterable, AsyncIterator, Iterable, Iterator, Sequence
 from typing import Any, Generic, TypeVar
 
 import httpx
@@ -19,7 +19,7 @@ import httpx
 from ._core import DEFAULT_TIMEOUT_S, ClientCore, RetryPolicy
 from .errors import PoseError
 from .images import ImageInput
-from .models import Mode, ModelCard, ModelList, Prediction
+from .models import Camera, Mode, ModelCard, ModelList, Prediction
 from .stream import DEFAULT_WINDOW, StreamItem, StreamMode, astream_frames, stream_frames
 
 H = TypeVar("H", httpx.Client, httpx.AsyncClient)
@@ -80,11 +80,19 @@ class PoseClient(_ClientBase[httpx.Client, httpx.BaseTransport]):
         mode: Mode = "whole",
         model: str | None = None,
         fx: float | None = None,
+        *,
+        camera: str | None = None,
+        regions: str | None = None,
+        same_camera: bool = False,
     ) -> Prediction:
         """Pose region of one image (path, bytes, binary file object or numpy array), by the
-        default model or the served model `model` (see `models()`); `fx`: the camera's focal
-        length in pixels of the image, if known (whole mode)."""
-        return self.predict_many([image], mode, model, fx)[0]
+        default model or the served model `model` (see `models()`). Whole mode, corner
+        models: `Prediction.pose` is the camera's pose, with `fx` (the camera's focal length
+        in pixels of the image) or the stored `camera` id (see `cameras()`) if known, else fx
+        estimated; `regions` ("8x3" or "8x3x60,120") adds the finer `Prediction.cell`."""
+        return self.predict_many(
+            [image], mode, model, fx, camera=camera, regions=regions, same_camera=same_camera
+        )[0]
 
     def predict_many(
         self,
@@ -92,11 +100,61 @@ class PoseClient(_ClientBase[httpx.Client, httpx.BaseTransport]):
         mode: Mode = "whole",
         model: str | None = None,
         fx: float | None = None,
+        *,
+        camera: str | None = None,
+        regions: str | None = None,
+        same_camera: bool = False,
     ) -> list[Prediction]:
-        """Pose regions of several images in one request; results in the order given (`fx`:
-        the camera's focal length in pixels of the images, as in `predict`)."""
-        request = self._core.predict_request(images, mode, model, fx)
+        """Pose regions of several images in one request; results in the order given (`fx`,
+        `camera`, `regions` as in `predict`). `same_camera=True`: the images come from one
+        camera, whose fx the service estimates jointly from all of them."""
+        request = self._core.predict_request(images, mode, model, fx, camera, regions, same_camera)
         return self._core.parse_predictions(self._send(**request), len(request["files"]))
+
+    def create_camera(
+        self,
+        fx: float,
+        *,
+        fy: float | None = None,
+        cx: float | None = None,
+        cy: float | None = None,
+        dist: Sequence[float] | None = None,
+        width: int | None = None,
+        height: int | None = None,
+        name: str | None = None,
+    ) -> Camera:
+        """Store a camera given by its intrinsics (POST /v1/cameras): focal length `fx` in
+        pixels at image width `width` (without `width` fx is used as is for every image),
+        optionally `fy`, the principal point `cx`, `cy`, OpenCV's distortion `dist` [k1, k2,
+        p1, p2, k3] and a `name`. Pass the answer's `id` as `camera=`."""
+        request = self._core.create_camera_request(fx, fy, cx, cy, dist, width, height, name)
+        return self._core.parse_camera(self._send(**request, idempotent=False))
+
+    def learn_camera(
+        self,
+        photos: Iterable[ImageInput],
+        model: str | None = None,
+        name: str | None = None,
+    ) -> Camera:
+        """Let the service learn a camera from `photos` of the object it took (3 or more,
+        all of one size, from different angles; POST /v1/cameras, multipart), found by the
+        corner model `model` (default: the default model). InvalidRequestError (422) when
+        too few show the object or the views do not pin the focal length."""
+        request = self._core.learn_camera_request(photos, model, name)
+        return self._core.parse_camera(self._send(**request, idempotent=False))
+
+    def cameras(self) -> list[Camera]:
+        """Every stored camera, newest first (GET /v1/cameras)."""
+        return self._core.parse_camera_list(self._send("GET", "/v1/cameras"))
+
+    def camera(self, camera_id: str) -> Camera:
+        """One stored camera (GET /v1/cameras/{id}); CameraNotFoundError for an unknown id."""
+        return self._core.parse_camera(self._send("GET", self._core.camera_url(camera_id)))
+
+    def delete_camera(self, camera_id: str) -> None:
+        """Forget a stored camera (DELETE /v1/cameras/{id}); CameraNotFoundError for an
+        unknown id."""
+        self._send("DELETE", self._core.camera_url(camera_id), idempotent=False)
 
     def model_info(self) -> ModelCard:
         """The default model's card (GET /v1/model)."""
@@ -113,11 +171,16 @@ class PoseClient(_ClientBase[httpx.Client, httpx.BaseTransport]):
         smooth: float = 0.0,
         model: str | None = None,
         window: int | None = DEFAULT_WINDOW,
+        *,
+        fx: float | None = None,
+        camera: str | None = None,
     ) -> Iterator[StreamItem]:
         """Send `frames` through WS /v1/stream; yield one answer per frame, in order
         (`StreamPrediction`, or `FrameError` for a frame the service refused). See
-        `planar_pose_client.stream` for `smooth` and `window`."""
-        return stream_frames(self._core, frames, mode, smooth, model, window)
+        `planar_pose_client.stream` for `smooth` and `window`. `fx` (px of the frames) or a
+        stored `camera` id: the camera's focal length for the pose; without either the
+        stream learns it from the frames (`pose.fx_source == "stream"`)."""
+        return stream_frames(self._core, frames, mode, smooth, model, window, fx, camera)
 
     def health(self) -> bool:
         """Liveness (GET /healthz, one attempt): False when unreachable or answering an error."""
@@ -143,7 +206,14 @@ class PoseClient(_ClientBase[httpx.Client, httpx.BaseTransport]):
             return False
         return True
 
-    def _send(self, method: str, url: str, retries: int | None = None, **kw: Any) -> httpx.Response:
+    def _send(
+        self,
+        method: str,
+        url: str,
+        retries: int | None = None,
+        idempotent: bool = True,
+        **kw: Any,
+    ) -> httpx.Response:
         retry = 0
         while True:
             response, error = None, None
@@ -151,7 +221,7 @@ class PoseClient(_ClientBase[httpx.Client, httpx.BaseTransport]):
                 response = self._http.request(method, url, **kw)
             except httpx.TransportError as exc:
                 error = exc
-            outcome = self._core.after_attempt(retry, response, error, retries)
+            outcome = self._core.after_attempt(retry, response, error, retries, idempotent)
             if isinstance(outcome, httpx.Response):
                 return outcome
             time.sleep(outcome)
@@ -171,11 +241,17 @@ class AsyncPoseClient(_ClientBase[httpx.AsyncClient, httpx.AsyncBaseTransport]):
         mode: Mode = "whole",
         model: str | None = None,
         fx: float | None = None,
+        *,
+        camera: str | None = None,
+        regions: str | None = None,
+        same_camera: bool = False,
     ) -> Prediction:
-        """Pose region of one image (path, bytes, binary file object or numpy array), by the
-        default model or the served model `model` (see `models()`); `fx`: the camera's focal
-        length in pixels of the image, if known (whole mode)."""
-        return (await self.predict_many([image], mode, model, fx))[0]
+        """Pose region of one image: PoseClient.predict (`pose`, `camera`, `regions` alike)."""
+        return (
+            await self.predict_many(
+                [image], mode, model, fx, camera=camera, regions=regions, same_camera=same_camera
+            )
+        )[0]
 
     async def predict_many(
         self,
@@ -183,11 +259,52 @@ class AsyncPoseClient(_ClientBase[httpx.AsyncClient, httpx.AsyncBaseTransport]):
         mode: Mode = "whole",
         model: str | None = None,
         fx: float | None = None,
+        *,
+        camera: str | None = None,
+        regions: str | None = None,
+        same_camera: bool = False,
     ) -> list[Prediction]:
-        """Pose regions of several images in one request; results in the order given (`fx`:
-        the camera's focal length in pixels of the images, as in `predict`)."""
-        request = self._core.predict_request(images, mode, model, fx)
+        """Pose regions of several images in one request: PoseClient.predict_many."""
+        request = self._core.predict_request(images, mode, model, fx, camera, regions, same_camera)
         return self._core.parse_predictions(await self._send(**request), len(request["files"]))
+
+    async def create_camera(
+        self,
+        fx: float,
+        *,
+        fy: float | None = None,
+        cx: float | None = None,
+        cy: float | None = None,
+        dist: Sequence[float] | None = None,
+        width: int | None = None,
+        height: int | None = None,
+        name: str | None = None,
+    ) -> Camera:
+        """Store a camera given by its intrinsics: PoseClient.create_camera."""
+        request = self._core.create_camera_request(fx, fy, cx, cy, dist, width, height, name)
+        return self._core.parse_camera(await self._send(**request, idempotent=False))
+
+    async def learn_camera(
+        self,
+        photos: Iterable[ImageInput],
+        model: str | None = None,
+        name: str | None = None,
+    ) -> Camera:
+        """Learn a camera from photos of the object: PoseClient.learn_camera."""
+        request = self._core.learn_camera_request(photos, model, name)
+        return self._core.parse_camera(await self._send(**request, idempotent=False))
+
+    async def cameras(self) -> list[Camera]:
+        """Every stored camera, newest first (GET /v1/cameras)."""
+        return self._core.parse_camera_list(await self._send("GET", "/v1/cameras"))
+
+    async def camera(self, camera_id: str) -> Camera:
+        """One stored camera (GET /v1/cameras/{id}); CameraNotFoundError for an unknown id."""
+        return self._core.parse_camera(await self._send("GET", self._core.camera_url(camera_id)))
+
+    async def delete_camera(self, camera_id: str) -> None:
+        """Forget a stored camera (DELETE /v1/cameras/{id}); CameraNotFoundError if unknown."""
+        await self._send("DELETE", self._core.camera_url(camera_id), idempotent=False)
 
     async def model_info(self) -> ModelCard:
         """The default model's card (GET /v1/model)."""
@@ -204,10 +321,13 @@ class AsyncPoseClient(_ClientBase[httpx.AsyncClient, httpx.AsyncBaseTransport]):
         smooth: float = 0.0,
         model: str | None = None,
         window: int | None = DEFAULT_WINDOW,
+        *,
+        fx: float | None = None,
+        camera: str | None = None,
     ) -> AsyncIterator[StreamItem]:
         """`async for answer in client.stream(frames)`: PoseClient.stream for asyncio;
         `frames` may be an async iterable."""
-        return astream_frames(self._core, frames, mode, smooth, model, window)
+        return astream_frames(self._core, frames, mode, smooth, model, window, fx, camera)
 
     async def health(self) -> bool:
         """Liveness (GET /healthz, one attempt): False when unreachable or answering an error."""
@@ -234,7 +354,12 @@ class AsyncPoseClient(_ClientBase[httpx.AsyncClient, httpx.AsyncBaseTransport]):
         return True
 
     async def _send(
-        self, method: str, url: str, retries: int | None = None, **kw: Any
+        self,
+        method: str,
+        url: str,
+        retries: int | None = None,
+        idempotent: bool = True,
+        **kw: Any,
     ) -> httpx.Response:
         retry = 0
         while True:
@@ -243,7 +368,7 @@ class AsyncPoseClient(_ClientBase[httpx.AsyncClient, httpx.AsyncBaseTransport]):
                 response = await self._http.request(method, url, **kw)
             except httpx.TransportError as exc:
                 error = exc
-            outcome = self._core.after_attempt(retry, response, error, retries)
+            outcome = self._core.after_attempt(retry, response, error, retries, idempotent)
             if isinstance(outcome, httpx.Response):
                 return outcome
             await asyncio.sleep(outcome)

@@ -3,7 +3,9 @@
     PoseError                     any failure reported by the service or the transport
     ├── BadImageError             400  the service could not decode an image (or it was empty)
     ├── AuthError                 401  API key missing or wrong
-    ├── ModelNotFoundError        404  no served model of that name (the message lists them)
+    ├── NotFoundError             404  no such thing:
+    │   ├── ModelNotFoundError         no served model of that name (the message lists them)
+    │   └── CameraNotFoundError        no stored camera of that id (`cameras()` lists them)
     ├── TooLargeError             413  too many bytes, too many pixels or too many images
     ├── UnsupportedMediaError     415  content type the service does not accept
     ├── InvalidRequestError       422  bad parameters (e.g. an unknown mode)
@@ -46,8 +48,16 @@ class AuthError(PoseError):
     """401: the service requires an API key and the one sent is missing or wrong."""
 
 
-class ModelNotFoundError(PoseError):
+class NotFoundError(PoseError):
+    """404: the thing asked for does not exist (see the two subclasses)."""
+
+
+class ModelNotFoundError(NotFoundError):
     """404: the service serves no model of that name; the message lists the served ones."""
+
+
+class CameraNotFoundError(NotFoundError):
+    """404: the service stores no camera of that id (`cameras()` lists the stored ones)."""
 
 
 class TooLargeError(PoseError):
@@ -105,4 +115,18 @@ def error_from_response(response: httpx.Response) -> PoseError:
     elif response.text.strip():
         message = response.text.strip().splitlines()[0][:200]
     cls = _BY_STATUS.get(response.status_code, PoseError)
+    if response.status_code == 404 and _about_a_camera(code, response):
+        cls = CameraNotFoundError
     return cls(message, status=response.status_code, code=code)
+
+
+def _about_a_camera(code: str, response: httpx.Response) -> bool:
+    """A 404 about a camera: its code says so (e.g. `camera_not_found`), or it answers a call
+    on /v1/cameras/{id} without naming what is missing."""
+    if "camera" in code:
+        return True
+    try:
+        path = response.request.url.path
+    except RuntimeError:  # a response built without its request
+        return False
+    return "/v1/cameras/" in path and "model" not in code

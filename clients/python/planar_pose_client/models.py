@@ -7,11 +7,15 @@ y towards the top of its texture, z towards the viewer): near/far, x side, y sid
 
 from __future__ import annotations
 
+from datetime import datetime
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
 Mode = Literal["whole", "sliding", "proposals"]
+#: Where the focal length of a pose came from (docs/pose.md): the request's `fx=`, a stored
+#: camera (`camera=ID`), the photo's EXIF, the stream's learned camera, or this view alone.
+FxSource = Literal["query", "camera", "exif", "stream", "estimated"]
 
 
 class _Answer(BaseModel):
@@ -48,6 +52,64 @@ class Detection(_Answer):
     box: Box
 
 
+class Pose(_Answer):
+    """The camera's pose (docs/pose.md). Object frame: origin at the object's centre, object in
+    z = 0, +x right and +y up on its texture, +z out of the printed face, centimetres. Camera
+    frame: OpenCV's (x right, y down, z forward)."""
+
+    camera_cm: tuple[float, float, float] = Field(
+        description="the camera centre in the object frame, cm (c = -R^T t)"
+    )
+    distance_cm: float = Field(ge=0.0, description="|c|: from the object's centre, cm")
+    azimuth_deg: float = Field(
+        description="atan2(c_y, c_x) in (-180, 180]: 0 = from the object's +x side, 90 = from "
+        "its top (+y)"
+    )
+    elevation_deg: float = Field(description="asin(c_z / |c|): 90 = straight on, 0 = grazing")
+    rvec: tuple[float, float, float] = Field(
+        description="OpenCV's rotation (object -> camera), Rodrigues vector"
+    )
+    tvec_cm: tuple[float, float, float] = Field(
+        description="OpenCV's translation (object -> camera), cm: X_cam = R X_obj + t"
+    )
+    fx: float = Field(gt=0.0, description="the focal length used, px of the uploaded image")
+    fx_source: FxSource = Field(description="where fx came from")
+    fx_range: tuple[float, float] | None = Field(
+        None,
+        description="fx estimated: the focal lengths the view allows; None where fx is known",
+    )
+    distance_range_cm: tuple[float, float] | None = Field(
+        None, description="the distance over fx_range (how sure it is); None where fx is known"
+    )
+    residual_px: float = Field(
+        ge=0.0, description="RMS reprojection error of the four corners, px of the image"
+    )
+
+
+class CellNeighbour(_Answer):
+    """A cell next to the pose's that the pose's uncertainty reaches."""
+
+    index: int = Field(ge=0)
+    probability: float = Field(ge=0.0, le=1.0)
+
+
+class Cell(_Answer):
+    """The finer region of the pose on the grid asked for with `regions=` (docs/pose.md)."""
+
+    grid: str = Field(description='the grid, e.g. "8x3x60" (azimuth x elevation x distances)')
+    index: int = Field(ge=0, description="the cell's number on the grid")
+    azimuth_deg: tuple[float, float] = Field(description="the cell's azimuth bounds, degrees")
+    elevation_deg: tuple[float, float] = Field(description="its elevation bounds, degrees")
+    distance_cm: tuple[float, float | None] | None = Field(
+        None, description="its distance bounds, cm (upper None: unbounded)"
+    )
+    label: str = Field(description='e.g. "az 22.5..67.5, el 30..60, d 0..60"')
+    probability: float = Field(ge=0.0, le=1.0, description="how likely the pose lies in it")
+    neighbours: list[CellNeighbour] = Field(
+        default_factory=list, description="neighbouring cells and their probabilities"
+    )
+
+
 class Prediction(_Answer):
     """The answer for one image."""
 
@@ -71,8 +133,16 @@ class Prediction(_Answer):
         description="whole mode: the camera's focal length in image pixels the pose used, "
         "where it was known; None where the service estimated it",
     )
-    fx_source: Literal["query", "exif"] | None = Field(
-        None, description="where fx came from: the request's fx= or the photo's EXIF"
+    fx_source: FxSource | None = Field(
+        None, description="where fx came from: the request's fx=, the photo's EXIF, a camera"
+    )
+    pose: Pose | None = Field(
+        None,
+        description="whole mode, corner models, object in view: the camera's full pose "
+        "(services without it: None)",
+    )
+    cell: Cell | None = Field(
+        None, description="with `regions=`: the finer region of the pose and its neighbours"
     )
     elapsed_ms: float = Field(ge=0.0, description="time the service spent on this image")
 
@@ -140,3 +210,34 @@ class ModelList(_Answer):
     default: str
     models: list[ModelInfo]
     problems: dict[str, str] = Field(default_factory=dict)
+
+
+class Camera(_Answer):
+    """A camera the service stores (POST /v1/cameras): a focal length (and optionally fy,
+    principal point, distortion) at an image size. `camera=ID` on predict and the stream
+    uses it; its fx is scaled to each image's width when `width` is known."""
+
+    id: str = Field(description='the id to pass as `camera=`, e.g. "c-3f2a9b1c"')
+    name: str | None = None
+    fx: float = Field(gt=0.0, description="focal length, px at `width`")
+    fy: float | None = None
+    cx: float | None = None
+    cy: float | None = None
+    dist: list[float] | None = Field(None, description="OpenCV distortion [k1, k2, p1, p2, k3]")
+    width: int | None = Field(None, description="the image width fx is given at, px")
+    height: int | None = None
+    source: Literal["intrinsics", "photos"] = Field(
+        description="intrinsics: given as numbers; photos: learned from photos of the object"
+    )
+    photos_used: int | None = Field(None, description="source photos: the photos the fit used")
+    residual_px: float | None = Field(None, description="source photos: RMS error of the fit")
+    fx_range: tuple[float, float] | None = Field(
+        None, description="source photos: the focal lengths the photos allow, where sent"
+    )
+    created: datetime | None = None
+
+
+class CameraList(_Answer):
+    """GET /v1/cameras: every stored camera, newest first."""
+
+    cameras: list[Camera]

@@ -30,10 +30,12 @@ from websockets.asyncio.client import connect as async_connect
 from websockets.exceptions import ConnectionClosed, InvalidStatus, InvalidURI, WebSocketException
 from websockets.sync.client import ClientConnection, connect
 
-from ._core import ClientCore
+from ._core import ClientCore, check_camera_id, check_positive
 from .errors import (
     AuthError,
+    CameraNotFoundError,
     InvalidRequestError,
+    ModelNotFoundError,
     PoseConnectionError,
     PoseError,
     ServiceUnavailable,
@@ -82,14 +84,28 @@ class FrameError(_Answer):
 StreamItem = StreamPrediction | FrameError
 
 
-def stream_url(base_url: str, mode: str, smooth: float, model: str | None) -> str:
-    """ws(s)://host/v1/stream?... for an http(s) base URL."""
+def stream_url(
+    base_url: str,
+    mode: str,
+    smooth: float,
+    model: str | None,
+    fx: float | None = None,
+    camera: str | None = None,
+) -> str:
+    """ws(s)://host/v1/stream?... for an http(s) base URL. ValueError for an fx that is not
+    a positive number, a malformed camera id, or both given."""
     scheme, rest = base_url.split("://", 1)
     query: dict[str, Any] = {"mode": mode}
     if smooth:
         query["smooth"] = smooth
     if model:
         query["model"] = model
+    if fx is not None:
+        query["fx"] = check_positive(fx, "fx")
+    if camera is not None:
+        if fx is not None:
+            raise ValueError("give fx or camera, not both (the camera has its own fx)")
+        query["camera"] = check_camera_id(camera)
     return f"{'wss' if scheme == 'https' else 'ws'}://{rest}/v1/stream?{urlencode(query)}"
 
 
@@ -154,6 +170,8 @@ def closed_error(exc: ConnectionClosed, refusal: tuple[str, str] | None, url: st
     if close in _CLOSE_ERRORS:
         cls, status = _CLOSE_ERRORS[close]
         code, message = refusal or ("error", reason or f"closed with code {close}")
+        if close == 4404:  # what is missing: a camera (camera=ID) or a model (model=NAME)
+            cls = CameraNotFoundError if "camera" in code else ModelNotFoundError
         return cls(message, status=status, code=code)
     return PoseConnectionError(
         f"the stream {url} closed unexpectedly (code {close}{': ' + reason if reason else ''})",
@@ -210,10 +228,12 @@ def stream_frames(
     smooth: float = 0.0,
     model: str | None = None,
     window: int | None = DEFAULT_WINDOW,
+    fx: float | None = None,
+    camera: str | None = None,
 ) -> Iterator[StreamItem]:
     """Blocking: send `frames` from a thread, yield the answers in order (see the module)."""
     _check_window(window)
-    url = stream_url(core.base_url, mode, smooth, model)
+    url = stream_url(core.base_url, mode, smooth, model, fx, camera)
     try:
         ws = connect(url, **_connect_options(core))
     except (OSError, TimeoutError, WebSocketException) as exc:
@@ -309,10 +329,12 @@ async def astream_frames(
     smooth: float = 0.0,
     model: str | None = None,
     window: int | None = DEFAULT_WINDOW,
+    fx: float | None = None,
+    camera: str | None = None,
 ) -> AsyncIterator[StreamItem]:
     """Asyncio: send `frames` (an iterable or async iterable) from a task, yield the answers."""
     _check_window(window)
-    url = stream_url(core.base_url, mode, smooth, model)
+    url = stream_url(core.base_url, mode, smooth, model, fx, camera)
     try:
         ws = await async_connect(url, **_connect_options(core))
     except (OSError, TimeoutError, WebSocketException) as exc:
