@@ -24,8 +24,9 @@ DEFAULT_TIMEOUT_S = 30.0
 MODEL_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
 #: What a camera id looks like (the service's are e.g. "c-3f2a9b1c"); it goes into URLs too.
 CAMERA_ID = MODEL_NAME
-#: `regions=`: A azimuth sectors x E elevation bands [x distance splits D1,D2,... in cm].
-REGIONS = re.compile(r"[1-9][0-9]*x[1-9][0-9]*(x[0-9]+(\.[0-9]+)?(,[0-9]+(\.[0-9]+)?)*)?")
+#: The shape of `regions=`: A azimuth sectors x E elevation bands [x distance splits D1,D2,...
+#: in cm]; the service judges the numbers (limits, increasing splits).
+REGIONS = re.compile(r"[0-9]{1,3}x[0-9]{1,3}(x[0-9.,eE+]+)?")
 #: Transport errors raised before the request left: retrying cannot repeat a change.
 _NOT_SENT = (httpx.ConnectError, httpx.ConnectTimeout, httpx.PoolTimeout)
 

@@ -65,7 +65,9 @@ def run_service(wait_for: str = "/readyz", **env: str) -> Iterator[str]:
     settings = {k: v for k, v in os.environ.items() if not k.startswith("POSE_")}
     settings |= {"POSE_MODEL_PATH": str(MODEL), "POSE_MAX_IMAGES": str(MAX_IMAGES), **env}
     command = [sys.executable, "-m", "uvicorn", "service.app:app", "--host", "127.0.0.1"]
-    with tempfile.TemporaryFile("w+") as log:
+    with tempfile.TemporaryFile("w+") as log, tempfile.TemporaryDirectory() as state:
+        # The cameras it learns go to a store of its own, not the user's.
+        settings.setdefault("POSE_CAMERA_DB", str(Path(state) / "cameras.sqlite3"))
         server = subprocess.Popen(
             [*command, "--port", str(port), "--log-level", "warning"],
             cwd=REPO,

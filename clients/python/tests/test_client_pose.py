@@ -126,7 +126,7 @@ class FakeService:
                 if photos < 3:
                     return error(
                         422,
-                        "too_few_photos",
+                        "camera_not_learned",
                         f"{photos} photo(s) show the object; a camera needs 3 or more",
                     )
                 body = {"fx": 1402.3, "width": 640, "height": 480, "name": query.get("name")}
@@ -249,7 +249,7 @@ def test_bad_pose_arguments_fail_before_sending(fake):
     with sync_client(fake) as c:
         with pytest.raises(ValueError, match="fx or camera, not both"):
             c.predict(PHOTOS[0], fx=1400.0, camera="c-1")
-        for grid in ("8", "8x", "0x3", "8x3x", "8x3x60;120", "8 x 3"):
+        for grid in ("8", "8x", "8x3x", "8x3x60;120", "8 x 3", "8x3 "):
             with pytest.raises(ValueError, match="regions must be AxE"):
                 c.predict(PHOTOS[0], regions=grid)
         for camera_id in ("", "../v1/model", "c 1"):
@@ -319,9 +319,9 @@ def test_learn_a_camera_from_photos(fake):
         assert camera.source == "photos" and camera.photos_used == 3 and camera.name == "stereo"
         with pytest.raises(InvalidRequestError) as too_few:
             c.learn_camera(PHOTOS[:2])
-        assert too_few.value.status == 422 and too_few.value.code == "too_few_photos"
+        assert too_few.value.status == 422 and too_few.value.code == "camera_not_learned"
         assert "needs 3 or more" in too_few.value.message
-        assert str(too_few.value).startswith("HTTP 422 too_few_photos: 2 photo(s)")
+        assert str(too_few.value).startswith("HTTP 422 camera_not_learned: 2 photo(s)")
 
 
 def test_bad_camera_arguments_fail_before_sending(fake):
@@ -564,7 +564,7 @@ def test_cli_cameras_errors(cli_fake):
     )
     assert_one_line_error(invoke("cameras", "show", "../x"), ExitCode.BAD_INPUT, "not a camera id")
     too_few = invoke("cameras", "learn", str(PHOTOS[0]))
-    assert_one_line_error(too_few, ExitCode.SERVICE_ERROR, "HTTP 422 too_few_photos")
+    assert_one_line_error(too_few, ExitCode.SERVICE_ERROR, "HTTP 422 camera_not_learned")
     missing = invoke("cameras", "learn", *map(str, PHOTOS), "nope.jpg")
     assert_one_line_error(missing, ExitCode.BAD_INPUT, "no such image file: nope.jpg")
     dist = invoke("cameras", "add", "--fx", "1400", "--dist", "0.1,x")
