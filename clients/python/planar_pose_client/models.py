@@ -130,8 +130,8 @@ class Prediction(_Answer):
     )
     fx: float | None = Field(
         None,
-        description="whole mode: the camera's focal length in image pixels the pose used, "
-        "where it was known; None where the service estimated it",
+        description="whole mode: the camera's focal length in image pixels the class used, "
+        "where it was known; None where the service estimated it (then see pose.fx)",
     )
     fx_source: FxSource | None = Field(
         None, description="where fx came from: the request's fx=, the photo's EXIF, a camera"
