@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from service.cameras import KnownFocal
 from service.core.dataset import DatasetError, LoadedDataset, load_dataset
 from service.core.inputs import spec_fx
 from service.core.paths import REPO_ROOT
@@ -45,7 +46,8 @@ def accuracies(predictor: Predictor, folder: Path, split: str) -> tuple[float, f
     for i, (path, fx) in enumerate(zip(files, focal, strict=True)):
         image = [(path.name, path.read_bytes())]
         for j, given in enumerate((None, fx)):
-            result = predictor.predict(image, "whole", given).results[0]
+            known = None if given is None else KnownFocal(given, "query")
+            result = predictor.predict(image, "whole", known).results[0]
             right[j, i] = result.class_id == data.labels[i]
     return 100 * right[0].mean(), 100 * right[1].mean(), sum(f is not None for f in focal)
 

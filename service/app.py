@@ -20,13 +20,14 @@ from service.drain import DrainMiddleware, hold_back_sigterm
 from service.errors import install_error_handlers
 from service.limits import BodyLimitMiddleware
 from service.metrics import MetricsMiddleware
-from service.routes import health, model, predict, stream, v2, web
+from service.routes import cameras, health, model, predict, stream, v2, web
 from service.settings import Settings
 from service.state import ServiceState
 
 #: The routers served, in order; adding one is one line here.
 ROUTERS: list[APIRouter] = [
     predict.router,
+    cameras.router,
     model.router,
     health.router,
     v2.health,

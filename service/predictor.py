@@ -110,10 +110,15 @@ def _box(box: tuple[int, int, int, int], scale: tuple[float, float], size: tuple
 
 
 def _result(
-    filename: str | None, class_id: int, probs: np.ndarray, elapsed_s: float
+    filename: str | None,
+    class_id: int,
+    probs: np.ndarray,
+    elapsed_s: float,
+    size: tuple[int, int],
 ) -> ImageResult:
     return ImageResult(
         filename=filename,
+        image_size=list(size),
         class_id=class_id,
         region=RegionOut(**region_of_class(class_id)),
         probabilities=probs.tolist(),
@@ -283,7 +288,7 @@ class Predictor:
         share = infer_s / len(images)
         results = []
         for i, (image, p, t, k) in enumerate(zip(images, probs, prep, known, strict=True)):
-            result = _result(image[0], int(p.argmax()), p, t + share)
+            result = _result(image[0], int(p.argmax()), p, t + share, frames[i].image_size)
             if corners is not None and result.class_id != 0:
                 result.corners = corners[i].tolist()
                 self._add_pose(result, corners[i], frames[i].image_size, k, joint, grid)
@@ -389,7 +394,11 @@ class Predictor:
         for image, (boxes, scale, full), t in zip(images, staged, prep, strict=True):
             answer = best_window(boxes, probs[start : start + len(boxes)], cfg.sliding_nms_iou)
             result = _result(
-                image[0], answer.class_id, answer.probabilities, t + infer_s * len(boxes) / total
+                image[0],
+                answer.class_id,
+                answer.probabilities,
+                t + infer_s * len(boxes) / total,
+                full,
             )
             if answer.box is not None:
                 result.box = _box(answer.box, scale, full)

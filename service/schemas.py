@@ -117,6 +117,11 @@ class ImageResult(BaseModel):
         "EXIF 35 mm equivalent focal length (service/exif.py), the stream's learned camera or "
         "the photos of a same_camera request; null where it was estimated.",
     )
+    image_size: list[int] | None = Field(
+        default=None,
+        description="(W, H) px of the uploaded image after EXIF orientation: the frame of "
+        "`corners`, `box` and `pose`.",
+    )
     pose: Pose | None = Field(
         default=None,
         description="Whole mode, corner models, object in view: the camera's full pose.",
@@ -197,17 +202,19 @@ class CameraOut(BaseModel):
     """A stored camera (docs/pose.md)."""
 
     id: str
-    name: str | None
+    name: str | None = None
     fx: float
-    fy: float | None
-    cx: float | None
-    cy: float | None
-    dist: list[float] | None
-    width: int | None
-    height: int | None
+    fy: float | None = None
+    cx: float | None = None
+    cy: float | None = None
+    dist: list[float] | None = None
+    width: int | None = Field(default=None, description="The intrinsics' image size, px.")
+    height: int | None = None
     source: Literal["intrinsics", "photos"]
-    photos_used: int
-    residual_px: float | None
+    photos_used: int = Field(default=0, description="From photos: those the fit kept.")
+    residual_px: float | None = Field(
+        default=None, description="From photos: RMS reprojection error of their corners, px."
+    )
     fx_range: list[float] | None = Field(
         default=None, description="From photos: the focal lengths [lo, hi] px they allow."
     )

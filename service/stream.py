@@ -9,8 +9,10 @@ one at a time. So the memory of a socket is bounded by (queue depth + 1) frames 
 client sends. A bad frame is answered with an error message and the stream goes on; when the
 socket closes, both tasks stop at once and the waiting frames are thrown away.
 
-`fx=F` gives the camera's focal length in pixels of the frames (whole mode; see
-`Predictor.predict`). `smooth=f` (0 <= f < 1, default 0 = off) smooths the probabilities
+`fx=F` gives the camera's focal length in pixels of the frames, `camera=ID` a stored camera
+(whole mode; see `Predictor.predict`); without either, the stream learns its camera from the
+frames it answers (`service.stream_camera`; `fx_source: "stream"` once it has).
+`smooth=f` (0 <= f < 1, default 0 = off) smooths the probabilities
 exponentially over the frames: p_t = f * p_(t-1) + (1 - f) * q_t, with q_t the frame's own
 probabilities; class, confidence and region follow p_t, the box and detections stay the
 frame's own.
@@ -36,11 +38,14 @@ from prometheus_client import Counter, Gauge
 from starlette.websockets import WebSocket, WebSocketDisconnect, WebSocketState
 
 from service import bounded_json
+from service.cameras import KnownFocal
+from service.core.cells import RegionGrid
 from service.core.preprocess import ImageDecodeError, ImageTooLargeError
 from service.core.regions import region_of_class
 from service.metrics import Metrics
-from service.predictor import Predictor, too_large_code
+from service.predictor import Prediction, Predictor, too_large_code
 from service.schemas import ImageResult, Mode, RegionOut
+from service.stream_camera import StreamCamera
 
 #: Frames that may wait besides the one being answered; more and the oldest is dropped.
 QUEUE_DEPTH = 2
@@ -77,10 +82,13 @@ class StreamOptions:
     smooth: float = 0.0
     model: str | None = None
     fx: float | None = None  # the camera's focal length, px of the frames (`Predictor.predict`)
+    camera: str | None = None  # a stored camera's id (`/v1/cameras`)
+    grid: RegionGrid | None = None  # the finer regions of `regions=`
 
 
 def parse_options(query: Mapping[str, str]) -> StreamOptions:
-    """`mode`, `smooth`, `model` and `fx` from the query string, or StreamRefused 4422."""
+    """`mode`, `smooth`, `model`, `fx`, `camera` and `regions` from the query string, or
+    StreamRefused 4422."""
     mode = query.get("mode", "whole")
     if mode not in MODES:
         raise _invalid(f"mode: must be one of {', '.join(MODES)}, got {mode!r}")
@@ -98,7 +106,16 @@ def parse_options(query: Mapping[str, str]) -> StreamOptions:
             fx = float(query["fx"])
         except ValueError:
             raise _invalid(f"fx: must be a number of pixels, got {query['fx']!r}") from None
-    return StreamOptions(mode, smooth, model, fx)  # type: ignore[arg-type]  # mode checked
+    camera = query.get("camera") or None
+    if fx is not None and camera is not None:
+        raise _invalid("fx and camera: give one of them")
+    grid = None
+    if query.get("regions"):
+        try:
+            grid = RegionGrid.parse(query["regions"])
+        except ValueError as exc:
+            raise _invalid(str(exc)) from None
+    return StreamOptions(mode, smooth, model, fx, camera, grid)  # type: ignore[arg-type]
 
 
 def _invalid(message: str) -> StreamRefused:
@@ -263,6 +280,8 @@ class Smoother:
                 "probabilities": probs.tolist(),
                 "confidence": float(probs[class_id]),
                 "corners": result.corners if class_id != 0 else None,
+                "pose": result.pose if class_id != 0 else None,
+                "cell": result.cell if class_id != 0 else None,
             }
         )
 
@@ -297,9 +316,14 @@ class StreamSession:
         limiter: anyio.CapacityLimiter,
         metrics: StreamMetrics,
         max_frame_bytes: int,
+        focal: KnownFocal | None = None,
         depth: int = QUEUE_DEPTH,
     ) -> None:
         self.websocket, self.predictor, self.options = websocket, predictor, options
+        self.focal = focal  # the request's (fx= or camera=): else the stream learns one
+        size_cm = predictor.model.object_size_cm
+        learns = focal is None and options.mode == "whole" and predictor.model.takes_focal
+        self.camera = StreamCamera(size_cm) if learns and size_cm is not None else None
         self.limiter, self.metrics, self.max_frame_bytes = limiter, metrics, max_frame_bytes
         self.queue = FrameQueue(depth)
         self.smoother = Smoother(options.smooth)
@@ -312,6 +336,8 @@ class StreamSession:
             "mode": self.options.mode,
             "smooth": self.options.smooth,
             "fx": self.options.fx,
+            "camera": self.options.camera,
+            "learns_camera": self.camera is not None,
             "queue": self.queue.depth,
             "max_frame_bytes": self.max_frame_bytes,
         }
@@ -373,12 +399,7 @@ class StreamSession:
             )
         try:
             prediction = await anyio.to_thread.run_sync(
-                self.predictor.predict,
-                [(None, frame.data)],
-                mode,
-                self.options.fx,
-                limiter=self.limiter,
-                abandon_on_cancel=True,
+                self._predict, frame.data, limiter=self.limiter, abandon_on_cancel=True
             )
         except ImageDecodeError as exc:
             self.metrics.frames.labels(mode, "error").inc()
@@ -397,6 +418,19 @@ class StreamSession:
         self.metrics.metrics.observe(mode, 1, prediction.inference_s)
         result = self.smoother.apply(prediction.results[0])
         return json.dumps({**where, **result.model_dump(mode="json")})
+
+    def _predict(self, data: bytes) -> Prediction:
+        """One frame's answer (with the learned camera once there is one); its corners are
+        then offered to the camera the stream learns."""
+        known = self.focal or (self.camera.known if self.camera is not None else None)
+        prediction = self.predictor.predict(
+            [(None, data)], self.options.mode, known, grid=self.options.grid
+        )
+        result = prediction.results[0]
+        if self.camera is not None and result.corners is not None and result.image_size:
+            w, h = result.image_size
+            self.camera.offer(np.asarray(result.corners), (w, h))
+        return prediction
 
     async def _send(self, text: str) -> None:
         await self.websocket.send_text(text)

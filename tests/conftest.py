@@ -1,9 +1,15 @@
-"""What every test shares: onnxruntime logs errors only.
+"""What every test shares: onnxruntime logs errors only; the service's camera store in a
+temporary folder, never the user's.
 
 The corner graphs' optional inputs are overridable initializers (`service.core.onnx_contract`),
 about which onnxruntime warns at every load; the service sets the same level per session.
 """
 
+import os
+import tempfile
+from pathlib import Path
+
 import onnxruntime as ort
 
 ort.set_default_logger_severity(3)
+os.environ["POSE_CAMERA_DB"] = str(Path(tempfile.mkdtemp(prefix="pose-cameras-")) / "cameras.db")

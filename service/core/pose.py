@@ -12,8 +12,9 @@ is a pinhole with square pixels, its principal point at the image centre unless 
     estimate_focal   one view -> the focal length its pose takes: the network's prior, kept
                      within the range the view allows
     zhang_focal      views -> fx of Zhang's constraints on their homographies, closed form
-    fit_focal        views -> one camera's fx: Zhang, refined by `cv2.calibrateCamera` (fx = fy,
-                     principal point fixed, no distortion), views that do not fit dropped
+    fit_focal        views -> one camera's fx: the focal length the views agree on (views that
+                     do not dropped), Zhang refined by `cv2.calibrateCamera` (fx = fy,
+                     principal point fixed, no distortion)
 """
 
 from __future__ import annotations
@@ -38,9 +39,6 @@ CAMERA_BOUNDS = (0.3, 3.0)
 CORNER_NOISE_INPUT_PX = 1.0
 #: Focal lengths tried by `focal_interval` across the bounds (log-spaced).
 FOCAL_STEPS = 61
-#: A view whose RMS reprojection error at the joint fx is above this many times the median's
-#: (and above the corner noise) is dropped from `fit_focal`.
-OUTLIER_FACTOR = 3.0
 
 
 @dataclass(frozen=True)
@@ -151,6 +149,21 @@ def _residuals(
     return np.array([solve_pose(q, object_points, camera).residual_px for q in views])
 
 
+def _costs(
+    views: Sequence[np.ndarray], object_points: np.ndarray, size: tuple[int, int], fs: np.ndarray
+) -> np.ndarray:
+    """Each view's sum of squared reprojection errors px^2 over its 4 corners [V, F] at each
+    focal length `fs` [F] (solvePnP's error is the RMS distance: 4 rms^2 per view)."""
+    return np.stack([4.0 * _residuals(views, object_points, size, f) ** 2 for f in fs], 1)
+
+
+def _allowed(fs: np.ndarray, cost: np.ndarray, noise: float) -> tuple[float, float]:
+    """The focal lengths (lo, hi) of `fs` [F] whose summed cost [F] px^2 is within 4 noise^2
+    of the least (chi-square, 2 sigma, noise px per coordinate)."""
+    allowed = fs[cost <= cost.min() + 4.0 * noise**2]
+    return float(allowed.min()), float(allowed.max())
+
+
 def focal_interval(
     views: Sequence[np.ndarray],
     object_points: np.ndarray,
@@ -163,13 +176,9 @@ def focal_interval(
     squared reprojection errors over all corners is within 4 noise^2 of the best one's
     (chi-square, 2 sigma; `noise_px` per coordinate, default `corner_noise_px`). More views
     narrow it; head-on views leave it wide."""
-    lo, hi = focal_bounds(size, factors)
-    fs = np.geomspace(lo, hi, FOCAL_STEPS)
-    # solvePnP's error is the RMS over the 4 corners of the distance: 4 rms^2 per view
-    cost = np.array([4.0 * np.sum(_residuals(views, object_points, size, f) ** 2) for f in fs])
+    fs = np.geomspace(*focal_bounds(size, factors), FOCAL_STEPS)
     noise = corner_noise_px(size) if noise_px is None else noise_px
-    allowed = fs[cost <= cost.min() + 4.0 * noise**2]
-    return float(allowed.min()), float(allowed.max())
+    return _allowed(fs, _costs(views, object_points, size, fs).sum(0), noise)
 
 
 def zhang_focal(
@@ -211,30 +220,40 @@ class FocalFit:
 
 
 def fit_focal(
-    views: Sequence[np.ndarray], object_points: np.ndarray, size: tuple[int, int]
+    views: Sequence[np.ndarray],
+    object_points: np.ndarray,
+    size: tuple[int, int],
+    noise_px: float | None = None,
 ) -> FocalFit:
     """Views of the object by one camera (corners [4, 2] px each, images of `size` (W, H)) ->
-    its focal length: `zhang_focal` (else the prior) refined by `cv2.calibrateCamera` with
-    fx = fy, the principal point at the centre and no distortion; views whose error at that
-    fx is above `OUTLIER_FACTOR` x the median's (and the corner noise) are dropped and the
-    rest fitted again. ValueError for fewer than 2 views."""
+    its focal length.
+
+    Each view's error curve over the `CAMERA_BOUNDS` is measured against its own best; the
+    focal length where the sum of those excesses, each capped at 4 noise^2 (`noise_px` per
+    coordinate, default `corner_noise_px`), is least is where the views agree, and a view
+    whose excess there is above the cap is dropped (a wrong detection, another lens: one
+    strong outlier cannot pull the fit). The views kept are fitted by `zhang_focal`
+    refined by `cv2.calibrateCamera` (fx = fy, principal point at the centre, no
+    distortion). ValueError for fewer than 2 views, or fewer than 2 that agree."""
     if len(views) < 2:
         raise ValueError(f"need at least 2 views, got {len(views)}")
     qs = [_as_points(q) for q in views]
-    used = np.ones(len(qs), bool)
     obj = np.asarray(object_points, np.float64).reshape(4, 3)
-    fx, residual = 0.0, 0.0
-    for _ in range(2):
-        kept = [q for q, u in zip(qs, used, strict=True) if u]
-        fx, residual = _calibrated(kept, obj, size, zhang_focal(kept, obj, size))
-        errors = _residuals(qs, obj, size, fx)
-        limit = max(OUTLIER_FACTOR * float(np.median(errors[used])), corner_noise_px(size))
-        again = errors <= limit
-        if again.sum() < 2 or np.array_equal(again, used):
-            break
-        used = again
+    noise = corner_noise_px(size) if noise_px is None else noise_px
+    fs = np.geomspace(*focal_bounds(size, CAMERA_BOUNDS), FOCAL_STEPS)
+    costs = _costs(qs, obj, size, fs)  # [V, F]
+    excess = costs - costs.min(1, keepdims=True)
+    cap = 4.0 * noise**2
+    agreed = int(np.argmin(np.minimum(excess, cap).sum(0)))
+    used = excess[:, agreed] <= cap
+    if used.sum() < 2:
+        raise ValueError("the views do not agree on one focal length")
     kept = [q for q, u in zip(qs, used, strict=True) if u]
-    return FocalFit(fx, residual, used, focal_interval(kept, obj, size, factors=CAMERA_BOUNDS))
+    guess = zhang_focal(kept, obj, size)
+    if guess is None or abs(guess / fs[agreed] - 1.0) > 0.25:  # another basin: start at the scan's
+        guess = float(fs[agreed])
+    fx, residual = _calibrated(kept, obj, size, guess)
+    return FocalFit(fx, residual, used, _allowed(fs, costs[used].sum(0), noise))
 
 
 def estimate_focal(
@@ -242,8 +261,8 @@ def estimate_focal(
 ) -> tuple[float, tuple[float, float]]:
     """One view's corners [4, 2] px -> the focal length px the pose takes and the range (lo,
     hi) px the view allows (`focal_interval` within the `CAMERA_BOUNDS`): the network's prior
-    where it lies in that range, else the range's end nearest it (a head-on view keeps the prior, an oblique one
-    decides)."""
+    where it lies in that range, else the range's end nearest it (a head-on view keeps the
+    prior, an oblique one decides)."""
     lo, hi = focal_interval([corners], object_points, size, factors=CAMERA_BOUNDS)
     return float(np.clip(focal_prior(size), lo, hi)), (lo, hi)
 

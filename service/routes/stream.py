@@ -1,5 +1,5 @@
-"""`WS /v1/stream?mode=whole|sliding|proposals&smooth=F&model=NAME&fx=F`: live frames in, answers
-out (the protocol: `service/stream.py` and docs/live.md)."""
+"""`WS /v1/stream?mode=whole|sliding|proposals&smooth=F&model=NAME&fx=F&camera=ID&regions=G`:
+live frames in, answers out (the protocol: `service/stream.py` and docs/live.md)."""
 
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ from weakref import WeakKeyDictionary
 from fastapi import APIRouter, WebSocket
 from starlette.websockets import WebSocketDisconnect
 
+from service.cameras import CameraNotFound, CameraStoreError, KnownFocal
 from service.metrics import Metrics
 from service.predictor import Predictor
 from service.registry import UnknownModel
@@ -15,6 +16,7 @@ from service.state import ServiceState
 from service.stream import (
     CloseCode,
     StreamMetrics,
+    StreamOptions,
     StreamRefused,
     StreamSession,
     authorise,
@@ -51,6 +53,21 @@ def find_predictor(state: ServiceState, name: str | None) -> Predictor:
         ) from None
 
 
+def stream_focal(state: ServiceState, options: StreamOptions) -> KnownFocal | None:
+    """The focal length of `fx=` or of the stored camera `camera=` (StreamRefused 4404 for an
+    unknown id, 1013 when the store cannot be read)."""
+    if options.camera is None:
+        return None if options.fx is None else KnownFocal(options.fx, "query")
+    try:
+        return KnownFocal.of(state.cameras.get(options.camera))
+    except CameraNotFound as exc:
+        raise StreamRefused(CloseCode.NOT_FOUND, "camera_not_found", str(exc)) from None
+    except CameraStoreError as exc:
+        raise StreamRefused(
+            CloseCode.TRY_AGAIN_LATER, "camera_store_unavailable", str(exc)
+        ) from None
+
+
 @router.websocket("/v1/stream")
 async def stream(websocket: WebSocket) -> None:
     """Answer each binary frame (JPEG/PNG) with its pose class, in order (docs/live.md)."""
@@ -62,7 +79,8 @@ async def stream(websocket: WebSocket) -> None:
         await authorise(websocket, key)
         options = parse_options(websocket.query_params)
         predictor = find_predictor(state, options.model)
-        problem = predictor.focal_problem(options.mode, options.fx)
+        focal = stream_focal(state, options)
+        problem = predictor.focal_problem(options.mode, focal)
         if problem is not None:
             raise StreamRefused(CloseCode.INVALID_PARAMETERS, "invalid_parameters", problem)
     except StreamRefused as refused:
@@ -77,5 +95,6 @@ async def stream(websocket: WebSocket) -> None:
         state.jobs,
         stream_metrics(state.metrics),
         settings.max_upload_bytes,
+        focal,
     )
     await session.run()

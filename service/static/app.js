@@ -1,6 +1,7 @@
 // The planar-pose web page: photos go to POST /v1/predict, webcam frames to WS /v1/stream.
-// Plain JavaScript, no build step, nothing loaded from another host.
-"use strict";
+// Plain JavaScript modules, no build step, nothing loaded from another host (three.js, for the
+// 3D view of the pose, is vendored under static/vendor/three).
+import { PoseView, distanceText, rangeText } from "./pose-view.js";
 
 const SVG_NS = "http://www.w3.org/2000/svg";
 const $ = (selector, root = document) => root.querySelector(selector);
@@ -16,6 +17,7 @@ function regionOf(classId) {
 }
 
 const state = { card: null, camera: null };
+const poseViews = new WeakMap();  // result card -> its PoseView
 
 // --- errors in plain words -------------------------------------------------------------
 
@@ -72,6 +74,17 @@ function chosenModel() {
 // The query that sends a request to the chosen model ("" for the default model).
 function modelQuery() {
   return chosenModel() ? `model=${encodeURIComponent(chosenModel())}` : "";
+}
+
+// The query of a prediction (photos and the stream): mode, model, and the focal length typed
+// in (fx=, px) or the learned camera picked (camera=ID), which exclude each other.
+function predictParams() {
+  const params = new URLSearchParams({ mode: $("#mode").value });
+  if (chosenModel()) params.set("model", chosenModel());
+  const fx = $("#fx").value.trim();
+  if (fx) params.set("fx", fx);
+  else if ($("#learned-camera").value) params.set("camera", $("#learned-camera").value);
+  return params;
 }
 
 // Fill the Object list from GET /v1/models: one entry per served model, its object named.
@@ -133,6 +146,34 @@ function accuracyTable(accuracy) {
     }
   });
   return table;
+}
+
+// --- learned cameras (GET /v1/cameras) ----------------------------------------------------
+
+// Fill the Camera list with the cameras the service learned; hidden where it has none to
+// offer (no such route, refused, unreachable).
+async function loadCameras() {
+  const label = $("#learned-camera-choice");
+  const select = $("#learned-camera");
+  let cameras = null;
+  try {
+    const response = await fetch("v1/cameras", { headers: authHeaders() });
+    if (response.ok) cameras = (await response.json()).cameras || [];
+  } catch (_) { /* unreachable: as without the route */ }
+  const chosen = select.value;
+  select.replaceChildren(new Option("none", ""), ...(cameras || []).map((c) => new Option(
+    `${c.name || c.id} (fx ${Math.round(c.fx)} px${c.width ? ` at ${c.width} px wide` : ""})`, c.id)));
+  select.value = chosen;
+  if (select.value !== chosen) select.value = "";  // that camera is gone
+  label.hidden = cameras === null;
+}
+
+// A focal length typed in and a learned camera exclude each other: setting one clears the other.
+function setUpFocal() {
+  const fx = $("#fx");
+  const camera = $("#learned-camera");
+  fx.addEventListener("input", () => { if (fx.value) camera.value = ""; });
+  camera.addEventListener("change", () => { if (camera.value) fx.value = ""; });
 }
 
 function renderCard(card) {
@@ -219,13 +260,54 @@ function showAnswer(card, result) {
     : "Object not in view";
   region.dataset.label = result.region.label;
   const where = result.box ? ` · box ${result.box.w}×${result.box.h} at (${result.box.x}, ${result.box.y})` : "";
-  const focal = result.fx != null ? ` · fx ${result.fx.toFixed(0)} px (${result.fx_source})` : "";
   $(".meta", card).textContent =
     `class ${result.class_id} · confidence ${(100 * result.confidence).toFixed(1)} %` +
-    ` · ${result.elapsed_ms.toFixed(1)} ms${where}${focal}`;
+    ` · ${result.elapsed_ms.toFixed(1)} ms${where}${focalText(result)}`;
+  showPoseText(card, result);
   $(".octants", card).replaceChildren(octantPicture(result.class_id));
   $(".bars", card).replaceChildren(probabilityBars(result.probabilities, result.class_id));
   $(".result-error", card).hidden = true;
+}
+
+// " · fx 1480 px (estimated, 1310–1702)": the focal length the pose used, where it came from
+// and, when estimated, the range the view allows; the answer's own fx without a pose.
+function focalText(result) {
+  const pose = result.pose;
+  const fx = pose ? pose.fx : result.fx;
+  if (fx == null) return "";
+  const source = pose ? pose.fx_source : result.fx_source;
+  const range = pose && pose.fx_range ? `, ${rangeText(pose.fx_range)}` : "";
+  return ` · fx ${fx.toFixed(0)} px (${source}${range})`;
+}
+
+// The pose in words: where the camera is (object frame, cm), how far, from which direction;
+// the finer region's cell when the answer has one.
+function showPoseText(card, result) {
+  const box = $(".pose-text", card);
+  const pose = result.pose;
+  box.hidden = !pose;
+  if (!pose) return;
+  const [x, y, z] = pose.camera_cm.map((v) => v.toFixed(1));
+  const lines = [
+    `Camera at x ${x}, y ${y}, z ${z} cm from the object's centre, ${distanceText(pose)} away`,
+    `azimuth ${pose.azimuth_deg.toFixed(0)}° · elevation ${pose.elevation_deg.toFixed(0)}°` +
+      (pose.residual_px != null ? ` · corners fit to ${pose.residual_px.toFixed(1)} px` : ""),
+  ];
+  if (result.cell) {
+    const p = result.cell.probability;
+    lines.push(`cell ${result.cell.index}: ${result.cell.label}${p != null ? ` (${(100 * p).toFixed(0)} %)` : ""}`);
+  }
+  box.replaceChildren(...lines.flatMap((line, i) => (i ? [document.createElement("br"), line] : [line])));
+}
+
+// The 3D view of the card: the object, the 8 regions and, with a pose, the camera.
+function showPose(card, result, image) {
+  let view = poseViews.get(card);
+  if (!view) {
+    view = new PoseView($(".scene", card));
+    poseViews.set(card, view);
+  }
+  view.show(result, state.card && state.card.profile, image);
 }
 
 function showResultError(card, text) {
@@ -327,10 +409,9 @@ async function predictFile(file) {
   $("#results").prepend(card);
   const form = new FormData();
   form.append("image", file, file.name || "photo");
-  const mode = $("#mode").value;
   let response;
   try {
-    response = await fetch(`v1/predict?mode=${encodeURIComponent(mode)}&${modelQuery()}`, {
+    response = await fetch(`v1/predict?${predictParams()}`, {
       method: "POST", body: form, headers: authHeaders() });
   } catch (_) {
     showResultError(card, explain("network"));
@@ -344,17 +425,23 @@ async function predictFile(file) {
   }
   const result = (await response.json()).results[0];
   showAnswer(card, result);
-  await drawPhoto($(".view", card), file, result);
+  const image = await drawPhoto($(".view", card), file, result);
+  showPose(card, result, image);
   card.dataset.state = "done";
 }
 
+// The photo drawn with the answer on it -> its size {width, height} (px, after its EXIF
+// orientation, as the service saw it), or null when the browser cannot read it.
 async function drawPhoto(canvas, file, result) {
   try {
     const bitmap = await createImageBitmap(file, { imageOrientation: "from-image" });
     drawView(canvas, bitmap, bitmap.width, bitmap.height, result);
+    const size = { width: bitmap.width, height: bitmap.height };
     bitmap.close();
+    return size;
   } catch (_) {
     canvas.hidden = true;  // the service read it, the browser cannot show it (e.g. 16-bit PNG)
+    return null;
   }
 }
 
@@ -380,11 +467,9 @@ function setUpDrop() {
 // --- the webcam through the stream -----------------------------------------------------
 
 function streamUrl() {
-  const url = new URL("v1/stream", window.location.href);
+  const url = new URL(`v1/stream?${predictParams()}`, window.location.href);
   url.protocol = url.protocol === "https:" ? "wss:" : "ws:";
-  url.searchParams.set("mode", $("#mode").value);
   url.searchParams.set("smooth", $("#smooth").value);
-  if (chosenModel()) url.searchParams.set("model", chosenModel());
   return url.toString();
 }
 
@@ -447,6 +532,7 @@ function onStreamMessage(cam, message) {
   $("#fps").textContent = `${(cam.answers.length / 2).toFixed(1)} frames/s`;
   showAnswer(cam.card, message);
   drawView($(".view", cam.card), cam.canvas, cam.canvas.width, cam.canvas.height, message);
+  showPose(cam.card, message, { width: cam.canvas.width, height: cam.canvas.height });
 }
 
 // At most two frames wait for an answer (the server drops older ones anyway).
@@ -486,11 +572,12 @@ function setUpCamera() {
   }
 }
 
-document.addEventListener("DOMContentLoaded", () => {
-  setUpDrop();
-  setUpCamera();
-  $("#api-key").addEventListener("change", () => { loadModels(); loadCard(); });
-  $("#model-name").addEventListener("change", loadCard);
-  loadModels();
-  loadCard();
-});
+// A module runs once the document is parsed, as a deferred script would.
+setUpDrop();
+setUpCamera();
+setUpFocal();
+$("#api-key").addEventListener("change", () => { loadModels(); loadCard(); loadCameras(); });
+$("#model-name").addEventListener("change", loadCard);
+loadModels();
+loadCard();
+loadCameras();

@@ -1,0 +1,185 @@
+"""`/v1/cameras`: cameras the service learns, from their intrinsics or from photos of the object
+(docs/pose.md); stored in SQLite (`service/cameras.py`)."""
+
+from __future__ import annotations
+
+from typing import Annotated, Any
+
+import anyio
+import numpy as np
+from fastapi import APIRouter, Query, Request, Response
+from pydantic import ValidationError
+
+from service.cameras import CameraNotFound, CameraStore, CameraStoreError, CameraStoreFull
+from service.core.pose import fit_focal
+from service.core.preprocess import ImageDecodeError, ImageTooLargeError
+from service.deps import AUTHORISED, CamerasDep, LimiterDep, PredictorDep, SettingsDep
+from service.errors import ApiError
+from service.posing import object_points
+from service.predictor import Predictor, too_large_code
+from service.schemas import ERROR_RESPONSES, CameraIn, CameraList, CameraOut
+from service.uploads import read_images
+
+router = APIRouter(tags=["cameras"], dependencies=AUTHORISED)
+
+#: Photos of the object a camera is learned from, at least.
+MIN_PHOTOS = 3
+#: The widest range of focal lengths (hi - lo) / fx the photos may leave: wider, they do not
+#: pin it (views too close to head-on, or too few) and the camera is not stored.
+MAX_FX_SPREAD = 0.5
+
+CAMERA_BODY: dict[str, Any] = {
+    "requestBody": {
+        "required": True,
+        "content": {
+            "application/json": {"schema": CameraIn.model_json_schema()},
+            "multipart/form-data": {
+                "schema": {
+                    "type": "object",
+                    "properties": {
+                        "image": {
+                            "type": "array",
+                            "items": {"type": "string", "format": "binary"},
+                            "description": f"{MIN_PHOTOS} or more photos of the object by the "
+                            "camera, all of one size.",
+                        }
+                    },
+                    "required": ["image"],
+                }
+            },
+        },
+    }
+}
+
+
+def _store_error(exc: Exception) -> ApiError:
+    if isinstance(exc, CameraNotFound):
+        return ApiError(404, "camera_not_found", str(exc))
+    if isinstance(exc, CameraStoreFull):
+        return ApiError(409, "camera_store_full", str(exc))
+    return ApiError(503, "camera_store_unavailable", str(exc))
+
+
+async def _stored(cameras: CameraStore, fields: dict[str, Any]) -> CameraOut:
+    try:
+        return await anyio.to_thread.run_sync(cameras.create, fields)
+    except (CameraStoreFull, CameraStoreError) as exc:
+        raise _store_error(exc) from None
+
+
+def learn(predictor: Predictor, images: list[tuple[str | None, bytes]]) -> dict[str, Any]:
+    """Photos of the object by one camera -> the camera's fields (fx fitted to the corners the
+    network finds in them, `fit_focal`); ValueError saying why it cannot be learned."""
+    size_cm = predictor.model.object_size_cm
+    if size_cm is None or predictor.model.corners_name is None:
+        raise ValueError(f"model {predictor.model.name} gives no corners: pick a corner model")
+    results = predictor.predict(images, "whole").results
+    found = [r for r in results if r.corners is not None and r.image_size is not None]
+    if len(found) < MIN_PHOTOS:
+        raise ValueError(
+            f"the object was found in {len(found)} of {len(results)} photos; "
+            f"{MIN_PHOTOS} or more are needed"
+        )
+    sizes = {tuple(r.image_size or ()) for r in found}
+    if len(sizes) > 1:
+        raise ValueError(f"photos of different sizes {sorted(sizes)}: send one camera's photos")
+    (size,) = sizes
+    w, h = int(size[0]), int(size[1])
+    fit = fit_focal([np.asarray(r.corners) for r in found], object_points(size_cm), (w, h))
+    used = int(fit.used.sum())
+    spread = (fit.interval[1] - fit.interval[0]) / fit.fx
+    if used < MIN_PHOTOS or spread > MAX_FX_SPREAD:
+        raise ValueError(
+            f"the {used} photos that fit leave fx between {fit.interval[0]:.0f} and "
+            f"{fit.interval[1]:.0f} px: add photos that view the object obliquely "
+            "(tilted 20-50 degrees), from several sides"
+        )
+    return {
+        "fx": round(fit.fx, 3),
+        "width": w,
+        "height": h,
+        "source": "photos",
+        "photos_used": used,
+        "residual_px": round(fit.residual_px, 3),
+        "fx_range": [round(v, 3) for v in fit.interval],
+    }
+
+
+@router.post(
+    "/v1/cameras",
+    response_model=CameraOut,
+    status_code=201,
+    responses={**ERROR_RESPONSES, 409: {"description": "The camera store is full."}},
+    openapi_extra=CAMERA_BODY,
+    summary="Store a camera: its intrinsics (JSON) or photos of the object by it (multipart)",
+)
+async def create_camera(
+    request: Request,
+    cameras: CamerasDep,
+    predictor: PredictorDep,
+    settings: SettingsDep,
+    limiter: LimiterDep,
+    name: Annotated[str | None, Query(max_length=100)] = None,
+) -> CameraOut:
+    """JSON `{"fx": ..., "width": ..., "height": ...}` (docs/pose.md), or multipart `image`
+    fields: 3 or more photos of the object, one camera, one size; `?model=` picks the
+    corner model that finds the object (default: the default model)."""
+    kind = request.headers.get("content-type", "").split(";")[0].strip().lower()
+    if kind == "application/json":
+        try:
+            given = CameraIn.model_validate_json(await request.body())
+        except ValidationError as exc:
+            problems = "; ".join(
+                f"{'.'.join(str(p) for p in e['loc']) or 'body'}: {e['msg']}" for e in exc.errors()
+            )
+            raise ApiError(422, "invalid_camera", problems) from None
+        fields = given.model_dump()
+        fields["name"] = fields["name"] or name
+        return await _stored(
+            cameras, {**fields, "source": "intrinsics", "photos_used": 0, "residual_px": None}
+        )
+    images = await read_images(request, settings.max_images)
+    try:
+        fields = await anyio.to_thread.run_sync(learn, predictor, images, limiter=limiter)
+    except ImageTooLargeError as exc:
+        raise ApiError(413, too_large_code(exc), str(exc)) from None
+    except ImageDecodeError as exc:
+        raise ApiError(400, "undecodable_image", str(exc)) from None
+    except ValueError as exc:
+        raise ApiError(422, "camera_not_learned", str(exc)) from None
+    return await _stored(cameras, {**fields, "name": name})
+
+
+@router.get("/v1/cameras", response_model=CameraList, summary="The stored cameras, newest first")
+async def list_cameras(cameras: CamerasDep) -> CameraList:
+    try:
+        return CameraList(cameras=await anyio.to_thread.run_sync(cameras.list))
+    except CameraStoreError as exc:
+        raise _store_error(exc) from None
+
+
+@router.get(
+    "/v1/cameras/{camera_id}",
+    response_model=CameraOut,
+    responses=ERROR_RESPONSES,
+    summary="One stored camera",
+)
+async def get_camera(camera_id: str, cameras: CamerasDep) -> CameraOut:
+    try:
+        return await anyio.to_thread.run_sync(cameras.get, camera_id)
+    except (CameraNotFound, CameraStoreError) as exc:
+        raise _store_error(exc) from None
+
+
+@router.delete(
+    "/v1/cameras/{camera_id}",
+    status_code=204,
+    responses=ERROR_RESPONSES,
+    summary="Forget a stored camera",
+)
+async def delete_camera(camera_id: str, cameras: CamerasDep) -> Response:
+    try:
+        await anyio.to_thread.run_sync(cameras.delete, camera_id)
+    except (CameraNotFound, CameraStoreError) as exc:
+        raise _store_error(exc) from None
+    return Response(status_code=204)

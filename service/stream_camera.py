@@ -1,0 +1,68 @@
+"""The camera a stream learns from its own frames (`WS /v1/stream` without fx or camera=).
+
+Each answered frame whose object was found offers its corners. A view is kept when the camera
+has turned by `MIN_TURN_DEG` or more since every kept view (a still camera adds nothing);
+once `MIN_VIEWS` are kept, their joint focal length (`service.core.pose.fit_focal`, the fit
+of `POST /v1/cameras`: views that do not fit are dropped) is taken when the views pin it
+(`MAX_FX_SPREAD`), and fitted again with every new view, over the latest `MAX_VIEWS`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+
+import cv2
+import numpy as np
+
+from service.cameras import KnownFocal
+from service.core.pose import Camera, fit_focal, focal_prior, solve_pose
+from service.posing import object_points
+
+MIN_VIEWS = 5
+MAX_VIEWS = 30
+MIN_TURN_DEG = 4.0
+MAX_FX_SPREAD = 0.3
+
+
+class StreamCamera:
+    """The focal length a stream of frames of one size has shown so far (`known`)."""
+
+    def __init__(self, size_cm: tuple[float, float]) -> None:
+        self.object = object_points(size_cm)
+        self.size: tuple[int, int] | None = None
+        self.views: deque[np.ndarray] = deque(maxlen=MAX_VIEWS)
+        self.turns: deque[np.ndarray] = deque(maxlen=MAX_VIEWS)  # each view's rotation
+        self.known: KnownFocal | None = None
+
+    def offer(self, corners: np.ndarray, size: tuple[int, int]) -> None:
+        """A frame's corners [4, 2] px of an image of `size` (W, H): kept if the camera turned
+        since the kept views, then the focal length fitted again. Frames of another size
+        start over (another camera, or another resolution)."""
+        if size != self.size:
+            self.size, self.known = size, None
+            self.views.clear()
+            self.turns.clear()
+        q = np.asarray(corners, np.float64)
+        try:
+            R = cv2.Rodrigues(solve_pose(q, self.object, Camera(focal_prior(size), size)).rvec)[0]
+        except (ValueError, cv2.error):
+            return
+        if any(_angle_deg(R, other) < MIN_TURN_DEG for other in self.turns):
+            return
+        self.views.append(q)
+        self.turns.append(R)
+        if len(self.views) < MIN_VIEWS:
+            return
+        try:
+            fit = fit_focal(list(self.views), self.object, size)
+        except (ValueError, cv2.error):
+            return
+        if (fit.interval[1] - fit.interval[0]) / fit.fx <= MAX_FX_SPREAD:
+            self.known = KnownFocal(fit.fx, "stream", size)
+
+
+def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+    """The angle (degrees) of the rotation between two rotations (3, 3)."""
+    cos = (np.trace(a @ b.T) - 1.0) / 2.0
+    return math.degrees(math.acos(max(-1.0, min(1.0, cos))))
