@@ -34,6 +34,8 @@ const PLAIN = {
   internal_error: "The service failed on this request (the error is in its log).",
   network: "Cannot reach the service: is it still running?",
   camera: "The webcam could not be started.",
+  camera_not_found: "The service has no such camera any more: pick another in the Camera list, or none.",
+  camera_store_unavailable: "The service cannot read its cameras now; try again, or type fx instead.",
 };
 
 function explain(code, message) {
@@ -301,13 +303,13 @@ function showPoseText(card, result) {
 }
 
 // The 3D view of the card: the object, the 8 regions and, with a pose, the camera.
-function showPose(card, result, image) {
+function showPose(card, result) {
   let view = poseViews.get(card);
   if (!view) {
     view = new PoseView($(".scene", card));
     poseViews.set(card, view);
   }
-  view.show(result, state.card && state.card.profile, image);
+  view.show(result, (state.card && state.card.profile) || {});
 }
 
 function showResultError(card, text) {
@@ -425,23 +427,18 @@ async function predictFile(file) {
   }
   const result = (await response.json()).results[0];
   showAnswer(card, result);
-  const image = await drawPhoto($(".view", card), file, result);
-  showPose(card, result, image);
+  showPose(card, result);
+  await drawPhoto($(".view", card), file, result);
   card.dataset.state = "done";
 }
 
-// The photo drawn with the answer on it -> its size {width, height} (px, after its EXIF
-// orientation, as the service saw it), or null when the browser cannot read it.
 async function drawPhoto(canvas, file, result) {
   try {
     const bitmap = await createImageBitmap(file, { imageOrientation: "from-image" });
     drawView(canvas, bitmap, bitmap.width, bitmap.height, result);
-    const size = { width: bitmap.width, height: bitmap.height };
     bitmap.close();
-    return size;
   } catch (_) {
     canvas.hidden = true;  // the service read it, the browser cannot show it (e.g. 16-bit PNG)
-    return null;
   }
 }
 
@@ -532,7 +529,7 @@ function onStreamMessage(cam, message) {
   $("#fps").textContent = `${(cam.answers.length / 2).toFixed(1)} frames/s`;
   showAnswer(cam.card, message);
   drawView($(".view", cam.card), cam.canvas, cam.canvas.width, cam.canvas.height, message);
-  showPose(cam.card, message, { width: cam.canvas.width, height: cam.canvas.height });
+  showPose(cam.card, message);
 }
 
 // At most two frames wait for an answer (the server drops older ones anyway).

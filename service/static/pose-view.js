@@ -13,9 +13,8 @@ import { OrbitControls } from "three/addons/controls/OrbitControls.js";
 
 const VIEW = { width: 480, height: 360 };                      // CSS px of a card's 3D view
 const DEFAULT_OBJECT_CM = { width: 26, height: 18 };           // a card without a profile
-const DEFAULT_BOX_CM = { min: [-40, -40, 10], max: [40, 40, 100] };
 const DEFAULT_Z_SPLIT_CM = 60;                                 // service/core/regions.py
-const DEFAULT_IMAGE = { width: 640, height: 480 };             // an image the browser cannot read
+const DEFAULT_IMAGE_PX = [640, 480];                           // an answer without image_size
 const COLOURS = {
   background: 0xffffff, objectFront: 0xe9edf3, objectBack: 0x8c95a3, outline: 0x1d2430,
   corner0: 0x2ec4b6, regions: 0xaab3c0, lit: 0xf4a300, camera: 0x2a6fdb, distance: 0x5b6575,
@@ -54,19 +53,19 @@ function cameraAxes(rvec) {
   return rows;
 }
 
-// The box the view spans (cm): x and y in -half..half (the card's camera box, the object),
-// z in 0..top, over the near/far split; grown to hold the camera.
-function sceneBox(profile, pose, objectSize, zSplit) {
-  const min = profile.box_min_cm || DEFAULT_BOX_CM.min;
-  const max = profile.box_max_cm || DEFAULT_BOX_CM.max;
-  let half = Math.max(-min[0], max[0], -min[1], max[1], objectSize);
-  let top = zSplit * 1.3;
+// The box the view spans (cm): x and y in -half..half, z in 0..top, round the object and over
+// the near/far split, grown to hold the camera; in steps of 10 cm, so that a moving camera
+// (the webcam) seldom changes it.
+function sceneBox(pose, objectSize, zSplit) {
+  let half = 0.75 * objectSize;
+  let top = 1.15 * zSplit;
   if (pose) {
     const [x, y, z] = pose.camera_cm;
-    half = Math.max(half, 1.15 * Math.abs(x), 1.15 * Math.abs(y));
-    top = Math.max(top, 1.15 * z);
+    half = Math.max(half, 1.1 * Math.abs(x), 1.1 * Math.abs(y));
+    top = Math.max(top, 1.1 * z);
   }
-  return { half, top };
+  const step = (v) => Math.ceil(v / 10) * 10;
+  return { half: step(half), top: step(top) };
 }
 
 function lines(points, colour, options = {}) {
@@ -142,16 +141,16 @@ function octant(k, half, top, zSplit) {
   return { centre: vec([sx * half / 2, sy * half / 2, (z0 + z1) / 2]), size: [half, half, z1 - z0] };
 }
 
-// The camera as a pyramid whose opening is its field of view (the image's size over fx),
-// with a small triangle on its top edge (the image's up), and its optical axis as a dashed
-// line down to the object's plane.
-function cameraPart(pose, image) {
+// The camera as a pyramid whose opening is its field of view (the image's size [W, H] px over
+// fx), with a small triangle on its top edge (the image's up), and its optical axis as a
+// dashed line down to the object's plane.
+function cameraPart(pose, [width, height]) {
   const [right, down, forward] = cameraAxes(pose.rvec);
   const c = vec(pose.camera_cm);
   const distance = pose.distance_cm;
   const depth = THREE.MathUtils.clamp(0.3 * distance, 6, 30);
-  const tanX = image.width / 2 / pose.fx;
-  const tanY = image.height / 2 / pose.fx;
+  const tanX = width / 2 / pose.fx;
+  const tanY = height / 2 / pose.fx;
   // the point `depth` in front of the camera at image-plane offsets (u, v) (tangents)
   const ahead = (u, v) => c.clone().addScaledVector(forward, depth)
     .addScaledVector(right, u * depth).addScaledVector(down, v * depth);
@@ -175,12 +174,12 @@ function cameraPart(pose, image) {
   return group;
 }
 
-// The direction (unit, object frame) the viewer first looks from: 25 degrees above the
+// The direction (unit, object frame) the viewer first looks from: 20 degrees above the
 // object's plane, and 60 degrees of azimuth clockwise from the camera (if any), which is then
 // seen from its side, a little in front; without a pose, from the object's lower right.
 function firstViewpoint(pose) {
   const azimuth = THREE.MathUtils.degToRad(pose ? pose.azimuth_deg - 60 : -60);
-  const elevation = THREE.MathUtils.degToRad(25);
+  const elevation = THREE.MathUtils.degToRad(20);
   return vec([Math.cos(elevation) * Math.cos(azimuth), Math.cos(elevation) * Math.sin(azimuth),
     Math.sin(elevation)]);
 }
@@ -212,25 +211,23 @@ export class PoseView {
   }
 
   // Draw `result` (a /v1/predict result or a stream message) for a model whose card has
-  // `profile` (object size, camera box, near/far split; null: defaults) on an image of `image`
-  // {width, height} px (null: unknown).
-  show(result, profile, image) {
+  // `profile` (object size, near/far split; {}: defaults).
+  show(result, profile) {
     const pose = result.pose || null;
     this.container.dataset.pose = pose ? "yes" : "no";
     if (!sharedRenderer()) {
       this.setNote("This browser gives the page no WebGL: no 3D view.");
       return;
     }
-    const card = profile || {};
-    const object = { width: card.width_cm || DEFAULT_OBJECT_CM.width,
-      height: card.height_cm || DEFAULT_OBJECT_CM.height };
-    const zSplit = card.z_split_cm || DEFAULT_Z_SPLIT_CM;
-    const box = sceneBox(card, pose, Math.max(object.width, object.height), zSplit);
+    const object = { width: profile.width_cm || DEFAULT_OBJECT_CM.width,
+      height: profile.height_cm || DEFAULT_OBJECT_CM.height };
+    const zSplit = profile.z_split_cm || DEFAULT_Z_SPLIT_CM;
+    const box = sceneBox(pose, Math.max(object.width, object.height), zSplit);
     this.clear();
     this.scene.add(objectPart(object.width, object.height), regionsPart(box, zSplit, result.class_id));
     this.tagRegions(object, box, zSplit);
     if (pose) {
-      this.scene.add(cameraPart(pose, image || DEFAULT_IMAGE));
+      this.scene.add(cameraPart(pose, result.image_size || DEFAULT_IMAGE_PX));
       this.tag(distanceText(pose), vec(pose.camera_cm).multiplyScalar(0.5), "distance-label");
     }
     this.setNote(pose ? "" : noPoseReason(result));

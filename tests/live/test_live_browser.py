@@ -4,7 +4,8 @@ selenium through Debian's chromedriver, against a live server, with every other 
 
 Screenshots of each page go to the test's tmp folder; with PLANAR_POSE_SCREENSHOTS=DIR they
 are copied to DIR too (`PLANAR_POSE_SCREENSHOTS=docs/images pytest tests/live/test_live_browser.py`
-makes docs/images/web-page.png). Skipped, with the reason, without chromium/chromedriver.
+makes docs/images/web-page.png and docs/images/pose-page.png). Skipped, with the reason, without
+chromium/chromedriver.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from typing import Any
 
 import httpx
 import pytest
-from live_support import API_KEY, PHOTO, Server
+from live_support import API_KEY, PHOTO, ROOT, Server
 from PIL import Image
 from PIL.ExifTags import IFD, Base
 
@@ -31,6 +32,9 @@ CHROMEDRIVER = shutil.which("chromedriver") or (
     "/usr/bin/chromedriver" if Path("/usr/bin/chromedriver").exists() else None
 )
 WAIT_S = 60
+#: A real photo of the test split (a phone, MIT licence): the board seen from x-, y+, near.
+BOARDS = ROOT / "train/assets/real/corpus/boards"
+POSE_PHOTO = BOARDS / "gautamkumarjaiswal__3d-reconstruction__mi-a1/images/41.jpg"
 
 pytestmark = pytest.mark.skipif(
     CHROMIUM is None or CHROMEDRIVER is None,
@@ -57,6 +61,8 @@ FLAGS = [
     "--no-first-run",
     "--no-default-browser-check",
     "--window-size=1280,1400",
+    # WebGL (the pose's 3D view) in software: Chromium wants the opt-in since version 137
+    "--enable-unsafe-swiftshader",
     # the network: names resolve to nothing but 127.0.0.1, anything else goes to a dead proxy
     "--host-resolver-rules=MAP * ~NOTFOUND, EXCLUDE 127.0.0.1",
     "--proxy-server=http://127.0.0.1:9",
@@ -74,7 +80,7 @@ def chromium(tmp_path_factory: pytest.TempPathFactory) -> Iterator[WebDriver]:
     profile = tmp_path_factory.mktemp("chromium-profile")
     for flag in [*FLAGS, f"--user-data-dir={profile}"]:
         options.add_argument(flag)
-    options.set_capability("goog:loggingPrefs", {"performance": "ALL"})
+    options.set_capability("goog:loggingPrefs", {"performance": "ALL", "browser": "ALL"})
     driver = webdriver.Chrome(service=Service(executable_path=str(CHROMEDRIVER)), options=options)
     driver.set_page_load_timeout(WAIT_S)
     try:
@@ -85,9 +91,11 @@ def chromium(tmp_path_factory: pytest.TempPathFactory) -> Iterator[WebDriver]:
 
 @pytest.fixture
 def browser(chromium: WebDriver) -> WebDriver:
-    """The browser on a blank page, its DevTools log emptied: what a test sees is its own."""
+    """The browser on a blank page, its DevTools and console logs emptied: what a test sees is
+    its own."""
     chromium.get("about:blank")
     chromium.get_log("performance")
+    chromium.get_log("browser")
     return chromium
 
 
@@ -117,6 +125,17 @@ def assert_only_local(driver: WebDriver, server: Server) -> list[str]:
     outside = [u for u in urls if not u.startswith(local)]
     assert outside == [], f"the page asked for other hosts: {outside}"
     return urls
+
+
+def script_errors(driver: WebDriver) -> list[str]:
+    """The page's JavaScript errors (uncaught or console.error) since the last look; not the
+    failed requests the console also lists."""
+    entries = driver.get_log("browser")
+    return [
+        e["message"]
+        for e in entries
+        if e["level"] == "SEVERE" and e.get("source") in ("javascript", "console-api")
+    ]
 
 
 def screenshot(driver: WebDriver, tmp_path: Path, name: str) -> Path:
@@ -260,8 +279,10 @@ def test_the_webcam_goes_through_the_stream(
     WebDriverWait(browser, WAIT_S).until(lambda d: "frames/s" in d.find_element(By.ID, "fps").text)
     assert int(live.get_attribute("data-class-id")) in range(9)
     assert f"Streaming to {DEFAULT_MODEL_NAME}" in browser.find_element(By.ID, "camera-status").text
+    assert live.find_element(By.CSS_SELECTOR, ".scene").get_attribute("data-pose") in ("yes", "no")
     screenshot(browser, tmp_path, "webcam.png")
     browser.find_element(By.ID, "camera").click()
+    assert script_errors(browser) == []
     urls = assert_only_local(browser, server)
     assert any(u.startswith(server.ws + "?mode=whole") for u in urls)
 
@@ -323,3 +344,155 @@ def test_the_person_picks_the_object_and_its_model_answers(
     wait_for(browser, ".result[data-state='done']")
     urls = assert_only_local(browser, server)
     assert any("/v1/predict?" in u and f"model={other}" in u for u in urls), urls
+
+
+# --- the pose drawn in 3D (docs/pose.md) ---------------------------------------------------------
+
+PIXELS_JS = """
+const c = arguments[0];
+const d = c.getContext("2d").getImageData(0, 0, c.width, c.height).data;
+let blue = 0, white = 0;
+for (let i = 0; i < d.length; i += 4) {
+  if (d[i + 2] - d[i] > 40 && d[i + 2] - d[i + 1] > 20) blue++;
+  if (d[i] + d[i + 1] + d[i + 2] >= 760) white++;
+}
+return { blue, white, all: d.length / 4 };
+"""
+
+
+def distance_text(pose: dict[str, Any]) -> str:
+    """The page's distance label: "58.8 cm", "58.8 cm (52–67)" where fx was estimated."""
+    text = f"{pose['distance_cm']:.1f} cm"
+    if pose.get("distance_range_cm"):
+        low, high = pose["distance_range_cm"]
+        text += f" ({low:.0f}–{high:.0f})"
+    return text
+
+
+def predict_api(server: Server, photo: bytes, query: str = "mode=whole") -> dict[str, Any]:
+    answer = httpx.post(
+        f"{server.url}/v1/predict?{query}",
+        content=photo,
+        headers={"content-type": "image/jpeg"},
+        timeout=30,
+    )
+    assert answer.status_code == 200, answer.text
+    result: dict[str, Any] = answer.json()["results"][0]
+    return result
+
+
+def answer_in_page(driver: WebDriver, server: Server, photo: bytes, name: str) -> Any:
+    """The page loaded, whole-image mode, `photo` dropped -> its answered result card."""
+    driver.get(server.url + "/")
+    wait_for(driver, "#model-card:not([hidden])")
+    Select(driver.find_element(By.ID, "mode")).select_by_value("whole")
+    drop_file(driver, photo, name, "image/jpeg")
+    return wait_for(driver, ".result[data-state='done']")
+
+
+def test_the_page_draws_the_camera_in_3d_for_a_real_photo(
+    browser: WebDriver, server: Server, tmp_path: Path
+) -> None:
+    """A real photo of the test split: the 3D view draws the object, the regions and the
+    camera, labels the distance as the API gives it, and turns when dragged; the fx, its source
+    and the pose are in words beside it. The screenshot is docs/images/pose-page.png."""
+    photo = POSE_PHOTO.read_bytes()
+    pose = predict_api(server, photo)["pose"]
+    if pose is None:
+        pytest.skip("the service answers no pose (docs/pose.md) for this photo")
+    result = answer_in_page(browser, server, photo, POSE_PHOTO.name)
+    scene = result.find_element(By.CSS_SELECTOR, ".scene")
+    assert scene.get_attribute("data-pose") == "yes"
+    assert scene.find_element(By.CSS_SELECTOR, ".distance-label").text == distance_text(pose)
+    assert not scene.find_element(By.CSS_SELECTOR, ".scene-note").is_displayed()
+    canvas = scene.find_element(By.CSS_SELECTOR, "canvas.pose-3d")
+    # the camera (#2a6fdb: its lines, sides and centre) in blue, on a white background
+    pixels = browser.execute_script(PIXELS_JS, canvas)
+    assert pixels["blue"] > 200, f"the camera is not drawn: {pixels}"
+    assert 0.3 < pixels["white"] / pixels["all"] < 0.98, pixels
+    meta = result.find_element(By.CSS_SELECTOR, ".meta").text
+    assert f"fx {pose['fx']:.0f} px ({pose['fx_source']}" in meta
+    words = result.find_element(By.CSS_SELECTOR, ".pose-text").text
+    assert f"x {pose['camera_cm'][0]:.1f}, y {pose['camera_cm'][1]:.1f}" in words
+    assert f"elevation {pose['elevation_deg']:.0f}°" in words
+    screenshot(browser, tmp_path, "pose-page.png")
+    before = canvas.screenshot_as_png
+    webdriver.ActionChains(browser).drag_and_drop_by_offset(canvas, 80, 0).perform()
+    assert canvas.screenshot_as_png != before, "dragging did not turn the view"
+    assert script_errors(browser) == []
+    urls = assert_only_local(browser, server)
+    assert any(u.endswith("/static/vendor/three/build/three.core.min.js") for u in urls)
+
+
+def test_without_a_pose_the_view_shows_the_object_and_regions_with_a_note(
+    browser: WebDriver, server: Server
+) -> None:
+    """A grey picture: no object, no pose; the 3D view still draws, and says why."""
+    grey = io.BytesIO()
+    Image.new("RGB", (640, 480), (128, 128, 128)).save(grey, "JPEG")
+    api = predict_api(server, grey.getvalue())
+    assert api["pose"] is None
+    result = answer_in_page(browser, server, grey.getvalue(), "grey.jpg")
+    scene = result.find_element(By.CSS_SELECTOR, ".scene")
+    assert scene.get_attribute("data-pose") == "no"
+    assert scene.find_element(By.CSS_SELECTOR, ".scene-note").text.startswith("No pose")
+    assert scene.find_elements(By.CSS_SELECTOR, ".distance-label") == []
+    pixels = browser.execute_script(PIXELS_JS, scene.find_element(By.CSS_SELECTOR, "canvas"))
+    assert pixels["blue"] < 100, f"a camera drawn: {pixels}"
+    assert pixels["white"] < 0.98 * pixels["all"], f"nothing drawn: {pixels}"
+    octants = scene.find_elements(By.CSS_SELECTOR, ".octant-tag")
+    assert [o.text for o in octants] == [str(k) for k in range(1, 9)]
+    assert not result.find_element(By.CSS_SELECTOR, ".pose-text").is_displayed()
+    assert script_errors(browser) == []
+
+
+def test_the_focal_length_typed_in_goes_with_the_photo(browser: WebDriver, server: Server) -> None:
+    """fx typed in: sent as fx=, the pose uses it (source "query", no distance range)."""
+    photo = POSE_PHOTO.read_bytes()
+    pose = predict_api(server, photo, "mode=whole&fx=520")["pose"]
+    if pose is None:
+        pytest.skip("the service answers no pose (docs/pose.md) for this photo")
+    browser.get(server.url + "/")
+    wait_for(browser, "#model-card:not([hidden])")
+    browser.find_element(By.ID, "fx").send_keys("520")
+    drop_file(browser, photo, POSE_PHOTO.name, "image/jpeg")
+    result = wait_for(browser, ".result[data-state='done']")
+    assert "fx 520 px (query)" in result.find_element(By.CSS_SELECTOR, ".meta").text
+    label = result.find_element(By.CSS_SELECTOR, ".distance-label").text
+    assert label == distance_text(pose)
+    urls = assert_only_local(browser, server)
+    assert any("/v1/predict?" in u and "fx=520" in u for u in urls), urls
+
+
+def test_the_camera_list_offers_a_learned_camera(browser: WebDriver, server: Server) -> None:
+    """A camera made by POST /v1/cameras (intrinsics) is in the Camera list; picked, it clears
+    the typed fx and goes with the photo as camera=ID; deleted meanwhile, the page says so."""
+    made = httpx.post(
+        server.url + "/v1/cameras",
+        json={"fx": 500, "width": 640, "height": 480, "name": "browser-test"},
+        timeout=30,
+    )
+    if made.status_code in (404, 405):
+        pytest.skip(f"the service has no POST /v1/cameras yet (HTTP {made.status_code})")
+    assert made.status_code == 201, made.text
+    camera = made.json()["id"]
+    try:
+        browser.get(server.url + "/")
+        wait_for(browser, "#model-card:not([hidden])")
+        choice = wait_for(browser, "#learned-camera-choice:not([hidden])")
+        browser.find_element(By.ID, "fx").send_keys("700")
+        select = Select(choice.find_element(By.ID, "learned-camera"))
+        assert any("browser-test" in o.text for o in select.options)
+        select.select_by_value(camera)
+        assert browser.find_element(By.ID, "fx").get_attribute("value") == ""
+        drop_file(browser, POSE_PHOTO.read_bytes(), POSE_PHOTO.name, "image/jpeg")
+        result = wait_for(browser, ".result[data-state='done']")
+        assert "(camera" in result.find_element(By.CSS_SELECTOR, ".meta").text
+        urls = assert_only_local(browser, server)
+        assert any("/v1/predict?" in u and f"camera={camera}" in u for u in urls), urls
+        httpx.delete(f"{server.url}/v1/cameras/{camera}", timeout=30)  # gone meanwhile
+        drop_file(browser, POSE_PHOTO.read_bytes(), POSE_PHOTO.name, "image/jpeg")
+        refused = wait_for(browser, ".result[data-state='error'] .result-error")
+        assert refused.text.startswith("The service has no such camera any more")
+    finally:
+        httpx.delete(f"{server.url}/v1/cameras/{camera}", timeout=30)
