@@ -136,6 +136,11 @@ class Prediction(_Answer):
     fx_source: FxSource | None = Field(
         None, description="where fx came from: the request's fx=, the photo's EXIF, a camera"
     )
+    image_size: tuple[int, int] | None = Field(
+        None,
+        description="(W, H) px of the uploaded image after EXIF orientation: the frame of "
+        "corners, box and pose (services without it: None)",
+    )
     pose: Pose | None = Field(
         None,
         description="whole mode, corner models, object in view: the camera's full pose "

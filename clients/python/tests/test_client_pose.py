@@ -202,6 +202,11 @@ def test_the_documented_pose_and_cell_parse():
     assert p.cell.distance_cm == (0.0, 60.0) and p.cell.probability == 0.81
     assert [(n.index, n.probability) for n in p.cell.neighbours] == [(12, 0.12), (21, 0.07)]
     assert p.model_dump(mode="json")["pose"] == POSE  # nothing lost on the way back
+    assert p.image_size is None
+    assert Prediction.model_validate(result("a.jpg", image_size=[640, 480])).image_size == (
+        640,
+        480,
+    )
 
 
 def test_answers_of_older_and_newer_services_parse():
