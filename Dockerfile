@@ -16,13 +16,17 @@ RUN python -m venv /opt/venv && /opt/venv/bin/pip install --no-cache-dir . \
 
 FROM ${BASE_IMAGE} AS runtime
 RUN groupadd --system --gid 10001 pose \
-    && useradd --system --uid 10001 --gid pose --no-create-home --shell /usr/sbin/nologin pose
+    && useradd --system --uid 10001 --gid pose --no-create-home --shell /usr/sbin/nologin pose \
+    && install -d -o pose -g pose /data
 COPY --from=build /opt/venv /opt/venv
 COPY models/*.onnx models/*.json /app/models/
 ENV PATH=/opt/venv/bin:$PATH \
     PYTHONDONTWRITEBYTECODE=1 \
     PYTHONUNBUFFERED=1 \
-    POSE_MODEL_DIR=/app/models
+    POSE_MODEL_DIR=/app/models \
+    POSE_CAMERA_DB=/data/cameras.sqlite3
+# the cameras the service learns (/v1/cameras): mount a volume here to keep them
+VOLUME /data
 WORKDIR /app
 USER 10001:10001
 EXPOSE 8000

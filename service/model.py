@@ -21,6 +21,7 @@ from service.core.onnx_contract import (
     PATTERN,
     PIXEL_ASPECT,
     PROBABILITIES,
+    UNDISTORTED,
     VIEW,
 )
 from service.core.regions import NUM_CLASSES
@@ -36,12 +37,13 @@ _SHRINK.add_run_config_entry("memory.enable_memory_arena_shrinkage", "cpu:0")
 @dataclass(frozen=True)
 class Answer:
     """A graph's outputs for N inputs: probabilities float64 [N, 9] (rows summing to 1),
-    corners float64 [N, 4, 2] in frame pixels (None: no such output) and the pattern's
-    P(present) float64 [N] (None: no such output)."""
+    corners float64 [N, 4, 2] in frame pixels, the pattern's P(present) float64 [N] and the
+    corners without the lens's distortion float64 [N, 4, 2] (each None: no such output)."""
 
     probabilities: np.ndarray
     corners: np.ndarray | None
     pattern: np.ndarray | None
+    undistorted: np.ndarray | None = None
 
 
 class ModelLoadError(RuntimeError):
@@ -80,6 +82,7 @@ class PoseModel:
     pattern_name: str | None = None  # the optional pattern output
     takes_view: bool = False  # whether the graph has the `view` input
     takes_focal: bool = False  # whether the graph has the `focal` input
+    undistorted_name: str | None = None  # the optional undistorted corners output
 
     @property
     def zooms(self) -> bool:
@@ -144,20 +147,25 @@ class PoseModel:
         probs_out = outputs[0] if len(outputs) == 1 else by_name.get(PROBABILITIES)
         corners_out = by_name.get(CORNERS) if len(outputs) > 1 else None
         pattern_out = by_name.get(PATTERN) if corners_out is not None else None
+        flat_out = by_name.get(UNDISTORTED) if pattern_out is not None else None
+        optional = [o for o in (corners_out, pattern_out, flat_out) if o is not None]
         if (
             probs_out is None
-            or len(outputs) > 1 + (corners_out is not None) + (pattern_out is not None)
+            or len(outputs) > 1 + len(optional)
             or probs_out.shape[-1] != NUM_CLASSES
         ):
             raise ModelLoadError(
                 f"{path}: expected one output [N, {NUM_CLASSES}], or {PROBABILITIES!r} "
-                f"[N, {NUM_CLASSES}] and {CORNERS!r} [N, 4, 2] (and {PATTERN!r} [N]); "
+                f"[N, {NUM_CLASSES}] and {CORNERS!r} [N, 4, 2] (and {PATTERN!r} [N], "
+                f"{UNDISTORTED!r} [N, 4, 2]); "
                 f"got {sorted(by_name)}"
             )
         if corners_out is not None and list(corners_out.shape[1:]) != [4, 2]:
             raise ModelLoadError(f"{path}: output {CORNERS!r} must be [N, 4, 2]")
         if pattern_out is not None and len(pattern_out.shape) != 1:
             raise ModelLoadError(f"{path}: output {PATTERN!r} must be [N]")
+        if flat_out is not None and list(flat_out.shape[1:]) != [4, 2]:
+            raise ModelLoadError(f"{path}: output {UNDISTORTED!r} must be [N, 4, 2]")
         size = (int(shape[3]), int(shape[2]))
         card = _read_card(session, path) if graph is None else graph[1]
         if "input" in card and tuple(card["input"]) != size:
@@ -175,6 +183,7 @@ class PoseModel:
             None if pattern_out is None else pattern_out.name,
             VIEW in defaults,
             FOCAL in defaults,
+            None if flat_out is None else flat_out.name,
         )
 
     def _feeds(
@@ -223,17 +232,15 @@ class PoseModel:
         frame) and the camera's focal length [N] (frame px of the input's width, 0: unknown;
         None: unknown for all; ValueError for a model without that input) -> every output
         the graph has (`Answer`)."""
-        names = [self.output_name, self.corners_name, self.pattern_name]
+        names = [self.output_name, self.corners_name, self.pattern_name, self.undistorted_name]
         wanted = [n for n in names if n is not None]
         feeds = self._feeds(batch, pixel_aspect, view, focal)
         options = _SHRINK if len(batch) > SHRINK_ABOVE else None
         out = dict(zip(wanted, self.session.run(wanted, feeds, options), strict=True))
-        corners, pattern = (out.get(n) if n else None for n in names[1:])
-        return Answer(
-            _normalised(out[self.output_name]),
-            None if corners is None else np.asarray(corners, dtype=np.float64),
-            None if pattern is None else np.asarray(pattern, dtype=np.float64),
+        corners, pattern, flat = (
+            None if n is None else np.asarray(out[n], dtype=np.float64) for n in names[1:]
         )
+        return Answer(_normalised(out[self.output_name]), corners, pattern, flat)
 
 
 def _normalised(raw: Any) -> np.ndarray:

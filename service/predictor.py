@@ -93,15 +93,28 @@ class _JointFocal(KnownFocal):
     interval: tuple[float, float] | None = None
 
 
-def frames_to_image(frames: Sequence[NetworkFrame], corners: np.ndarray) -> np.ndarray:
-    """Corners [N, 4, 2] in input px of each image's frame -> px of the uploaded images."""
-    return np.stack([f.to_image(q) for f, q in zip(frames, corners, strict=True)])
+def image_corners(
+    answer: Answer, frames: Sequence[NetworkFrame]
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """The answer's corners [N, 4, 2] in px of the uploaded images, as seen and as a pinhole
+    camera would see them (the graph's `undistorted`; the same as seen for a graph without
+    it), or None for a graph without corners."""
+    if answer.corners is None:
+        return None
+    seen = np.stack([f.to_image(q) for f, q in zip(frames, answer.corners, strict=True)])
+    if answer.undistorted is None:
+        return seen, seen
+    flat = np.stack([f.to_image(q) for f, q in zip(frames, answer.undistorted, strict=True)])
+    return seen, flat
 
 
 @dataclass(frozen=True)
 class Prediction:
     results: list[ImageResult]
     inference_s: float  # the batched onnxruntime call, seconds
+    #: per image, where the object was found: its corners [4, 2] px of the uploaded image as
+    #: a pinhole camera would see them (the network's lens fit undone), else None
+    pinhole: list[np.ndarray | None]
 
 
 def _box(box: tuple[int, int, int, int], scale: tuple[float, float], size: tuple[int, int]) -> Box:
@@ -274,29 +287,32 @@ class Predictor:
         t0 = time.perf_counter()
         batch = np.stack(inputs)
         answer = self._run(batch, frames, known, detail if zoom else None)
-        corners = None if answer.corners is None else frames_to_image(frames, answer.corners)
+        corners = image_corners(answer, frames)
         joint = None
         if same_camera and corners is not None:
-            joint = self._joint_focal(answer, corners, frames)
+            joint = self._joint_focal(answer, corners[1], frames)
             if joint is not None:
                 known = [joint] * len(images)
                 answer = self._run(batch, frames, known, detail if zoom else None)
-                corners = (
-                    None if answer.corners is None else frames_to_image(frames, answer.corners)
-                )
+                corners = image_corners(answer, frames)
         probs, infer_s = answer.probabilities, time.perf_counter() - t0
         share = infer_s / len(images)
-        results = []
+        results: list[ImageResult] = []
+        pinhole: list[np.ndarray | None] = []
         for i, (image, p, t, k) in enumerate(zip(images, probs, prep, known, strict=True)):
             result = _result(image[0], int(p.argmax()), p, t + share, frames[i].image_size)
-            if corners is not None and result.class_id != 0:
-                result.corners = corners[i].tolist()
-                self._add_pose(result, corners[i], frames[i].image_size, k, joint, grid)
+            found = corners is not None and result.class_id != 0
+            pinhole.append(corners[1][i] if corners is not None and found else None)
+            if corners is not None and found:
+                result.corners = corners[0][i].tolist()
+                # a camera with its own distortion model takes the corners as seen
+                q = corners[0][i] if k is not None and k.dist else corners[1][i]
+                self._add_pose(result, q, frames[i].image_size, k, joint, grid)
             if k is not None:
                 result.fx = k.camera(frames[i].image_size).fx
                 result.fx_source = k.source
             results.append(result)
-        return Prediction(results, infer_s)
+        return Prediction(results, infer_s, pinhole)
 
     def _run(
         self,
@@ -327,8 +343,9 @@ class Predictor:
     def _joint_focal(
         self, answer: Answer, corners: np.ndarray, frames: list[NetworkFrame]
     ) -> _JointFocal | None:
-        """One focal length fitted to the corners of every image the object was found in
-        (`fit_focal`, in px of the first one's size), or None with fewer than 2 of them."""
+        """One focal length fitted to the pinhole corners [N, 4, 2] px of every image the
+        object was found in (`fit_focal`, in px of the first one's size), or None with fewer
+        than 2 of them."""
         size_cm = self.model.object_size_cm
         found = [i for i, p in enumerate(answer.probabilities) if p.argmax() != 0]
         if size_cm is None or len(found) < 2:
@@ -347,7 +364,9 @@ class Predictor:
         joint: _JointFocal | None,
         grid: RegionGrid | None,
     ) -> None:
-        """The `pose` (and with `grid` the `cell`) of an image whose object was found."""
+        """The `pose` (and with `grid` the `cell`) of an image whose object was found, from
+        its corners [4, 2] px (as a pinhole sees them, or as seen for a camera with its own
+        distortion)."""
         size_cm = self.model.object_size_cm
         if size_cm is None:
             return
@@ -408,4 +427,4 @@ class Predictor:
             ]
             results.append(result)
             start += len(boxes)
-        return Prediction(results, infer_s)
+        return Prediction(results, infer_s, [None] * len(results))

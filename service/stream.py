@@ -426,10 +426,10 @@ class StreamSession:
         prediction = self.predictor.predict(
             [(None, data)], self.options.mode, known, grid=self.options.grid
         )
-        result = prediction.results[0]
-        if self.camera is not None and result.corners is not None and result.image_size:
+        result, pinhole = prediction.results[0], prediction.pinhole[0]
+        if self.camera is not None and pinhole is not None and result.image_size:
             w, h = result.image_size
-            self.camera.offer(np.asarray(result.corners), (w, h))
+            self.camera.offer(pinhole, (w, h))
         return prediction
 
     async def _send(self, text: str) -> None:

@@ -164,6 +164,7 @@ def zoomed(
     probs, corners, pattern = (
         a.copy() for a in (whole.probabilities, whole.corners, whole.pattern)
     )
+    flat = None if whole.undistorted is None else whole.undistorted.copy()
     owner = np.asarray(owners)
     for i in np.unique(owner):
         rows = np.flatnonzero(owner == i)
@@ -174,4 +175,6 @@ def zoomed(
                 second.corners[best],
                 second.pattern[best],
             )
-    return Answer(probs, corners, pattern)
+            if flat is not None and second.undistorted is not None:
+                flat[i] = second.undistorted[best]
+    return Answer(probs, corners, pattern, flat)

@@ -10,8 +10,10 @@ broadcasts over N): `pixel_aspect` [N], `view` [N, 3] and `focal` [N], described
 Outputs: `probabilities` float32 [N, 9] (softmax, index = class id). The corner networks also
 give `corners` float32 [N, 4, 2], the object's corners (u, v) in frame pixels in
 `service.core.frame.CORNER_ORDER`, and `pattern` float32 [N], P(object present) from the
-pattern at the corners alone (the zoom pass, `service.zoom`). A graph with one output gives
-the probabilities whatever its name.
+pattern at the corners alone (the zoom pass, `service.zoom`), and (since 3.11.0) `undistorted`
+float32 [N, 4, 2], the same corners without the lens's radial distortion the network fitted
+(where a pinhole camera would see them: the pose's corners, `service.posing`). A graph with one
+output gives the probabilities whatever its name.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from service.core.regions import NUM_CLASSES
 IMAGE = "image"
 PIXEL_ASPECT, VIEW, FOCAL = "pixel_aspect", "view", "focal"
 PROBABILITIES, CORNERS, PATTERN = "probabilities", "corners", "pattern"
+UNDISTORTED = "undistorted"
 #: The metadata_props key holding the model card (JSON).
 CARD_KEY = "model_card"
 
@@ -50,6 +53,8 @@ OUTPUTS = {
     CORNERS: "float32 [N, 4, 2], the object's corners (u, v) in frame pixels (input pixels "
     f"with the default view), order {CORNER_ORDER}",
     PATTERN: "float32 [N], P(object present) from the pattern at the corners alone",
+    UNDISTORTED: "float32 [N, 4, 2], the corners without the lens's radial distortion the "
+    "network fitted, frame pixels",
 }
 
 
@@ -59,7 +64,7 @@ def io_description(corners: bool) -> dict[str, str]:
         f"{IMAGE}: float32 [N, 3, H, W], RGB, values in [0, 1] (portraits turned a quarter "
         "clockwise, resize with area)"
     ]
-    outputs = [PROBABILITIES] + ([CORNERS, PATTERN] if corners else [])
+    outputs = [PROBABILITIES] + ([CORNERS, PATTERN, UNDISTORTED] if corners else [])
     if corners:
         inputs += [f"{name}: {text}" for name, text in OPTIONAL_INPUTS.items()]
     return {

@@ -67,25 +67,39 @@ async def _stored(cameras: CameraStore, fields: dict[str, Any]) -> CameraOut:
         raise _store_error(exc) from None
 
 
+def landscape(corners: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """Corners [4, 2] px of a portrait photo of `size` (W, H) -> the same points in the photo
+    turned a quarter clockwise to landscape (the camera's own frame; the focal length and a
+    centred principal point do not change)."""
+    return np.stack([size[1] - 1 - corners[:, 1], corners[:, 0]], 1)
+
+
 def learn(predictor: Predictor, images: list[tuple[str | None, bytes]]) -> dict[str, Any]:
     """Photos of the object by one camera -> the camera's fields (fx fitted to the corners the
     network finds in them, `fit_focal`); ValueError saying why it cannot be learned."""
     size_cm = predictor.model.object_size_cm
     if size_cm is None or predictor.model.corners_name is None:
         raise ValueError(f"model {predictor.model.name} gives no corners: pick a corner model")
-    results = predictor.predict(images, "whole").results
-    found = [r for r in results if r.corners is not None and r.image_size is not None]
+    prediction = predictor.predict(images, "whole")
+    found = [
+        ((r.image_size[0], r.image_size[1]), q)
+        for r, q in zip(prediction.results, prediction.pinhole, strict=True)
+        if q is not None and r.image_size is not None
+    ]
     if len(found) < MIN_PHOTOS:
         raise ValueError(
-            f"the object was found in {len(found)} of {len(results)} photos; "
+            f"the object was found in {len(found)} of {len(images)} photos; "
             f"{MIN_PHOTOS} or more are needed"
         )
-    sizes = {tuple(r.image_size or ()) for r in found}
-    if len(sizes) > 1:
-        raise ValueError(f"photos of different sizes {sorted(sizes)}: send one camera's photos")
-    (size,) = sizes
-    w, h = int(size[0]), int(size[1])
-    fit = fit_focal([np.asarray(r.corners) for r in found], object_points(size_cm), (w, h))
+    w, h = max(found[0][0]), min(found[0][0])  # landscape: portraits are the camera turned
+    odd = sorted({size for size, _ in found if sorted(size) != [h, w]})
+    if odd:
+        raise ValueError(
+            f"photos of {w}x{h} and of {', '.join(f'{a}x{b}' for a, b in odd)}: "
+            "send one camera's photos, all of one size"
+        )
+    views = [q if size[0] >= size[1] else landscape(q, size) for size, q in found]
+    fit = fit_focal(views, object_points(size_cm), (w, h))
     used = int(fit.used.sum())
     spread = (fit.interval[1] - fit.interval[0]) / fit.fx
     if used < MIN_PHOTOS or spread > MAX_FX_SPREAD:

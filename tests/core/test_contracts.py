@@ -82,9 +82,14 @@ def test_the_default_model_has_the_graph_contract() -> None:
     outputs = {o.name: o.shape for o in session.get_outputs()}
     assert inputs[contract.IMAGE][1:] == [3, *SIZES[2][::-1]]
     assert set(inputs) == {contract.IMAGE} and overridable == set(contract.DEFAULTS)
-    assert set(outputs) == {contract.PROBABILITIES, contract.CORNERS, contract.PATTERN}
+    assert set(outputs) == {
+        contract.PROBABILITIES,
+        contract.CORNERS,
+        contract.PATTERN,
+        contract.UNDISTORTED,
+    }
     assert outputs[contract.PROBABILITIES][1:] == [NUM_CLASSES]
-    assert outputs[contract.CORNERS][1:] == [4, 2]
+    assert outputs[contract.CORNERS][1:] == outputs[contract.UNDISTORTED][1:] == [4, 2]
     assert contract.CARD_KEY in session.get_modelmeta().custom_metadata_map
 
 

@@ -33,6 +33,7 @@ from service.core.onnx_contract import (
     PATTERN,
     PIXEL_ASPECT,
     PROBABILITIES,
+    UNDISTORTED,
     VIEW,
     io_description,
 )
@@ -57,7 +58,8 @@ ARCHITECTURES = {
 def onnx_bytes(net: Any) -> bytes:
     """Serialise a pose network (eval mode) to ONNX bytes, dynamic batch: output
     `probabilities` (softmax); the keypoint networks also take `pixel_aspect` (default 1),
-    `view` (default (0, 0, 1)) and `focal` (default 0) and output `corners` and `pattern`."""
+    `view` (default (0, 0, 1)) and `focal` (default 0) and output `corners`, `pattern` and
+    `undistorted`."""
     import onnx
     import torch
 
@@ -69,7 +71,7 @@ def onnx_bytes(net: Any) -> bytes:
     image = torch.rand(2, 3, h, w)
     if keypoint:
         inputs = [IMAGE, PIXEL_ASPECT, VIEW, FOCAL]
-        outputs = [PROBABILITIES, CORNERS, PATTERN]
+        outputs = [PROBABILITIES, CORNERS, PATTERN, UNDISTORTED]
         defaults = DEFAULTS
         example: tuple[Any, ...] = (image, *(torch.from_numpy(v) for v in defaults.values()))
     else:

@@ -529,7 +529,7 @@ class KeypointNet(NormalisedNet):
         pixel_aspect: torch.Tensor | None = None,
         view: torch.Tensor | None = None,
         focal: torch.Tensor | None = None,
-    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         """RGB [N, 3, H, W] in [0, 1], the pixel aspect [N] (`camera_centre`; None: 1), the
         camera's focal length [N] where the caller knows it (px of the frame's width in square
         pixels, 0 or None: unknown, self-calibrated; `focal_length`) and
@@ -539,7 +539,9 @@ class KeypointNet(NormalisedNet):
         enlarged 2x is (left, top, 0.5)) -> log-probabilities [N, 9] (softmax gives them
         back), the aligned corners [N, 4, 2] in frame pixels, in the object's
         `CORNER_ORDER` as the parity reads it (meaningless where the object is
-        not in view), and P(present) [N] from the checker pattern alone (`Observation`)."""
+        not in view), P(present) [N] from the checker pattern alone (`Observation`), and the
+        corners [N, 4, 2] without the lens's radial distortion the alignment fitted (where a
+        pinhole camera would see them: what the pose is computed from, `undistorted`)."""
         seen = self.observe(x, pixel_aspect, view)
         q = seen.corners
         if view is not None:
@@ -547,8 +549,15 @@ class KeypointNet(NormalisedNet):
         pk = self.pose_classes(q, seen.parity, pixel_aspect, focal, seen.k1)
         present = seen.present[:, None]
         log_p = torch.log(torch.cat([1 - present, present * pk], 1).clamp_min(1e-7))
-        corners = torch.where(seen.parity[:, None, None] >= 0, q, torch.roll(q, 2, 1))
-        return log_p, corners, seen.pattern
+        pinhole = self.undistorted(q, self._aspect(seen.parity, pixel_aspect), seen.k1)
+        in_order = seen.parity[:, None, None] >= 0
+        corners = torch.where(in_order, q, torch.roll(q, 2, 1))
+        return (
+            log_p,
+            corners,
+            seen.pattern,
+            torch.where(in_order, pinhole, torch.roll(pinhole, 2, 1)),
+        )
 
     def logits(self, x: torch.Tensor, pixel_aspect: torch.Tensor | None = None) -> torch.Tensor:
         """RGB [N, 3, H, W] in [0, 1] (and its pixel aspect [N]) -> log-probabilities [N, 9]

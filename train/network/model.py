@@ -221,8 +221,9 @@ def log_probabilities(
 class Probabilities(nn.Module):
     """Wrap a pose network so it outputs probabilities [N, 9] (softmax) and, for a network
     with an `answer` (the keypoint network, which also takes the pixel aspect [N], the
-    view [N, 3] and the known focal length [N]), its corners [N, 4, 2] px and pattern
-    evidence [N]: the exported graph."""
+    view [N, 3] and the known focal length [N]), its corners [N, 4, 2] px, pattern
+    evidence [N] and corners without the lens's distortion [N, 4, 2] px: the exported
+    graph."""
 
     def __init__(self, net: NormalisedNet) -> None:
         super().__init__()
@@ -234,12 +235,12 @@ class Probabilities(nn.Module):
         pixel_aspect: torch.Tensor | None = None,
         view: torch.Tensor | None = None,
         focal: torch.Tensor | None = None,
-    ) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    ) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         answer = getattr(self.net, "answer", None)
         if answer is None:
             return F.softmax(self.net.logits(image), dim=1)
-        log_p, corners, pattern = answer(image, pixel_aspect, view, focal)
-        return F.softmax(log_p, dim=1), corners, pattern
+        log_p, corners, pattern, undistorted = answer(image, pixel_aspect, view, focal)
+        return F.softmax(log_p, dim=1), corners, pattern, undistorted
 
 
 def channel_stats(images_u8: torch.Tensor, chunk: int = 512) -> tuple[torch.Tensor, torch.Tensor]:

@@ -177,7 +177,8 @@ def test_a_keypoint_graph_is_regraphed_with_the_zoom_inputs(tmp_path):
     assert card["version"] == "9.9.9" and card["regraphed_from"] == before["version"]
     assert card["training"] == before["training"] and "view" in card["input_format"]
     session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
-    assert [o.name for o in session.get_outputs()] == ["probabilities", "corners", "pattern"]
+    outputs = ["probabilities", "corners", "pattern", "undistorted"]
+    assert [o.name for o in session.get_outputs()] == outputs
     assert [i.name for i in session.get_overridable_initializers()] == [
         "pixel_aspect",
         "view",

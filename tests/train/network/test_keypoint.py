@@ -239,8 +239,14 @@ def test_the_exported_graph_decodes_like_torch(stride):
     # from this undistorted image's 0)
     assert np.abs(q[0] - corners).max() < 0.6
     session = ort.InferenceSession(onnx_bytes(net), providers=["CPUExecutionProvider"])
-    assert [o.name for o in session.get_outputs()] == ["probabilities", "corners", "pattern"]
-    got, got_corners, pattern = session.run(None, {"image": x})
+    outputs = ["probabilities", "corners", "pattern", "undistorted"]
+    assert [o.name for o in session.get_outputs()] == outputs
+    got, got_corners, pattern, pinhole = session.run(None, {"image": x})
+    with torch.no_grad():
+        want_pinhole = net.answer(torch.from_numpy(x))[3].numpy()
+    # the pose's corners: the lens's fitted distortion undone, a fraction of a pixel here
+    assert np.abs(pinhole - want_pinhole).max() < 5e-3
+    assert 0 < np.abs(pinhole - got_corners).max() < 2.0
     assert pattern.shape == (3,) and pattern.min() > 0.5  # the checker is found
     assert np.abs(got - want).max() < 1e-4
     # (float32 rounding of two runtimes, through the Gauss-Newton steps: 1.4e-3 px seen)
@@ -265,13 +271,13 @@ def test_the_exported_graph_decodes_like_torch(stride):
     # `view`: the same input read as the frame's tile at (40, 30) enlarged 2x; the corners
     # come back in frame pixels, the pose from them with the frame's camera
     view = np.tile(np.array([[40.0, 30.0, 0.5]], np.float32), (3, 1))
-    tiled, tiled_corners, _ = session.run(None, {"image": x, "view": view})
+    tiled, tiled_corners, *_ = session.run(None, {"image": x, "view": view})
     origin = np.array([40.0, 30.0], np.float32)  # (u0, v0): x from u0, y from v0
     # (up to the lens fit, whose distortion is about the frame's centre, not the tile's)
     assert np.abs(tiled_corners - (origin + (got_corners + 0.5) * 0.5 - 0.5)).max() < 0.05
     assert np.abs(tiled - got).max() > 1e-3
     with torch.no_grad():
-        log_p, want_corners, _ = net.answer(torch.from_numpy(x), None, torch.from_numpy(view))
+        log_p, want_corners, *_ = net.answer(torch.from_numpy(x), None, torch.from_numpy(view))
     assert np.abs(tiled - log_p.exp().numpy()).max() < 3e-4
     assert np.abs(tiled_corners - want_corners.numpy()).max() < 1e-3
 
@@ -468,7 +474,7 @@ def test_a_textured_object_reads_its_half_turn_from_its_texture() -> None:
     assert float(net.parity(x, square_homography(Q))) > 0.5
     assert float(net.parity(x, square_homography(torch.roll(Q, 2, 1)))) < -0.5
     with torch.no_grad():
-        logp, corners, _ = net.answer(x)
+        logp, corners, *_ = net.answer(x)
     assert logp.shape == (1, 9) and corners.shape == (1, 4, 2)
 
 
