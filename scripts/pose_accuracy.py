@@ -11,8 +11,11 @@ the service's HTTP app in-process (`/v1/predict`, whole mode, default settings) 
 
 For each: the class accuracy, near/far right, and the camera centre's error as a fraction of
 the true distance (median); for `learned` also the learned fx's error (median) and how many
-photos got a camera. The test sources are reported, never used to choose anything. Writes a
-markdown page (default docs/pose_accuracy.md) with the date and the machine.
+photos got a camera. Then each source's photos are sent one by one, in order, on one
+`WS /v1/stream` without fx (at most 30): the first frame answered with `fx_source: "stream"`
+and the error of the stream's fx on its last frame. The test sources are reported, never
+used to choose anything. Writes a markdown page (default docs/pose_accuracy.md) with the
+date and the machine.
 
     python scripts/pose_accuracy.py
 """
@@ -107,6 +110,30 @@ def measure(client: TestClient, folder: Path) -> dict[str, Tally]:
     return tallies
 
 
+def stream(client: TestClient, folder: Path, frames: int = 30) -> list[str]:
+    """One source's photos on one stream without fx -> the row: photos sent, the first frame
+    (1-based) answered with the stream's camera, its fx error % on the last frame."""
+    with (folder / "labels.csv").open(newline="", encoding="utf-8") as handle:
+        rows = [r for r in csv.DictReader(handle) if int(r["class"]) != 0 and r.get("fx")]
+    rows = rows[:frames]
+    first, fx = None, None
+    with client.websocket_connect("/v1/stream") as ws:
+        ws.receive_json()
+        for i, row in enumerate(rows):
+            ws.send_bytes((folder / row["file"]).read_bytes())
+            answer = ws.receive_json()
+            if answer.get("fx_source") == "stream":
+                first = first or i + 1
+                fx = (
+                    answer["fx"]
+                    * max(int(row["width"]), int(row["height"]))
+                    / max(answer["image_size"])
+                )
+    fx_true = float(rows[-1]["fx"])
+    error = "" if fx is None else f"{100 * abs(fx - fx_true) / fx_true:.1f}"
+    return [str(len(rows)), "never" if first is None else str(first), error]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", type=Path, default=REPO_ROOT / "docs/pose_accuracy.md")
@@ -115,6 +142,7 @@ def main() -> None:
     sources = [p for p in corpus_sources(CORPUS) if p.parent.name == "boards"]
     db = Path(tempfile.mkdtemp(prefix="pose-accuracy-")) / "cameras.db"
     rows, totals = [], {(s, w): Tally() for s in ("val", "test") for w in WAYS}
+    streams = []
     start = time.perf_counter()
     with TestClient(create_app(Settings(camera_db=db))) as client:
         while client.get("/readyz").status_code != 200:
@@ -124,6 +152,7 @@ def main() -> None:
             if split not in ("val", "test"):
                 continue
             tallies = measure(client, folder)
+            streams.append([split, folder.name, *stream(client, folder)])
             for way, tally in tallies.items():
                 rows.append([split, folder.name, way, len(tally.right), *tally.row()])
                 total = totals[split, way]
@@ -150,6 +179,10 @@ def main() -> None:
         "## Per source",
         "",
         *table(["split", "source", "focal length", "photos", *header], rows),
+        "",
+        "## The stream learns its camera",
+        "",
+        *table(["split", "source", "frames sent", "first stream fx", "fx error % (last)"], streams),
         "",
     ]
     args.out.write_text("\n".join(lines), encoding="utf-8")

@@ -61,6 +61,7 @@ from torch import nn
 from service.core.blur import KERNELS, gaussian_taps
 from service.core.geometry import intrinsics
 from service.core.inputs import SIZES
+from service.core.pose import FOCAL_BOUNDS, FOCAL_PRIOR
 from service.core.profile import DEFAULT_PROFILE, load_profile
 from service.core.regions import QUADRANT_SIGNS, Z_SPLIT_CM
 from train.network.align import CheckerAlign, Lens, square_homography
@@ -69,10 +70,11 @@ from train.network.pattern import CHECKER_SQUARES, Pattern
 
 SIZE = SIZES[2]
 # The focal length (`KeypointNet.focal_length`): Zhang's constraints with a prior. The prior
-# and the bounds are x the SPEC camera's focal length, the weight in the units of the
-# normalised constraints; chosen on the corpus's val and train sources with the SPEC-camera
-# and long-lens renders as second checks (docs/camera_model.md, docs/decisions.md).
-FOCAL_PRIOR, FOCAL_PRIOR_WEIGHT, FOCAL_BOUNDS = 0.8, 0.01, (0.4, 1.2)
+# and the bounds (`service.core.pose`, which the service's pose shares) are x the SPEC
+# camera's focal length, the weight in the units of the normalised constraints; chosen on the
+# corpus's val and train sources with the SPEC-camera and long-lens renders as second checks
+# (docs/camera_model.md, docs/decisions.md).
+FOCAL_PRIOR_WEIGHT = 0.01
 # The prior of the radial distortion k1 the corner alignment fits per image and the corners
 # are undistorted with before the pose (`lens`, `undistorted`), in normalised coordinates of
 # the prior camera: the corpus's calibrated train and val cameras range from -0.55 to +0.22
