@@ -99,13 +99,18 @@ def jpeg(bgr: np.ndarray, quality: int = 90) -> bytes:
     return buf.tobytes()
 
 
-def predict_each(url: str, frames: list[bytes], mode: str, **headers: str) -> list[dict[str, Any]]:
-    """The /v1/predict answer of each frame, one request per frame."""
+def predict_each(
+    url: str, frames: list[bytes], mode: str, query: str = "", **headers: str
+) -> list[dict[str, Any]]:
+    """The /v1/predict answer of each frame, one request per frame (`query`: more parameters,
+    e.g. `fx=512`)."""
     results = []
     with httpx.Client(base_url=url, timeout=30, headers=headers) as http:
         for data in frames:
             answer = http.post(
-                f"/v1/predict?mode={mode}", content=data, headers={"content-type": "image/jpeg"}
+                f"/v1/predict?mode={mode}&{query}",
+                content=data,
+                headers={"content-type": "image/jpeg"},
             )
             assert answer.status_code == 200, answer.text
             results.append(answer.json()["results"][0])
