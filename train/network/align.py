@@ -6,7 +6,8 @@ them, `CheckerAlign` moves the four corners until the image, sampled through the
 homography at P points of the board, matches the blurred checker pattern up to a gain and an
 offset (variable projection: both are solved in closed form at every step). The gain's sign
 is free, so the half turn (which inverts the pattern of a 10 x 7 board) aligns as well as the
-true order; the parity is read afterwards. Every step is plain tensor algebra (the 8x8 normal
+true order; the parity is read afterwards. A texture's half turn is no inversion: it is
+aligned in both orders and the better kept (`CheckerAlign.forward`). Every step is plain tensor algebra (the 8x8 normal
 equations are solved by 8 steps of conjugate gradients, `solve_spd`), so it exports to ONNX.
 
     image    grey [N, 1, H, W] in [0, 1], Gaussian-blurred (`blur_px`), and its x / y gradients
@@ -183,7 +184,7 @@ class CheckerAlign(nn.Module):
         self.steps, self.max_step, self.max_move, self.damping = steps, max_step, max_move, damping
         self.radial_sd, self.k1_range, self.max_k1_step = radial_sd, k1_range, max_k1_step
         self.k1_min_corr = k1_min_corr
-        textured = pattern is not None and not pattern.checker
+        self.textured = textured = pattern is not None and not pattern.checker
         if textured:
             squares = pattern.cells
         axes = []
@@ -276,8 +277,28 @@ class CheckerAlign(nn.Module):
         """RGB [N, 3, H, W] in [0, 1], corners [N, 4, 2] px (either half-turn order) and the
         camera's `lens` (None: no distortion) -> aligned corners [N, 4, 2] px (same order),
         corr(image, checker) [N] at them (> 0: the order is the true one) and the lens's k1
-        [N] (the prior where the image kept its corners; 0 without a lens)."""
+        [N] (the prior where the image kept its corners; 0 without a lens).
+
+        The checker's half turn inverts it, which the free gain absorbs; a texture's does not
+        (its template, half turned, matches nothing and the corners drift): a textured
+        pattern is aligned in both orders and each image keeps the one whose correlation is
+        the larger (positive: the true order), returned in the order it came in."""
         image = self._image(x)
+        if not self.textured:
+            return self._align(image, q, lens)
+        kept, turned = self._align(image, q, lens), self._align(image, torch.roll(q, 2, 1), lens)
+        pick = turned[1] > kept[1]
+        return (
+            torch.where(pick[:, None, None], torch.roll(turned[0], 2, 1), kept[0]),
+            torch.where(pick, -turned[1], kept[1]),
+            torch.where(pick, turned[2], kept[2]),
+        )
+
+    def _align(
+        self, image: torch.Tensor, q: torch.Tensor, lens: Lens | None
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """`forward` on the blurred grey image and its gradients [N, 3, H, W], the corners
+        in the order given."""
         k0 = torch.zeros_like(q[:, 0, 0]) if lens is None else lens.k1 * torch.ones_like(q[:, 0, 0])
         corr0 = self._fit(image, q, None, k0)[2]
         # k1 is fitted only where the pattern is plain to start with; elsewhere (a blurred or

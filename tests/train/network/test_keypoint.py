@@ -478,13 +478,35 @@ def test_a_textured_object_reads_its_half_turn_from_its_texture() -> None:
     assert logp.shape == (1, 9) and corners.shape == (1, 4, 2)
 
 
+def test_a_texture_aligns_from_either_half_turn_order() -> None:
+    """A texture's half turn is no inversion the alignment's gain absorbs: corners given in
+    the half-turned order align to the texture as well (returned in that order, with a
+    negative correlation), not drift (`CheckerAlign.forward`)."""
+    charuco = load_profile("charuco")
+    net = build_network("corners", (160, 120), profile=charuco.manifest_entry()).eval()
+    q = np.array([[50, 105], [112, 100], [108, 15], [55, 20]], np.float32)
+    x = _texture_view(charuco.texture_rgb(), q)
+    off = torch.from_numpy(
+        q + np.array([[1.5, -1.0], [-1.0, 1.5], [1.0, 1.0], [-1.5, -1.0]])
+    ).float()
+    with torch.no_grad():
+        for start, sign in ((off[None], 1.0), (torch.roll(off, 2, 0)[None], -1.0)):
+            aligned, corr, _ = net.align(x, start)
+            back = aligned[0] if sign > 0 else torch.roll(aligned[0], 2, 0)
+            assert np.abs(back.numpy() - q).max() < 1.5
+            assert float(corr[0]) * sign > 0.5
+
+
 def test_a_textured_network_exports_and_answers_like_torch() -> None:
     charuco = load_profile("charuco")
     net = build_network("corners", (160, 120), profile=charuco.manifest_entry()).eval()
     q = np.array([[50, 105], [112, 100], [108, 15], [55, 20]], np.float32)
     x = _texture_view(charuco.texture_rgb(), q)  # a clear view: no near-tie between grids
+    # heat maps peaked 1 px off the corners, in the half-turned order: aligned back
+    net.heat = _FixedHeat(np.roll(q, 2, 0) + 1.0, stride=2)
     session = ort.InferenceSession(onnx_bytes(net), providers=["CPUExecutionProvider"])
-    got = session.run(["probabilities"], {"image": x.numpy()})[0]
+    got, corners = session.run(["probabilities", "corners"], {"image": x.numpy()})
     with torch.no_grad():
         want = net.logits(x).exp().numpy()
     assert np.abs(got - want).max() < 1e-3
+    assert np.abs(corners[0] - q).max() < 1.5  # in the object's order
