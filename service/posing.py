@@ -17,7 +17,7 @@ import numpy as np
 from service.cameras import KnownFocal
 from service.core.cells import RegionGrid
 from service.core.frame import object_corners
-from service.core.pose import Camera, CameraPose, corner_noise_px, estimate_focal, solve_pose
+from service.core.pose import Camera, corner_noise_px, estimate_focal, solve_pose
 from service.schemas import CellOut, CellShare, FocalSource, Pose
 
 #: Poses sampled for a cell's probabilities: the corners' noise and the focal range drawn.
@@ -95,14 +95,13 @@ def cell_of(
     corners: np.ndarray,
     size_cm: tuple[float, float],
     focal: Focal,
-    pose: CameraPose | None = None,
 ) -> CellOut:
     """The pose's cell of `grid` and the share of `CELL_SAMPLES` poses in it and its
     neighbours: the corners moved by their noise (`corner_noise_px`) and, where fx is
     estimated, fx drawn log-uniformly over its range (a fixed seed: the same image gets the
     same answer)."""
     obj = object_points(size_cm)
-    pose = pose or solve_pose(corners, obj, focal.camera)
+    pose = solve_pose(corners, obj, focal.camera)
     rng = np.random.default_rng(0)
     noise = corner_noise_px(focal.camera.size)
     jitter = rng.normal(0.0, noise, (CELL_SAMPLES, 4, 2))
