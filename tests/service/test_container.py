@@ -1,5 +1,6 @@
 """The real container: the Dockerfile built by podman (deploy/build_image.py), run, healthy,
-answering a photo, as the non-root user, without torch or training code, stopped by SIGTERM.
+answering a photo, serving its page's files, storing a camera, as the non-root user, without
+torch or training code, stopped by SIGTERM.
 
 Needs root with podman, runc and mmdebstrap (`.ci/run` installs them on Debian); skipped with
 the reason otherwise. The build's `pip install` and the base image come from the package
@@ -83,6 +84,18 @@ def test_the_container_answers_a_photo(container: tuple[str, str]) -> None:
     names = {m["name"] for m in httpx.get(base + "/v1/models").json()["models"]}
     assert DEFAULT_MODEL_NAME in names and len(names) > 1  # the model folder
     assert httpx.get(base + "/v2/health/ready").json() == {"ready": True}
+
+
+def test_the_page_s_files_and_the_camera_store_are_there(container: tuple[str, str]) -> None:
+    """The page's vendored three.js is in the image (package data of subfolders), and the
+    camera store at /data/cameras.sqlite3 is writable by the service's user."""
+    _, base = container
+    three = httpx.get(base + "/static/vendor/three/build/three.module.min.js", timeout=10)
+    assert three.status_code == 200 and len(three.content) > 100_000
+    made = httpx.post(base + "/v1/cameras", json={"fx": 900.0, "width": 640, "height": 480})
+    assert made.status_code == 201, made.text
+    listed = httpx.get(base + "/v1/cameras").json()["cameras"]
+    assert [c["id"] for c in listed] == [made.json()["id"]]
 
 
 def test_healthcheck_user_and_no_training_code(container: tuple[str, str]) -> None:
