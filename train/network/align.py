@@ -7,8 +7,9 @@ homography at P points of the board, matches the blurred checker pattern up to a
 offset (variable projection: both are solved in closed form at every step). The gain's sign
 is free, so the half turn (which inverts the pattern of a 10 x 7 board) aligns as well as the
 true order; the parity is read afterwards. A texture's half turn is no inversion: it is
-aligned in both orders and the better kept (`CheckerAlign.forward`). Every step is plain tensor algebra (the 8x8 normal
-equations are solved by 8 steps of conjugate gradients, `solve_spd`), so it exports to ONNX.
+aligned in both orders and the better kept (`CheckerAlign.forward`). Every step is plain
+tensor algebra (the 8x8 normal equations are solved by 8 steps of conjugate gradients,
+`solve_spd`), so it exports to ONNX.
 
     image    grey [N, 1, H, W] in [0, 1], Gaussian-blurred (`blur_px`), and its x / y gradients
     points   P (s, t) in the board's unit square, `inset` squares in from its edges (the
