@@ -212,6 +212,16 @@ def resize_rgb(rgb: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     return cv2.resize(rgb, (w, h), interpolation=interp)
 
 
+def landscape_pixels(uv: np.ndarray, image_size: tuple[int, int]) -> np.ndarray:
+    """Pixels [..., 2] of an image of `image_size` (W0, H0) -> pixels of the image turned a
+    quarter clockwise to landscape where it is a portrait, (u, v) -> (H0 - 1 - v, u); the same
+    where it is not."""
+    up: np.ndarray = np.asarray(uv, dtype=np.float64)
+    if image_size[1] > image_size[0]:
+        up = np.stack([image_size[1] - 1 - up[..., 1], up[..., 0]], -1)
+    return up
+
+
 @dataclass(frozen=True)
 class NetworkFrame:
     """How an image of `image_size` = (W0, H0) pixels becomes a network input of `size` =
@@ -250,10 +260,7 @@ class NetworkFrame:
 
     def to_network(self, uv: np.ndarray) -> np.ndarray:
         """Image pixels [..., 2] (pixel centres at integers) -> network input pixels."""
-        up: np.ndarray = np.asarray(uv, dtype=np.float64)
-        if self.turned:  # (u, v) -> (H0 - 1 - v, u)
-            up = np.stack([self.image_size[1] - 1 - up[..., 1], up[..., 0]], -1)
-        out: np.ndarray = (up + 0.5) * self._scale() - 0.5
+        out: np.ndarray = (landscape_pixels(uv, self.image_size) + 0.5) * self._scale() - 0.5
         return out
 
     def to_image(self, uv: np.ndarray) -> np.ndarray:

@@ -6,13 +6,12 @@ from __future__ import annotations
 from typing import Annotated, Any
 
 import anyio
-import numpy as np
 from fastapi import APIRouter, Query, Request, Response
 from pydantic import ValidationError
 
 from service.cameras import CameraNotFound, CameraStore, CameraStoreError, CameraStoreFull
 from service.core.pose import fit_focal
-from service.core.preprocess import ImageDecodeError, ImageTooLargeError
+from service.core.preprocess import ImageDecodeError, ImageTooLargeError, landscape_pixels
 from service.deps import AUTHORISED, CamerasDep, LimiterDep, PredictorDep, SettingsDep
 from service.errors import ApiError
 from service.posing import object_points
@@ -67,13 +66,6 @@ async def _stored(cameras: CameraStore, fields: dict[str, Any]) -> CameraOut:
         raise _store_error(exc) from None
 
 
-def landscape(corners: np.ndarray, size: tuple[int, int]) -> np.ndarray:
-    """Corners [4, 2] px of a portrait photo of `size` (W, H) -> the same points in the photo
-    turned a quarter clockwise to landscape (the camera's own frame; the focal length and a
-    centred principal point do not change)."""
-    return np.stack([size[1] - 1 - corners[:, 1], corners[:, 0]], 1)
-
-
 def learn(predictor: Predictor, images: list[tuple[str | None, bytes]]) -> dict[str, Any]:
     """Photos of the object by one camera -> the camera's fields (fx fitted to the corners the
     network finds in them, `fit_focal`); ValueError saying why it cannot be learned."""
@@ -98,7 +90,9 @@ def learn(predictor: Predictor, images: list[tuple[str | None, bytes]]) -> dict[
             f"photos of {w}x{h} and of {', '.join(f'{a}x{b}' for a, b in odd)}: "
             "send one camera's photos, all of one size"
         )
-    views = [q if size[0] >= size[1] else landscape(q, size) for size, q in found]
+    # a portrait is the camera turned: its corners turned back to landscape (fx and a centred
+    # principal point stay)
+    views = [landscape_pixels(q, size) for size, q in found]
     fit = fit_focal(views, object_points(size_cm), (w, h))
     used = int(fit.used.sum())
     spread = (fit.interval[1] - fit.interval[0]) / fit.fx

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import cv2
+import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 from service_support import AppFactory
@@ -58,6 +60,23 @@ def test_a_camera_learned_from_photos_has_their_focal_length(
         assert 3 <= camera["photos_used"] <= 10 and camera["residual_px"] < 4.0
         lo, hi = camera["fx_range"]
         assert lo <= camera["fx"] <= hi
+
+
+def test_portrait_photos_of_the_camera_learn_with_the_landscape_ones(
+    app_factory: AppFactory, tmp_path: Path
+) -> None:
+    """A phone turned: a photo turned a quarter is the same lens (fx), not another camera."""
+    files = [photo(row) for row in ROWS[1:11]]
+    for i in (1, 4, 7):
+        name, data, kind = files[i][1]
+        turned = cv2.rotate(cv2.imdecode(np.frombuffer(data, np.uint8), 1), cv2.ROTATE_90_CLOCKWISE)
+        files[i] = ("image", (name, cv2.imencode(".jpg", turned)[1].tobytes(), kind))
+    with app_factory(camera_db=tmp_path / "c.db") as c:
+        r = c.post("/v1/cameras", files=files)
+    assert r.status_code == 201, r.text
+    camera = r.json()
+    assert (camera["width"], camera["height"]) == (640, 428)
+    assert camera["fx"] == pytest.approx(float(ROWS[0]["fx"]), rel=0.10)
 
 
 def test_cameras_survive_a_restart_and_every_process_sees_them(
