@@ -36,11 +36,6 @@ class Focal:
     interval: tuple[float, float] | None = None
 
 
-def object_points(size_cm: tuple[float, float]) -> np.ndarray:
-    """The object's corners [4, 3] cm in the corners' order, z = 0."""
-    return object_corners(size_cm[0], size_cm[1], z=True)
-
-
 def focal_of(
     corners: np.ndarray,
     size: tuple[int, int],
@@ -51,7 +46,7 @@ def focal_of(
     corners [4, 2] px."""
     if known is not None:
         return Focal(known.camera(size), known.source)
-    fx, interval = estimate_focal(corners, object_points(size_cm), size)
+    fx, interval = estimate_focal(corners, object_corners(*size_cm, z=True), size)
     return Focal(Camera(fx, size), "estimated", interval)
 
 
@@ -62,7 +57,7 @@ def _round(values: np.ndarray | list[float], digits: int = 3) -> list[float]:
 def pose_of(corners: np.ndarray, size_cm: tuple[float, float], focal: Focal) -> Pose:
     """Corners [4, 2] px of the uploaded image, the object's size (W, H) cm and the focal
     length -> the answer's `pose`."""
-    obj = object_points(size_cm)
+    obj = object_corners(*size_cm, z=True)
     pose = solve_pose(corners, obj, focal.camera)
     distances = None
     if focal.interval is not None:
@@ -100,7 +95,7 @@ def cell_of(
     neighbours: the corners moved by their noise (`corner_noise_px`) and, where fx is
     estimated, fx drawn log-uniformly over its range (a fixed seed: the same image gets the
     same answer)."""
-    obj = object_points(size_cm)
+    obj = object_corners(*size_cm, z=True)
     pose = solve_pose(corners, obj, focal.camera)
     rng = np.random.default_rng(0)
     noise = corner_noise_px(focal.camera.size)

@@ -18,6 +18,7 @@ import numpy as np
 
 from service.cameras import KnownFocal
 from service.core.cells import RegionGrid
+from service.core.frame import object_corners
 from service.core.pose import fit_focal
 from service.core.preprocess import (
     DecodedImage,
@@ -32,7 +33,7 @@ from service.core.preprocess import (
 from service.core.regions import region_of_class
 from service.exif import exif_focal
 from service.model import Answer, PoseModel
-from service.posing import Focal, cell_of, focal_of, object_points, pose_of
+from service.posing import Focal, cell_of, focal_of, pose_of
 from service.proposals import propose_boxes
 from service.schemas import Box, Detection, ImageResult, Mode, RegionOut
 from service.settings import Settings
@@ -352,7 +353,7 @@ class Predictor:
             return None
         size = frames[found[0]].image_size
         views = [corners[i] * max(size) / max(frames[i].image_size) for i in found]
-        fit = fit_focal(views, object_points(size_cm), size)
+        fit = fit_focal(views, object_corners(*size_cm, z=True), size)
         return _JointFocal(fit.fx, "estimated", size, interval=fit.interval)
 
     def _add_pose(

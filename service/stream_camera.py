@@ -16,8 +16,8 @@ import cv2
 import numpy as np
 
 from service.cameras import KnownFocal
+from service.core.frame import object_corners
 from service.core.pose import Camera, fit_focal, focal_prior, solve_pose
-from service.posing import object_points
 
 MIN_VIEWS = 5
 MAX_VIEWS = 30
@@ -29,7 +29,7 @@ class StreamCamera:
     """The focal length a stream of frames of one size has shown so far (`known`)."""
 
     def __init__(self, size_cm: tuple[float, float]) -> None:
-        self.object = object_points(size_cm)
+        self.object = object_corners(*size_cm, z=True)
         self.size: tuple[int, int] | None = None
         self.views: deque[np.ndarray] = deque(maxlen=MAX_VIEWS)
         self.turns: deque[np.ndarray] = deque(maxlen=MAX_VIEWS)  # each view's rotation

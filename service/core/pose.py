@@ -123,44 +123,38 @@ def _as_points(corners: np.ndarray) -> np.ndarray:
     return q
 
 
-def solve_pose(corners: np.ndarray, object_points: np.ndarray, camera: Camera) -> CameraPose:
-    """Corners [4, 2] px (in the order of `object_points` [4, 3] cm) seen by `camera` -> the
-    pose: IPPE's two solutions, the one with the camera on the printed side (c_z > 0) and the
-    smaller reprojection error."""
-    q = _as_points(corners)
-    obj = np.asarray(object_points, np.float64).reshape(4, 3)
-    K, dist = camera.matrix, camera.coefficients
+def _ippe(
+    obj: np.ndarray, q: np.ndarray, K: np.ndarray, dist: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """Object points [4, 3] cm, their image [4, 2] px, K (3, 3) and distortion -> (rvec (3,),
+    tvec (3,) cm, camera centre (3,) cm, RMS error px) of IPPE's two solutions, the one with
+    the camera on the printed side (c_z > 0) and the smaller reprojection error."""
     _, rvecs, tvecs, errors = cv2.solvePnPGeneric(obj, q, K, dist, flags=cv2.SOLVEPNP_IPPE)
-    best: CameraPose | None = None
+    best: tuple[np.ndarray, np.ndarray, np.ndarray, float] | None = None
     for rvec, tvec, error in zip(rvecs, tvecs, np.ravel(errors), strict=True):
-        R, _ = cv2.Rodrigues(rvec)
-        centre = -R.T @ tvec.ravel()
-        pose = CameraPose(rvec.ravel(), tvec.ravel(), centre, float(error))
-        key = (centre[2] <= 0, pose.residual_px)
-        if best is None or key < (best.centre[2] <= 0, best.residual_px):
-            best = pose
+        centre = -cv2.Rodrigues(rvec)[0].T @ tvec.ravel()
+        if best is None or (centre[2] <= 0, error) < (best[2][2] <= 0, best[3]):
+            best = (rvec.ravel(), tvec.ravel(), centre, float(error))
     if best is None:
         raise ValueError("corners: no pose fits them")
     return best
 
 
+def solve_pose(corners: np.ndarray, object_points: np.ndarray, camera: Camera) -> CameraPose:
+    """Corners [4, 2] px (in the order of `object_points` [4, 3] cm) seen by `camera` -> the
+    pose (`_ippe`: the camera on the printed side, the smaller reprojection error)."""
+    obj = np.asarray(object_points, np.float64).reshape(4, 3)
+    return CameraPose(*_ippe(obj, _as_points(corners), camera.matrix, camera.coefficients))
+
+
 def _residuals(
     views: Sequence[np.ndarray], object_points: np.ndarray, size: tuple[int, int], fx: float
 ) -> np.ndarray:
-    """The RMS reprojection error px [V] of each view's best pose with focal length `fx`
-    (`solve_pose`'s choice, lean: the focal scans call it a few thousand times a second)."""
+    """The RMS reprojection error px [V] of each view's pose with focal length `fx` (the
+    focal scans call it a few thousand times a second: no validation, no objects)."""
     K = Camera(fx, size).matrix
     obj = np.asarray(object_points, np.float64).reshape(4, 3)
-    errors = []
-    for q in views:
-        _, rvecs, tvecs, rms = cv2.solvePnPGeneric(obj, q, K, None, flags=cv2.SOLVEPNP_IPPE)
-        front = [
-            float(e)
-            for r, t, e in zip(rvecs, tvecs, np.ravel(rms), strict=True)
-            if (-cv2.Rodrigues(r)[0].T @ t.ravel())[2] > 0
-        ]
-        errors.append(min(front) if front else float(np.min(rms)))
-    return np.array(errors)
+    return np.array([_ippe(obj, q, K, None)[3] for q in views])
 
 
 def _costs(

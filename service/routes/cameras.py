@@ -10,11 +10,11 @@ from fastapi import APIRouter, Query, Request, Response
 from pydantic import ValidationError
 
 from service.cameras import CameraNotFound, CameraStore, CameraStoreError, CameraStoreFull
+from service.core.frame import object_corners
 from service.core.pose import fit_focal
 from service.core.preprocess import ImageDecodeError, ImageTooLargeError, landscape_pixels
 from service.deps import AUTHORISED, CamerasDep, LimiterDep, PredictorDep, SettingsDep
 from service.errors import ApiError
-from service.posing import object_points
 from service.predictor import Predictor, too_large_code
 from service.schemas import ERROR_RESPONSES, CameraIn, CameraList, CameraOut
 from service.uploads import read_images
@@ -93,7 +93,7 @@ def learn(predictor: Predictor, images: list[tuple[str | None, bytes]]) -> dict[
     # a portrait is the camera turned: its corners turned back to landscape (fx and a centred
     # principal point stay)
     views = [landscape_pixels(q, size) for size, q in found]
-    fit = fit_focal(views, object_points(size_cm), (w, h))
+    fit = fit_focal(views, object_corners(*size_cm, z=True), (w, h))
     used = int(fit.used.sum())
     spread = (fit.interval[1] - fit.interval[0]) / fit.fx
     if used < MIN_PHOTOS or spread > MAX_FX_SPREAD:
