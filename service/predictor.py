@@ -1,7 +1,7 @@
 """Bytes of one or many images -> per-image answers, the HTTP-free core of `/v1/predict`.
 
 Every image of a call goes through ONE batched onnxruntime run (whole mode: one input per
-image, then one more for the zoom pass's tiles where it applies, `service.zoom`; sliding
+image, then one more for the zoom pass's crops where it applies, `service.zoom`; sliding
 mode: all windows of all images). Thread-safe: the session is shared.
 """
 

@@ -1,32 +1,36 @@
-"""The zoom pass: a second look at parts of the network input enlarged 2x, for small boards.
+"""The zoom pass: a second look at the board, enlarged, for boards that are not large.
 
-The keypoint network finds a board best when it spans about a third of its 160x120 input or
-more; a board 15-40 px wide (a camera 1-2 m away) is often missed or its corners are a pixel
-off, which is enough to flip the x/y side. After the whole-frame pass, each image whose board
-is small or missing gets a second look at half-size tiles of its frame at twice the input's
-resolution, through the same graph: its `view` input places the tile in the frame, so the
-pose is the frame's camera's, and its `pattern` output (the checker pattern found at the
-corners) says whether the tile holds the board. Where the uploaded photo has the pixels (at
-least twice the input size once turned to landscape), a tile is cut from the photo resized
-to twice the input size (`detail_of`): real detail. Otherwise it is the network input's tile
-enlarged 2x (bicubic): no new pixels, only a scale the network reads better.
+The keypoint network finds a board's corners best when it spans most of its 160x120 input; a
+board 15-100 px wide (a camera 1-2 m away, a hand-held board in a webcam's frame) is often
+missed or its corners are pixels off, which is enough to flip the x/y side. After the
+whole-frame pass, each image whose board is not large or was missed gets a second look at a
+crop of its frame, enlarged, through the same graph: its `view` input places the crop in the
+frame, so the pose is the frame's camera's, and its `pattern` output (the object's pattern
+found at the corners) says whether the crop holds the board. Where the uploaded photo has the
+pixels (at least twice the input size once turned to landscape), the crop is cut from the
+photo's frame at twice the input size (`detail_of`): real detail. Otherwise it is the network
+input's crop enlarged (bicubic): no new pixels, only a scale the network reads better.
 
-* board found and inside a tile (`MARGIN_PX` in): that tile, the one centred nearest the
-  board; its answer replaces the whole frame's if its pattern says present (>= 0.5);
-* board not found (with `search`, the default): the `search_tiles` tiles (default
-  `SEARCH_TILES` = 1) centred nearest the whole frame's corners, which the network gives
-  even when it says absent (its best guess of where a board would be); the one with the
-  strongest pattern answers if it says present. On the real val sources the search found 10
-  boards the whole frame missed at blur 0; the tile nearest that guess answered all that all
-  nine tiles answered (docs/service.md, "Zoom"), for 1 input instead of 9. The presence
-  logit does not count in tiles: on photos without a board it fires on some tile of nine,
-  the checker pattern does not.
+* board found, spanning less than `LARGE` of the input: the crop centred on its corners that
+  it fills to `FILL` of the crop's width or height (`closer_view`; at most `MAX_ZOOM` x,
+  kept inside the frame); its answer replaces the whole frame's if its pattern says present
+  (>= 0.5);
+* board not found (with `search`, the default): the `search_tiles` half-size tiles of a 3x3
+  grid (default `SEARCH_TILES` = 1) centred nearest the whole frame's corners, which the
+  network gives even when it says absent (its best guess of where a board would be); the one
+  with the strongest pattern answers if it says present. On the real val sources the search
+  found 10 boards the whole frame missed at blur 0; the tile nearest that guess answered all
+  that all nine tiles answered (docs/service.md, "Zoom"), for 1 input instead of 9. The
+  presence logit does not count in tiles: on photos without a board it fires on some tile of
+  nine, the checker pattern does not.
 
-Cost: 2 inputs for a small board, 1 + `search_tiles` for an image without one (1 without
-`search`), 1 for a large board.
+Cost: 2 inputs for a board that is not large, 1 + `search_tiles` for an image without one (1
+without `search`), 1 for a large board.
 """
 
 from __future__ import annotations
+
+import math
 
 import cv2
 import numpy as np
@@ -34,9 +38,11 @@ import numpy as np
 from service.core.preprocess import NetworkFrame, to_network_input
 from service.model import Answer, PoseModel
 
-GRID = 3  # tiles per axis, half the input's size each, overlapping by half
-MARGIN_PX = 4.0  # input pixels between the board's corners and a tile's edge
-PRESENT = 0.5  # P(present) of the whole frame's answer / the tile's pattern that counts
+GRID = 3  # search tiles per axis, half the input's size each, overlapping by half
+FILL = 0.7  # a found board's extent over its crop's width or height (the larger)
+LARGE = 0.8  # a board spanning this much of the input or more gets no second look
+MAX_ZOOM = 2  # the crop is at least 1 / MAX_ZOOM of the input's size (4: within noise, val)
+PRESENT = 0.5  # P(present) of the whole frame's answer / the crop's pattern that counts
 SEARCH_TILES = 1  # tiles searched in a frame where no board was found (GRID * GRID: all)
 
 
@@ -48,16 +54,6 @@ def tile_views(size: tuple[int, int]) -> np.ndarray:
     v0 = np.linspace(0.0, h / 2, GRID)
     uu, vv = np.meshgrid(u0, v0, indexing="xy")
     return np.stack([uu.ravel(), vv.ravel(), np.full(uu.size, 0.5)], 1).astype(np.float32)
-
-
-def enlarged(image: np.ndarray, view: np.ndarray) -> np.ndarray:
-    """float32 [3, H, W] in [0, 1] and a tile's view (u0, v0, 0.5) -> the tile enlarged 2x,
-    float32 [3, H, W] in [0, 1] (bicubic, pixel centres kept)."""
-    _, h, w = image.shape
-    u0, v0 = int(round(view[0])), int(round(view[1]))
-    tile = np.ascontiguousarray(image[:, v0 : v0 + h // 2, u0 : u0 + w // 2].transpose(1, 2, 0))
-    big = cv2.resize(tile, (w, h), interpolation=cv2.INTER_CUBIC)
-    return np.ascontiguousarray(np.clip(big, 0.0, 1.0).transpose(2, 0, 1))
 
 
 def detail_decode_size(size: tuple[int, int]) -> tuple[int, int]:
@@ -77,34 +73,42 @@ def detail_of(rgb: np.ndarray, size: tuple[int, int]) -> np.ndarray | None:
     return to_network_input(rgb, (2 * size[0], 2 * size[1]))
 
 
-def tile_input(image: np.ndarray, view: np.ndarray, detail: np.ndarray | None) -> np.ndarray:
-    """The second look's input at a tile's view (u0, v0, 0.5), float32 [3, H, W]: cut from
-    `detail` (the frame at twice the input size, `detail_of`) where there is one, else the
-    input `image` [3, H, W]'s tile `enlarged`. Both put a pixel's centre at the same place of
-    the frame."""
-    if detail is None:
-        return enlarged(image, view)
+def view_input(image: np.ndarray, view: np.ndarray, detail: np.ndarray | None) -> np.ndarray:
+    """The second look's input at a view (u0, v0, s) of the frame, float32 [3, H, W]: the
+    frame's pixels [u0, u0 + s W) x [v0, v0 + s H) resized to the input's size, cut from
+    `detail` (the frame at twice the input size, `detail_of`) where there is one, else from
+    the input `image` [3, H, W] (area where it shrinks, bicubic where it enlarges). Input
+    pixel (u, v) is frame pixel (u0 + (u + 0.5) s - 0.5, v0 + (v + 0.5) s - 0.5) either way;
+    u0, v0, s W and s H are whole input pixels (`closer_view`, `tile_views`)."""
     _, h, w = image.shape
-    u0, v0 = 2 * int(round(view[0])), 2 * int(round(view[1]))
-    return np.ascontiguousarray(detail[:, v0 : v0 + h, u0 : u0 + w])
+    source, k = (image, 1) if detail is None else (detail, 2)
+    x0, y0 = k * int(round(view[0])), k * int(round(view[1]))
+    cw, ch = k * int(round(view[2] * w)), k * int(round(view[2] * h))
+    crop = np.ascontiguousarray(source[:, y0 : y0 + ch, x0 : x0 + cw].transpose(1, 2, 0))
+    if (cw, ch) == (w, h):
+        return np.ascontiguousarray(crop.transpose(2, 0, 1))
+    shrink = cw > w
+    out = cv2.resize(crop, (w, h), interpolation=cv2.INTER_AREA if shrink else cv2.INTER_CUBIC)
+    return np.ascontiguousarray(np.clip(out, 0.0, 1.0).transpose(2, 0, 1))
 
 
-def holding_tile(corners: np.ndarray, views: np.ndarray, size: tuple[int, int]) -> int | None:
-    """Corners [4, 2] in input pixels -> the index of the tile that holds them all
-    `MARGIN_PX` in, centred nearest them (None: the board is larger than a tile)."""
+def closer_view(corners: np.ndarray, size: tuple[int, int]) -> np.ndarray | None:
+    """Corners [4, 2] in input pixels of an input of `size` (W, H) -> the view (u0, v0, s),
+    float32 [3], of the crop the board fills to `FILL` of its width or height, centred on it
+    and kept inside the input, at most `MAX_ZOOM` x enlarged; s is a whole number of input
+    pixels over gcd(W, H) and (u0, v0) whole pixels, so that the crop is whole pixels of the
+    input and of the detail (`view_input`). None: the board spans `LARGE` or more."""
     w, h = size
     lo, hi = corners.min(0), corners.max(0)
-    inside = (
-        (lo[0] >= views[:, 0] + MARGIN_PX)
-        & (lo[1] >= views[:, 1] + MARGIN_PX)
-        & (hi[0] <= views[:, 0] + w / 2 - 1 - MARGIN_PX)
-        & (hi[1] <= views[:, 1] + h / 2 - 1 - MARGIN_PX)
-    )
-    if not inside.any():
+    span = float(max((hi[0] - lo[0]) / w, (hi[1] - lo[1]) / h))
+    if not np.all(np.isfinite(corners)) or span >= LARGE:
         return None
-    centres = views[:, :2] + np.array([w, h]) / 4
-    distance = np.linalg.norm(centres - corners.mean(0), axis=1)
-    return int(np.argmin(np.where(inside, distance, np.inf)))
+    step = math.gcd(w, h)
+    s = min(max(math.ceil(span / FILL * step), math.ceil(step / MAX_ZOOM)), step) / step
+    centre = (lo + hi) / 2
+    u0 = float(np.clip(round(centre[0] - s * w / 2), 0, w - s * w))
+    v0 = float(np.clip(round(centre[1] - s * h / 2), 0, h - s * h))
+    return np.array([u0, v0, s], np.float32)
 
 
 def search_order(corners: np.ndarray, views: np.ndarray, size: tuple[int, int]) -> np.ndarray:
@@ -136,16 +140,17 @@ def zoomed(
     whole = model.run(batch, pixel_aspect, focal=focal)
     if not model.zooms or whole.corners is None or whole.pattern is None:
         return whole
-    views = tile_views(model.input_size)
-    owners, looks = [], []
+    tiles = tile_views(model.input_size)
+    owners: list[int] = []
+    looks: list[np.ndarray] = []
     for i, (p_absent, corners) in enumerate(
         zip(whole.probabilities[:, 0], whole.corners, strict=True)
     ):
         if p_absent < PRESENT:
-            tile = holding_tile(corners, views, model.input_size)
-            chosen = [] if tile is None else [tile]
+            view = closer_view(corners, model.input_size)
+            chosen = [] if view is None else [view]
         elif search:
-            chosen = search_order(corners, views, model.input_size)[:search_tiles].tolist()
+            chosen = list(tiles[search_order(corners, tiles, model.input_size)[:search_tiles]])
         else:
             chosen = []
         owners += [i] * len(chosen)
@@ -156,10 +161,11 @@ def zoomed(
         None if a is None else np.asarray(a, np.float32)[owners] for a in (pixel_aspect, focal)
     )
     sharp = detail or [None] * len(batch)
-    tiles = np.stack(
-        [tile_input(batch[i], views[t], sharp[i]) for i, t in zip(owners, looks, strict=True)]
+    views = np.stack(looks)
+    crops = np.stack(
+        [view_input(batch[i], v, sharp[i]) for i, v in zip(owners, views, strict=True)]
     )
-    second = model.run(tiles, aspect, views[looks], fx)
+    second = model.run(crops, aspect, views, fx)
     assert second.corners is not None and second.pattern is not None  # model.zooms
     probs, corners, pattern = (
         a.copy() for a in (whole.probabilities, whole.corners, whole.pattern)

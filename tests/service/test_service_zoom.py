@@ -14,13 +14,14 @@ from service.model import Answer, PoseModel
 from service.predictor import Predictor
 from service.settings import DEFAULT_MODEL, Settings
 from service.zoom import (
-    MARGIN_PX,
+    FILL,
+    LARGE,
+    MAX_ZOOM,
+    closer_view,
     detail_of,
-    enlarged,
-    holding_tile,
     search_order,
-    tile_input,
     tile_views,
+    view_input,
     zoomed,
 )
 
@@ -58,38 +59,41 @@ def test_the_tiles_are_half_size_and_cover_the_input() -> None:
     assert views[4, :2].tolist() == [40.0, 30.0]  # the centre tile
 
 
-def test_an_enlarged_tile_keeps_the_pixel_centres() -> None:
-    """Input pixel (u, v) of the enlarged tile at (u0, v0) is frame pixel
-    (u0 + (u + 0.5) / 2 - 0.5, ...): a linear ramp comes back as that ramp."""
+@pytest.mark.parametrize("view", [(80.0, 30.0, 0.5), (21.0, 7.0, 0.725)])
+def test_an_enlarged_crop_keeps_the_pixel_centres(view: tuple[float, float, float]) -> None:
+    """Input pixel (u, v) of the crop at view (u0, v0, s) is frame pixel
+    (u0 + (u + 0.5) s - 0.5, ...): a linear ramp comes back as that ramp."""
     w, h = SIZE
     u, v = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
     image = np.stack([u / w, v / h, np.zeros_like(u)])
-    view = tile_views(SIZE)[5]  # (80, 30)
-    big = enlarged(image, view)
+    big = view_input(image, np.array(view, np.float32), None)
     assert big.shape == image.shape and big.dtype == np.float32
-    want_u = (view[0] + (u + 0.5) * 0.5 - 0.5) / w
-    want_v = (view[1] + (v + 0.5) * 0.5 - 0.5) / h
+    want_u = (view[0] + (u + 0.5) * view[2] - 0.5) / w
+    want_v = (view[1] + (v + 0.5) * view[2] - 0.5) / h
     inner = (slice(4, -4), slice(4, -4))  # bicubic borders replicate
     assert np.abs(big[0][inner] - want_u[inner]).max() * w < 0.1  # px
     assert np.abs(big[1][inner] - want_v[inner]).max() * h < 0.1
 
 
-def test_a_tile_cut_from_the_upload_keeps_the_pixel_centres() -> None:
-    """A 640x480 upload: the tile cut from its frame at 2x the input size puts each pixel's
-    centre where the enlarged tile does (a linear ramp comes back as that ramp), sharper."""
+@pytest.mark.parametrize("view", [(80.0, 30.0, 0.5), (21.0, 7.0, 0.725)])
+def test_a_crop_cut_from_the_upload_keeps_the_pixel_centres(
+    view: tuple[float, float, float],
+) -> None:
+    """A 640x480 upload: the crop cut from its frame at 2x the input size puts each pixel's
+    centre where the enlarged crop does (a linear ramp comes back as that ramp), sharper."""
     w0, h0 = 640, 480
     u, v = np.meshgrid(np.arange(w0, dtype=np.float32), np.arange(h0, dtype=np.float32))
     upload = np.stack([255 * (u + 0.5) / w0, 255 * (v + 0.5) / h0, np.zeros_like(u)], -1)
     detail = detail_of(upload, SIZE)
     assert detail is not None and detail.shape == (3, 240, 320) and detail.dtype == np.float32
-    view = tile_views(SIZE)[5]  # (80, 30)
-    tile = tile_input(to_network_input(upload, SIZE), view, detail)
-    assert tile.shape == (3, 120, 160)
+    crop = view_input(to_network_input(upload, SIZE), np.array(view, np.float32), detail)
+    assert crop.shape == (3, 120, 160)
     tu, tv = np.meshgrid(np.arange(160, dtype=np.float32), np.arange(120, dtype=np.float32))
-    want_u = (view[0] + (tu + 0.5) * 0.5) / 160  # the frame's pixel centre, over its width
-    want_v = (view[1] + (tv + 0.5) * 0.5) / 120
-    assert np.abs(tile[0] - want_u).max() * 160 < 0.01  # px of the frame, border included
-    assert np.abs(tile[1] - want_v).max() * 120 < 0.01
+    want_u = (view[0] + (tu + 0.5) * view[2]) / 160  # the frame's pixel centre, over its width
+    want_v = (view[1] + (tv + 0.5) * view[2]) / 120
+    # px of the frame, border included (area resampling over a fractional step: 0.05 px)
+    assert np.abs(crop[0] - want_u).max() * 160 < 0.05
+    assert np.abs(crop[1] - want_v).max() * 120 < 0.05
 
 
 def test_only_uploads_of_twice_the_input_size_give_detail() -> None:
@@ -97,18 +101,20 @@ def test_only_uploads_of_twice_the_input_size_give_detail() -> None:
     assert detail_of(np.zeros((239, 640, 3), np.uint8), SIZE) is None  # too few rows
     portrait = detail_of(np.zeros((640, 480, 3), np.uint8), SIZE)  # turned to landscape
     assert portrait is not None and portrait.shape == (3, 240, 320)
-    image = np.zeros((3, 120, 160), np.float32)
-    view = tile_views(SIZE)[0]
-    assert np.array_equal(tile_input(image, view, None), enlarged(image, view))
 
 
-def test_the_holding_tile_is_the_nearest_centred_one_with_margin() -> None:
-    views = tile_views(SIZE)
-    square = np.array([[0.0, 0.0], [10.0, 0.0], [10.0, 10.0], [0.0, 10.0]])
-    assert holding_tile(square + [75.0, 55.0], views, SIZE) == 4  # centred on the input
-    assert holding_tile(square + [MARGIN_PX + 1, MARGIN_PX + 1], views, SIZE) == 0
-    assert holding_tile(square + [MARGIN_PX - 1, 20.0], views, SIZE) is None  # too near the edge
-    assert holding_tile(square * 9 + [5.0, 5.0], views, SIZE) is None  # wider than a tile
+def test_the_closer_view_is_filled_by_the_board_and_stays_in_the_frame() -> None:
+    square = np.array([[0.0, 0.0], [64.0, 0.0], [64.0, 48.0], [0.0, 48.0]])
+    u0, v0, s = closer_view(square + [40.0, 30.0], SIZE)  # type: ignore[misc]
+    assert max(64 / (s * 160), 48 / (s * 120)) == pytest.approx(FILL, abs=0.03)
+    assert (u0 + s * 80, v0 + s * 60) == pytest.approx((72.0, 54.0), abs=0.5)  # centred
+    assert float(s * 160).is_integer() and float(s * 120).is_integer() and u0.is_integer()
+    u0, v0, s = closer_view(square + [1.0, 70.0], SIZE)  # type: ignore[misc]
+    assert u0 == 0 and v0 + s * 120 == 120  # kept inside the frame
+    tiny = closer_view(square / 10 + [80.0, 60.0], SIZE)
+    assert tiny is not None and tiny[2] == 1 / MAX_ZOOM
+    assert closer_view(square * 2.5 * LARGE, SIZE) is None  # large: no second look
+    assert closer_view(np.full((4, 2), np.nan), SIZE) is None
 
 
 def _network_input() -> np.ndarray:
@@ -116,9 +122,9 @@ def _network_input() -> np.ndarray:
     return to_network_input(load_image(PHOTO, min_size=SIZE).rgb, SIZE)
 
 
-def test_a_small_board_is_answered_from_its_tile(model: PoseModel) -> None:
-    """The photo shrunk 2x into the centre tile of a grey frame: the zoom looks at that tile
-    once, and its corners are the large board's, mapped to where the small one lies."""
+def test_a_small_board_is_answered_from_its_crop(model: PoseModel) -> None:
+    """The photo shrunk 2x into the centre of a grey frame: the zoom looks at the crop around
+    it once, and its corners are the large board's, mapped to where the small one lies."""
     large = _network_input()
     big = model.run(large[None])
     assert big.probabilities[0, 0] < 0.5 and big.pattern is not None and big.pattern[0] > 0.5
@@ -126,10 +132,12 @@ def test_a_small_board_is_answered_from_its_tile(model: PoseModel) -> None:
     small[:, 30:90, 40:120] = cv2.resize(
         large.transpose(1, 2, 0), (80, 60), interpolation=cv2.INTER_AREA
     ).transpose(2, 0, 1)
+    whole = model.run(small[None])
     spy = Spy(model)
     answer = zoomed(spy, small[None], None)  # type: ignore[arg-type]
     assert [n for n, _ in spy.calls] == [1, 1]
-    assert spy.calls[0][1] is None and spy.calls[1][1].tolist() == [[40.0, 30.0, 0.5]]
+    assert spy.calls[0][1] is None and whole.corners is not None
+    assert np.array_equal(spy.calls[1][1], closer_view(whole.corners[0], SIZE)[None])
     assert answer.pattern is not None and answer.pattern[0] >= 0.5
     assert answer.probabilities[0, 0] < 0.5
     assert big.corners is not None and answer.corners is not None
@@ -197,7 +205,7 @@ def test_the_zoom_setting_switches_the_pass_off(model: PoseModel) -> None:
 
 
 def test_the_service_cuts_the_tile_from_a_large_upload(model: PoseModel) -> None:
-    """A 640x480 photo with a small board: the second look's input is the tile of the upload
+    """A 640x480 photo with a small board: the second look's input is the crop of the upload
     at 2x the input size, not the enlarged network input."""
     photo = cv2.imdecode(np.frombuffer(PHOTO, np.uint8), cv2.IMREAD_COLOR)
     frame = np.full((480, 640, 3), 128, np.uint8)
@@ -208,6 +216,7 @@ def test_the_service_cuts_the_tile_from_a_large_upload(model: PoseModel) -> None
     assert [n for n, _ in spy.calls] == [1, 1] and result.class_id != 0
     rgb = cv2.cvtColor(frame, cv2.COLOR_BGR2RGB)
     view = spy.calls[1][1][0]
-    sharp = tile_input(to_network_input(rgb, SIZE), view, detail_of(rgb, SIZE))
+    sharp = view_input(to_network_input(rgb, SIZE), view, detail_of(rgb, SIZE))
     assert np.allclose(spy.inputs[1][0], sharp, atol=1e-6)
-    assert not np.allclose(spy.inputs[1][0], enlarged(to_network_input(rgb, SIZE), view), atol=0.02)
+    blurry = view_input(to_network_input(rgb, SIZE), view, None)
+    assert not np.allclose(spy.inputs[1][0], blurry, atol=0.02)
