@@ -14,7 +14,8 @@ input's crop enlarged (bicubic): no new pixels, only a scale the network reads b
 * board found, spanning less than `LARGE` of the input: the crop centred on its corners that
   it fills to `FILL` of the crop's width or height (`closer_view`; at most `MAX_ZOOM` x,
   kept inside the frame); its answer replaces the whole frame's if its pattern says present
-  (>= 0.5);
+  (>= 0.5) and at least as strongly as the whole frame's (a blurred board enlarged can read
+  worse than the frame);
 * board not found (with `search`, the default): the `search_tiles` half-size tiles of a 3x3
   grid (default `SEARCH_TILES` = 1) centred nearest the whole frame's corners, which the
   network gives even when it says absent (its best guess of where a board would be); the one
@@ -175,7 +176,7 @@ def zoomed(
     for i in np.unique(owner):
         rows = np.flatnonzero(owner == i)
         best = rows[np.argmax(second.pattern[rows])]
-        if second.pattern[best] >= PRESENT:
+        if second.pattern[best] >= max(PRESENT, whole.pattern[i]):
             probs[i], corners[i], pattern[i] = (
                 second.probabilities[best],
                 second.corners[best],

@@ -220,3 +220,33 @@ def test_the_service_cuts_the_tile_from_a_large_upload(model: PoseModel) -> None
     assert np.allclose(spy.inputs[1][0], sharp, atol=1e-6)
     blurry = view_input(to_network_input(rgb, SIZE), view, None)
     assert not np.allclose(spy.inputs[1][0], blurry, atol=0.02)
+
+
+class TwoLooks:
+    """A stand-in graph: the whole frame finds a mid-sized board with pattern `first`, any
+    crop answers class 8 with pattern `second`."""
+
+    zooms, input_size = True, SIZE
+
+    def __init__(self, first: float, second: float) -> None:
+        self.first, self.second = first, second
+
+    def run(
+        self, batch: np.ndarray, aspect: Any = None, view: Any = None, focal: Any = None
+    ) -> Answer:
+        n = len(batch)
+        corners = np.tile(
+            np.array([[50.0, 40.0], [110.0, 40.0], [110.0, 80.0], [50.0, 80.0]]), (n, 1, 1)
+        )
+        probs = np.zeros((n, 9))
+        probs[:, 1 if view is None else 8] = 1.0
+        pattern = np.full(n, self.first if view is None else self.second)
+        return Answer(probs, corners, pattern, None)
+
+
+@pytest.mark.parametrize(("first", "second", "replaced"), [(0.6, 0.9, True), (0.9, 0.6, False)])
+def test_a_crop_answers_only_where_it_reads_the_pattern_as_well(
+    first: float, second: float, replaced: bool
+) -> None:
+    answer = zoomed(TwoLooks(first, second), np.zeros((1, 3, 120, 160), np.float32), None)  # type: ignore[arg-type]
+    assert int(answer.probabilities[0].argmax()) == (8 if replaced else 1)
