@@ -40,7 +40,7 @@ from service.core.preprocess import NetworkFrame, to_network_input
 from service.model import Answer, PoseModel
 
 GRID = 3  # search tiles per axis, half the input's size each, overlapping by half
-FILL = 0.7  # a found board's extent over its crop's width or height (the larger)
+FILL = 0.85  # a found board's extent over its crop's width or height (the larger)
 LARGE = 0.8  # a board spanning this much of the input or more gets no second look
 MAX_ZOOM = 2  # the crop is at least 1 / MAX_ZOOM of the input's size (4: within noise, val)
 PRESENT = 0.5  # P(present) of the whole frame's answer / the crop's pattern that counts
