@@ -105,11 +105,11 @@ def test_only_uploads_of_twice_the_input_size_give_detail() -> None:
 
 def test_the_closer_view_is_filled_by_the_board_and_stays_in_the_frame() -> None:
     square = np.array([[0.0, 0.0], [64.0, 0.0], [64.0, 48.0], [0.0, 48.0]])
-    u0, v0, s = closer_view(square + [40.0, 30.0], SIZE)  # type: ignore[misc]
-    assert max(64 / (s * 160), 48 / (s * 120)) == pytest.approx(FILL, abs=0.03)
-    assert (u0 + s * 80, v0 + s * 60) == pytest.approx((72.0, 54.0), abs=0.5)  # centred
+    u0, v0, s = closer_view(square * 1.5 + [40.0, 30.0], SIZE)  # type: ignore[misc]
+    assert max(96 / (s * 160), 72 / (s * 120)) == pytest.approx(FILL, abs=0.03)
+    assert (u0 + s * 80, v0 + s * 60) == pytest.approx((88.0, 66.0), abs=0.5)  # centred
     assert float(s * 160).is_integer() and float(s * 120).is_integer() and u0.is_integer()
-    u0, v0, s = closer_view(square + [1.0, 70.0], SIZE)  # type: ignore[misc]
+    u0, v0, s = closer_view(square * 1.5 + [1.0, 70.0], SIZE)  # type: ignore[misc]
     assert u0 == 0 and v0 + s * 120 == 120  # kept inside the frame
     tiny = closer_view(square / 10 + [80.0, 60.0], SIZE)
     assert tiny is not None and tiny[2] == 1 / MAX_ZOOM
