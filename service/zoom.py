@@ -96,9 +96,9 @@ def view_input(image: np.ndarray, view: np.ndarray, detail: np.ndarray | None) -
 def closer_view(corners: np.ndarray, size: tuple[int, int]) -> np.ndarray | None:
     """Corners [4, 2] in input pixels of an input of `size` (W, H) -> the view (u0, v0, s),
     float32 [3], of the crop the board fills to `FILL` of its width or height, centred on it
-    and kept inside the input, at most `MAX_ZOOM` x enlarged; s is a whole number of input
-    pixels over gcd(W, H) and (u0, v0) whole pixels, so that the crop is whole pixels of the
-    input and of the detail (`view_input`). None: the board spans `LARGE` or more."""
+    and kept inside the input, at most `MAX_ZOOM` x enlarged; s is a multiple of 1 / gcd(W, H)
+    and (u0, v0) whole pixels, so that the crop is whole pixels of the input and of the detail
+    (`view_input`). None: the board spans `LARGE` or more (or its corners are not finite)."""
     w, h = size
     lo, hi = corners.min(0), corners.max(0)
     span = float(max((hi[0] - lo[0]) / w, (hi[1] - lo[1]) / h))
