@@ -85,11 +85,15 @@ def view_input(image: np.ndarray, view: np.ndarray, detail: np.ndarray | None) -
     source, k = (image, 1) if detail is None else (detail, 2)
     x0, y0 = k * int(round(view[0])), k * int(round(view[1]))
     cw, ch = k * int(round(view[2] * w)), k * int(round(view[2] * h))
-    crop = np.ascontiguousarray(source[:, y0 : y0 + ch, x0 : x0 + cw].transpose(1, 2, 0))
+    crop = source[:, y0 : y0 + ch, x0 : x0 + cw]
     if (cw, ch) == (w, h):
-        return np.ascontiguousarray(crop.transpose(2, 0, 1))
+        return np.ascontiguousarray(crop)
     shrink = cw > w
-    out = cv2.resize(crop, (w, h), interpolation=cv2.INTER_AREA if shrink else cv2.INTER_CUBIC)
+    out = cv2.resize(
+        np.ascontiguousarray(crop.transpose(1, 2, 0)),
+        (w, h),
+        interpolation=cv2.INTER_AREA if shrink else cv2.INTER_CUBIC,
+    )
     return np.ascontiguousarray(np.clip(out, 0.0, 1.0).transpose(2, 0, 1))
 
 
