@@ -24,6 +24,7 @@ from service.core.onnx_contract import (
     UNDISTORTED,
     VIEW,
 )
+from service.core.pose import FOCAL_BOUNDS, FOCAL_PRIOR
 from service.core.regions import NUM_CLASSES
 
 #: Runs of more inputs than this give the memory onnxruntime's arena took for them back
@@ -104,6 +105,18 @@ class PoseModel:
         except (KeyError, TypeError, ValueError):
             return None
         return size if all(0 < v < 1e4 for v in size) else None
+
+    @property
+    def focal_prior(self) -> float:
+        """The focal-length prior of the graph's camera model (x the SPEC camera's: the card's
+        `camera_model.focal_prior_x_spec`, the object profile's) within `FOCAL_BOUNDS`; the
+        project's `FOCAL_PRIOR` where the card does not state one."""
+        camera = self.card.get("camera_model")
+        value = camera.get("focal_prior_x_spec") if isinstance(camera, dict) else None
+        lo, hi = FOCAL_BOUNDS
+        if isinstance(value, int | float) and not isinstance(value, bool) and lo <= value <= hi:
+            return float(value)
+        return FOCAL_PRIOR
 
     @classmethod
     def load(

@@ -17,7 +17,7 @@ import numpy as np
 from service.cameras import KnownFocal
 from service.core.cells import RegionGrid
 from service.core.frame import object_corners
-from service.core.pose import Camera, corner_noise_px, estimate_focal, solve_pose
+from service.core.pose import FOCAL_PRIOR, Camera, corner_noise_px, estimate_focal, solve_pose
 from service.schemas import CellOut, CellShare, FocalSource, Pose
 
 #: Poses sampled for a cell's probabilities: the corners' noise and the focal range drawn.
@@ -41,12 +41,13 @@ def focal_of(
     size: tuple[int, int],
     size_cm: tuple[float, float],
     known: KnownFocal | None,
+    prior: float = FOCAL_PRIOR,
 ) -> Focal:
     """The focal length of one image of `size` (W, H) px: `known`'s, else estimated from its
-    corners [4, 2] px."""
+    corners [4, 2] px with the model's `prior` (x the SPEC camera's, `PoseModel.focal_prior`)."""
     if known is not None:
         return Focal(known.camera(size), known.source)
-    fx, interval = estimate_focal(corners, object_corners(*size_cm, z=True), size)
+    fx, interval = estimate_focal(corners, object_corners(*size_cm, z=True), size, prior)
     return Focal(Camera(fx, size), "estimated", interval)
 
 

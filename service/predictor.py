@@ -371,7 +371,7 @@ class Predictor:
         size_cm = self.model.object_size_cm
         if size_cm is None:
             return
-        focal = focal_of(corners, size, size_cm, known)
+        focal = focal_of(corners, size, size_cm, known, self.model.focal_prior)
         if joint is not None and joint.interval is not None:
             s = joint.scale(size)
             focal = Focal(

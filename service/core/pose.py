@@ -111,9 +111,10 @@ def focal_bounds(
     return factors[0] * f, factors[1] * f
 
 
-def focal_prior(size: tuple[int, int]) -> float:
-    """The network's prior focal length (px) for an image of `size` (W, H)."""
-    return FOCAL_PRIOR * spec_fx(max(size))
+def focal_prior(size: tuple[int, int], scale: float = FOCAL_PRIOR) -> float:
+    """The prior focal length (px) for an image of `size` (W, H): `scale` (the model's object
+    profile's, `service.core.profile`) x the SPEC camera's fx at the image's longer side."""
+    return scale * spec_fx(max(size))
 
 
 def _as_points(corners: np.ndarray) -> np.ndarray:
@@ -266,14 +267,17 @@ def fit_focal(
 
 
 def estimate_focal(
-    corners: np.ndarray, object_points: np.ndarray, size: tuple[int, int]
+    corners: np.ndarray,
+    object_points: np.ndarray,
+    size: tuple[int, int],
+    prior: float = FOCAL_PRIOR,
 ) -> tuple[float, tuple[float, float]]:
     """One view's corners [4, 2] px -> the focal length px the pose takes and the range (lo,
     hi) px the view allows (`focal_interval` within the `CAMERA_BOUNDS`): the network's prior
-    where it lies in that range, else the range's end nearest it (a head-on view keeps the
-    prior, an oblique one decides)."""
+    (`focal_prior` of `prior`, x the SPEC camera's) where it lies in that range, else the
+    range's end nearest it (a head-on view keeps the prior, an oblique one decides)."""
     lo, hi = focal_interval([corners], object_points, size, factors=CAMERA_BOUNDS)
-    return float(np.clip(focal_prior(size), lo, hi)), (lo, hi)
+    return float(np.clip(focal_prior(size, prior), lo, hi)), (lo, hi)
 
 
 #: `cv2.calibrateCamera` with one unknown: fx = fy from the guess, nothing else.

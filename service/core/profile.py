@@ -18,6 +18,8 @@ length in cm, every angle in degrees; only `texture`, `width_cm` and `height_cm`
     [camera]
     roll_deg = [-5.0, 5.0]         # roll about the optical axis, uniform in this range
     focal_scale = [0.6, 1.1]       # fx, fy multiplied by a factor uniform in this range
+    focal_prior = 0.8              # the focal length a photo without one is posed with where
+                                   # its view cannot tell (x the SPEC camera's; 0.4-1.2)
     distortion_k1 = [-0.3, 0.0]    # radial lens distortion k1 (OpenCV model), uniform
     lattice_radii_cm = [...]       # hemispheres of the camera lattice (SPEC section 4)
     lattice_heights_cm = [...]     # their centres (0, 0, h)
@@ -44,6 +46,7 @@ import numpy as np
 
 from service.core.geometry import camera_lattice
 from service.core.paths import ASSETS_DIR, repo_relative
+from service.core.pose import FOCAL_BOUNDS, FOCAL_PRIOR
 from service.core.regions import RegionGeometry, pose_class
 
 PROFILES_DIR = ASSETS_DIR / "profiles"
@@ -83,6 +86,7 @@ class Profile:
     roll_deg: tuple[float, float] = (0.0, 0.0)
     focal_scale: tuple[float, float] = (1.0, 1.0)
     distortion_k1: tuple[float, float] = (0.0, 0.0)
+    focal_prior: float = FOCAL_PRIOR
     lattice_radii_cm: tuple[float, ...] = (20.0, 35.0, 50.0, 65.0, 80.0, 95.0)
     lattice_heights_cm: tuple[float, ...] = (0.0, 15.0, 30.0)
     lattice_points: int = 400
@@ -119,6 +123,7 @@ class Profile:
             "roll_deg": list(self.roll_deg),
             "focal_scale": list(self.focal_scale),
             "distortion_k1": list(self.distortion_k1),
+            "focal_prior": self.focal_prior,
         }
 
 
@@ -161,6 +166,17 @@ def _positive(table: dict[str, Any], key: str, where: str) -> float:
     value = table.get(key)
     if not isinstance(value, int | float) or isinstance(value, bool) or not value > 0:
         raise ProfileError(f"{where}: {key} must be a positive number of cm, got {value!r}")
+    return float(value)
+
+
+def _focal_prior(camera: dict[str, Any], where: str) -> float:
+    value = camera.get("focal_prior", FOCAL_PRIOR)
+    lo, hi = FOCAL_BOUNDS
+    if not isinstance(value, int | float) or isinstance(value, bool) or not lo <= value <= hi:
+        raise ProfileError(
+            f"{where}: focal_prior must be a number from {lo} to {hi} (x the SPEC camera's "
+            f"focal length), got {value!r}"
+        )
     return float(value)
 
 
@@ -226,6 +242,7 @@ def load_profile(name_or_path: str | Path) -> Profile:
         roll_deg=_range(camera, "roll_deg", (0.0, 0.0), where),
         focal_scale=_range(camera, "focal_scale", (1.0, 1.0), where),
         distortion_k1=_range(camera, "distortion_k1", (0.0, 0.0), where),
+        focal_prior=_focal_prior(camera, where),
         lattice_radii_cm=tuple(
             float(r) for r in camera.get("lattice_radii_cm", Profile.lattice_radii_cm)
         ),
@@ -275,6 +292,7 @@ box_max_cm = [36.86, 36.86, 92.40]
 roll_deg = [-180.0, 180.0]      # hand-held: any roll about the optical axis
 focal_scale = [0.35, 0.9]       # fx / width of webcams and phones, x the SPEC camera's
 distortion_k1 = [-0.45, 0.1]
+focal_prior = 0.8               # the fx a photo is posed with where its view cannot tell
 lattice_radii_cm = [20.0, 30.0, 40.0, 50.0, 60.0, 70.0, 80.0, 90.0, 100.0]
 lattice_heights_cm = [0.0, 10.0, 20.0, 30.0, 40.0]
 lattice_points = 400

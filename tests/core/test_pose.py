@@ -89,6 +89,9 @@ def test_more_views_narrow_the_focal_range_and_it_holds_the_truth() -> None:
 def test_one_head_on_view_keeps_the_prior_and_says_the_range_is_wide() -> None:
     fx, (lo, hi) = estimate_focal(_view([0.0, 0.0, 60.0], noise=0.5), OBJ, SIZE)
     assert fx == pytest.approx(focal_prior(SIZE)) and hi / lo > 2.0
+    # an object's own prior (its profile's) is the one a head-on view keeps
+    longer, _ = estimate_focal(_view([0.0, 0.0, 60.0], noise=0.5), OBJ, SIZE, prior=1.0)
+    assert longer == pytest.approx(focal_prior(SIZE, 1.0)) and longer > fx
 
 
 def test_one_camera_is_fitted_from_noisy_views_and_an_outlier_is_dropped() -> None:

@@ -10,6 +10,7 @@ import numpy as np
 import onnx
 import pytest
 
+from service.core.pose import FOCAL_PRIOR
 from service.model import ModelLoadError, PoseModel
 from service.predictor import Predictor
 from service.settings import DEFAULT_MODEL, Settings
@@ -173,3 +174,13 @@ def _png(w: int, h: int) -> bytes:
     ok, buf = cv2.imencode(".png", np.full((h, w, 3), 90, np.uint8))
     assert ok
     return buf.tobytes()
+
+
+def test_the_focal_prior_is_the_cards_object_profiles(tmp_path: Path) -> None:
+    card = json.loads(DEFAULT_MODEL.with_suffix(".json").read_text())
+    assert PoseModel.load(DEFAULT_MODEL).focal_prior == card["camera_model"]["focal_prior_x_spec"]
+    card["camera_model"]["focal_prior_x_spec"] = 1.0
+    assert PoseModel.load(_with_card(tmp_path, card)).focal_prior == 1.0
+    for unusable in (7.0, "long", None):  # outside the bounds, not a number: the project's
+        card["camera_model"]["focal_prior_x_spec"] = unusable
+        assert PoseModel.load(_with_card(tmp_path, card)).focal_prior == FOCAL_PRIOR

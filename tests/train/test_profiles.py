@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 
 from service.core.geometry import look_at, roll_of_pose
 from service.core.paths import ASSETS_DIR
+from service.core.pose import FOCAL_PRIOR
 from service.core.profile import PROFILES_DIR, ProfileError, load_profile
 from service.core.regions import pose_class
 from train.real.realset import measure_rolls
@@ -57,6 +58,7 @@ def test_name_defaults_to_folder(tmp_path):
     folder = _copy_profile(tmp_path, 'texture = "texture.png"\nwidth_cm = 25\nheight_cm = 17.5\n')
     p = load_profile(folder)
     assert p.name == "obj" and p.roll_deg == (0.0, 0.0) and p.geometry.z_split_cm == 60.0
+    assert p.focal_prior == FOCAL_PRIOR and p.manifest_entry()["focal_prior"] == FOCAL_PRIOR
 
 
 def test_unknown_profile():
@@ -92,6 +94,14 @@ def test_unreadable_texture(tmp_path):
             r"no point in class\(es\) \[5, 6, 7, 8\]",
         ),
         ("texture = \n", "not a readable TOML"),
+        (
+            'texture = "texture.png"\nwidth_cm = 25\nheight_cm = 1\n[camera]\nfocal_prior = 3\n',
+            r"focal_prior must be a number from 0.4 to 1.2",
+        ),
+        (
+            'texture = "texture.png"\nwidth_cm = 25\nheight_cm = 1\n[camera]\nfocal_prior = "x"\n',
+            r"focal_prior must be a number",
+        ),
     ],
 )
 def test_bad_profiles(tmp_path, body, message):

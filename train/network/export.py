@@ -129,15 +129,16 @@ def _data_summary(data: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return [{k: d[k] for k in keys if k in d} for d in data]
 
 
-def _camera_card() -> dict[str, Any]:
+def _camera_card(profile: dict[str, Any]) -> dict[str, Any]:
     """The keypoint graph's camera model (`train.network.keypoint`): constants of the geometry
-    after the corners, baked into the graph when it is exported (docs/camera_model.md)."""
+    after the corners, baked into the graph when it is exported (docs/camera_model.md); the
+    focal-length prior is the object's (its card's `profile`, `service.core.profile`)."""
     from train.network import keypoint
     from train.network.align import CheckerAlign
 
     align = CheckerAlign(keypoint.SIZE)
     return {
-        "focal_prior_x_spec": keypoint.FOCAL_PRIOR,
+        "focal_prior_x_spec": float(profile.get("focal_prior", keypoint.FOCAL_PRIOR)),
         "focal_prior_weight": keypoint.FOCAL_PRIOR_WEIGHT,
         "focal_bounds_x_spec": list(keypoint.FOCAL_BOUNDS),
         # a fitted k1 below it shortens the focal prior (`KeypointNet.prior_focal`)
@@ -153,10 +154,11 @@ def _camera_card() -> dict[str, Any]:
     }
 
 
-def _io_card(keypoint: bool) -> dict[str, Any]:
+def _io_card(keypoint: bool, profile: dict[str, Any]) -> dict[str, Any]:
     """The card's `input_format` and `output`: the graph's inputs and outputs (module doc),
-    and for a keypoint graph its `camera_model`."""
-    return ({"camera_model": _camera_card()} if keypoint else {}) | {**io_description(keypoint)}
+    and for a keypoint graph its `camera_model` (of the card's `profile`)."""
+    camera = {"camera_model": _camera_card(profile)} if keypoint else {}
+    return camera | {**io_description(keypoint)}
 
 
 def build_card(
@@ -206,7 +208,7 @@ def build_card(
         "date": datetime.now(UTC).isoformat(timespec="seconds"),
         "architecture": ARCHITECTURES[arch],
         "input": list(checkpoint["size"]),
-        **_io_card(keypoint),
+        **_io_card(keypoint, profile),
         "classes": [
             {"id": k, "label": region_of_class(k)["label"], "description": descriptions[k]}
             for k in range(NUM_CLASSES)
@@ -339,7 +341,8 @@ def recard(
     raw = onnx_path.read_bytes()
     if version is not None:
         raw = regraph(onnx_path)
-        card |= {"version": version, "regraphed_from": card.get("version")} | _io_card(True)
+        regraphed = {"version": version, "regraphed_from": card.get("version")}
+        card |= regraphed | _io_card(True, card.get("profile", {}))
     if eval_datasets:
         card |= {"name": name}
         predict = _graph_predictor(raw, card)

@@ -22,6 +22,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from service.core.inputs import SIZES
+from service.core.pose import FOCAL_PRIOR
 from service.core.regions import NUM_CLASSES
 from train.network.base import NormalisedNet
 from train.network.config import CORNER_ARCHS, Arch, canonical_arch
@@ -162,9 +163,9 @@ def build_network(
     arch: str, size: tuple[int, int], batch_norm: bool = True, profile: dict[str, Any] | None = None
 ) -> NormalisedNet:
     """A fresh network of architecture `arch` for input `size` (W, H); `profile` (a data set
-    manifest's profile: width_cm, height_cm, z_split_cm) sets the geometry
-    and the texture (`train.network.pattern`) of the corner network (default: the
-    chessboard's)."""
+    manifest's profile: width_cm, height_cm, z_split_cm, focal_prior) sets the geometry, the
+    focal-length prior and the texture (`train.network.pattern`) of the corner network
+    (default: the chessboard's)."""
     if arch == "spec":
         return PoseNet(size, batch_norm=batch_norm)
     if arch == "convnet":
@@ -179,6 +180,7 @@ def build_network(
             size,
             board_cm=(w_cm, h_cm),
             z_split_cm=float(profile["z_split_cm"]),
+            focal_scale=float(profile.get("focal_prior", FOCAL_PRIOR)),
             stride=stride,
             pattern=pattern_of(profile),
         )

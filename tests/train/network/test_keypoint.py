@@ -14,6 +14,7 @@ from torch import nn
 
 from service.core.blur import blur_image
 from service.core.geometry import intrinsics, look_at, project_points, translation
+from service.core.pose import FOCAL_PRIOR
 from service.core.profile import load_profile
 from service.core.regions import pose_class
 from train.network import keypoint
@@ -299,6 +300,11 @@ def test_training_mode_outputs_and_build():
         KeypointNet(stride=3)
     with pytest.raises(ValueError, match="cannot read the profile's texture"):
         build_network("corners", (160, 120), profile=profile | {"texture": "none.png"})
+    # the focal-length prior is the profile's (x the SPEC camera's), the project's without one
+    spec_f = float(intrinsics((160, 120))[0, 0])
+    assert float(net.focal) == pytest.approx(FOCAL_PRIOR * spec_f)
+    longer = build_network("corners-coarse", (160, 120), profile=profile | {"focal_prior": 1.0})
+    assert float(longer.focal) == pytest.approx(spec_f)
 
 
 def test_stride_2_heat_maps_and_growing_from_a_stride_4_network():

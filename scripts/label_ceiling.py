@@ -1,0 +1,111 @@
+"""What four corners can tell of a data set's classes: its labels re-posed from their corners.
+
+Each image of a data set with the object in view is posed again from its labelled corners
+(labels.csv `corner_x0..y3`, px of the set's images) with its own camera (the labels' `fx`,
+`fy`, `cx`, `cy` of a real photo, else the SPEC camera times `focal_scale`; and `k1`, the
+one-coefficient radial lens the corner network models), by IPPE, and classed as the labels
+are (SPEC section 3): exactly, then with the corners moved by Gaussian noise of 0.25 / 0.5 /
+1 px per coordinate (px of the 160-px-wide network input; 0.5 is the default model's noise on
+real photos, `service.core.pose.CORNER_NOISE_INPUT_PX`; 16 seeded draws each). With the margin
+of the camera centres from the region boundaries, this says how much of a set's accuracy a
+corner method can reach, whatever network finds the corners: a photo whose labels came from
+more corners or a richer lens model than these need not come out the same.
+
+    python scripts/label_ceiling.py runs/charuco/data/real-s2-b0 --split test
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from service.core.dataset import DatasetError, load_dataset
+from service.core.frame import object_corners
+from service.core.geometry import intrinsics
+from service.core.regions import boundary_margin_cm, pose_class
+from train.markdown import table
+
+NOISE_PX = (0.25, 0.5, 1.0)  # per coordinate, px of a 160-px-wide image
+DRAWS = 16
+
+
+def camera_of(row: dict[str, str], size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """A labels.csv row -> (K [3, 3], OpenCV distortion (k1, 0, 0, 0, 0)) of its image."""
+    if row.get("fx"):
+        fx, fy, cx, cy = (float(row[k]) for k in ("fx", "fy", "cx", "cy"))
+        K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+    else:
+        K = intrinsics(size, float(row.get("focal_scale") or 1.0))
+    return K, np.array([float(row.get("k1") or 0.0), 0.0, 0.0, 0.0, 0.0])
+
+
+def posed_class(
+    corners: np.ndarray, obj: np.ndarray, K: np.ndarray, dist: np.ndarray, z_split: float
+) -> int:
+    """Corners [4, 2] px -> the class of the camera centre IPPE poses them at."""
+    ok, rvec, tvec = cv2.solvePnP(obj, corners.reshape(-1, 1, 2), K, dist, flags=cv2.SOLVEPNP_IPPE)
+    centre = (-cv2.Rodrigues(rvec)[0].T @ tvec).ravel()
+    return int(pose_class(centre[None], z_split)[0]) if ok else 0
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("data", type=Path, help="a data set folder (labels.csv with corners)")
+    parser.add_argument("--split", default="test", help="train, val, test or all")
+    args = parser.parse_args()
+    try:
+        data = load_dataset(args.data, split=None if args.split == "all" else args.split)
+    except DatasetError as exc:
+        sys.exit(f"error: {exc}")
+    profile = data.manifest.get("profile") or {}
+    if "width_cm" not in profile or "corner_x0" not in (data.rows[0] if data.rows else {}):
+        sys.exit(f"error: {args.data} has no object size or no labelled corners")
+    obj = object_corners(float(profile["width_cm"]), float(profile["height_cm"]), z=True)
+    z_split = float(profile.get("z_split_cm", 60.0))
+    size = (int(data.manifest["size"][0]), int(data.manifest["size"][1]))
+    rows = [r for r in data.rows if int(r["class"]) > 0]
+    if not rows:
+        sys.exit(f"error: no image of {args.data} ({args.split}) shows the object")
+    labels = np.array([int(r["class"]) for r in rows])
+    centres = np.array([[float(r[k]) for k in ("cam_x", "cam_y", "cam_z")] for r in rows])
+    margins = boundary_margin_cm(centres, z_split)
+    rng = np.random.default_rng(0)
+    right = {noise: np.zeros(len(rows)) for noise in (0.0, *NOISE_PX)}
+    for i, row in enumerate(rows):
+        corners = np.array([[float(row[f"corner_{a}{k}"]) for a in "xy"] for k in range(4)])
+        K, dist = camera_of(row, size)
+        for noise, hits in right.items():
+            draws = 1 if noise == 0 else DRAWS
+            jitter = rng.normal(0.0, noise * size[0] / 160.0, (draws, 4, 2))
+            hits[i] = np.mean(
+                [posed_class(corners + d, obj, K, dist, z_split) == labels[i] for d in jitter]
+            )
+    bands = {
+        "margin 0-2 cm": margins < 2,
+        "margin 2-5 cm": (margins >= 2) & (margins < 5),
+        "margin 5+ cm": margins >= 5,
+    }
+    shares = ", ".join(f"{100 * b.mean():.0f} % at {name}" for name, b in bands.items())
+    lines = [
+        f"{args.data} ({args.split}): {len(rows)} images with the object; {shares}; class % "
+        "re-posed from the labelled corners with each image's fx and k1:",
+        "",
+    ]
+    cells = [
+        [
+            "exact" if noise == 0 else f"+ {noise:g} px noise",
+            *(f"{100 * hits[b].mean():.1f}" if b.any() else "-" for b in bands.values()),
+            f"{100 * hits.mean():.1f}",
+        ]
+        for noise, hits in right.items()
+    ]
+    header = ["corners", *bands, "all"]
+    print("\n".join(lines + table(header, cells)))
+
+
+if __name__ == "__main__":
+    main()
