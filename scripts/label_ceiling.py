@@ -11,7 +11,8 @@ of the camera centres from the region boundaries, this says how much of a set's 
 corner method can reach, whatever network finds the corners: a photo whose labels came from
 more corners or a richer lens model than these need not come out the same.
 
-    python scripts/label_ceiling.py runs/charuco/data/real-s2-b0 --split test
+    python scripts/label_ceiling.py runs/charuco/data/real-s2-b0 runs/default/data/real-s2-b0 \
+        --split test --out docs/label_ceiling.md
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ from service.core.dataset import DatasetError, load_dataset
 from service.core.frame import object_corners
 from service.core.geometry import intrinsics
 from service.core.regions import boundary_margin_cm, pose_class
-from train.markdown import table
+from train.markdown import table, written_by
 
 NOISE_PX = (0.25, 0.5, 1.0)  # per coordinate, px of a 160-px-wide image
 DRAWS = 16
@@ -52,24 +53,18 @@ def posed_class(
     return int(pose_class(centre[None], z_split)[0]) if ok else 0
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("data", type=Path, help="a data set folder (labels.csv with corners)")
-    parser.add_argument("--split", default="test", help="train, val, test or all")
-    args = parser.parse_args()
-    try:
-        data = load_dataset(args.data, split=None if args.split == "all" else args.split)
-    except DatasetError as exc:
-        sys.exit(f"error: {exc}")
+def ceiling(folder: Path, split: str) -> list[str]:
+    """One data set's section of the page: its margins and the table of class % re-posed."""
+    data = load_dataset(folder, split=None if split == "all" else split)
     profile = data.manifest.get("profile") or {}
     if "width_cm" not in profile or "corner_x0" not in (data.rows[0] if data.rows else {}):
-        sys.exit(f"error: {args.data} has no object size or no labelled corners")
+        raise DatasetError(f"{folder} has no object size or no labelled corners")
     obj = object_corners(float(profile["width_cm"]), float(profile["height_cm"]), z=True)
     z_split = float(profile.get("z_split_cm", 60.0))
     size = (int(data.manifest["size"][0]), int(data.manifest["size"][1]))
     rows = [r for r in data.rows if int(r["class"]) > 0]
     if not rows:
-        sys.exit(f"error: no image of {args.data} ({args.split}) shows the object")
+        raise DatasetError(f"no image of {folder} ({split}) shows the object")
     labels = np.array([int(r["class"]) for r in rows])
     centres = np.array([[float(r[k]) for k in ("cam_x", "cam_y", "cam_z")] for r in rows])
     margins = boundary_margin_cm(centres, z_split)
@@ -90,11 +85,6 @@ def main() -> None:
         "margin 5+ cm": margins >= 5,
     }
     shares = ", ".join(f"{100 * b.mean():.0f} % at {name}" for name, b in bands.items())
-    lines = [
-        f"{args.data} ({args.split}): {len(rows)} images with the object; {shares}; class % "
-        "re-posed from the labelled corners with each image's fx and k1:",
-        "",
-    ]
     cells = [
         [
             "exact" if noise == 0 else f"+ {noise:g} px noise",
@@ -103,8 +93,41 @@ def main() -> None:
         ]
         for noise, hits in right.items()
     ]
-    header = ["corners", *bands, "all"]
-    print("\n".join(lines + table(header, cells)))
+    return [
+        f"## {folder.name} ({profile.get('name', '?')}, {split} split)",
+        "",
+        f"{len(rows)} images with the object; {shares}.",
+        "",
+        *table(["corners", *bands, "all"], cells),
+        "",
+    ]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("data", type=Path, nargs="+", help="data set folders (labels.csv)")
+    parser.add_argument("--split", default="test", help="train, val, test or all")
+    parser.add_argument("--out", type=Path, help="also write the page here (Markdown)")
+    args = parser.parse_args()
+    folders = " ".join(str(f) for f in args.data)
+    lines = [
+        "# What four corners can tell: each set's classes re-posed from its labelled corners",
+        "",
+        written_by(f"python scripts/label_ceiling.py {folders} --split {args.split}")
+        + " Class % of the images with the object, posed by IPPE from the labelled corners "
+        "with each image's own fx and k1 (the lens the corner network models), exactly and "
+        "with Gaussian noise per coordinate (px of a 160-px-wide input; 16 draws), by the "
+        "camera centre's margin from the region boundaries (module doc).",
+        "",
+    ]
+    try:
+        for folder in args.data:
+            lines += ceiling(folder, args.split)
+    except DatasetError as exc:
+        sys.exit(f"error: {exc}")
+    if args.out:
+        args.out.write_text("\n".join(lines), encoding="utf-8")
+    print("\n".join(lines))
 
 
 if __name__ == "__main__":
