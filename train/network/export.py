@@ -162,14 +162,9 @@ def _io_card(keypoint: bool, profile: dict[str, Any]) -> dict[str, Any]:
     not show) or "texture" (an object's own, which some backgrounds match in part)."""
     if not keypoint:
         return {**io_description(keypoint)}
-    camera = {"camera_model": _camera_card(profile), "pattern": _pattern_kind(profile)}
-    return camera | io_description(keypoint)
-
-
-def _pattern_kind(profile: dict[str, Any]) -> str:
-    """What a keypoint graph's `pattern` output reads (`_io_card`): "checker" or "texture"."""
     pattern = pattern_of(profile)
-    return "texture" if pattern is not None and not pattern.checker else "checker"
+    kind = "texture" if pattern is not None and not pattern.checker else "checker"
+    return {"camera_model": _camera_card(profile), "pattern": kind} | io_description(keypoint)
 
 
 def build_card(
@@ -356,9 +351,6 @@ def recard(
         card |= regraphed | _io_card(True, card.get("profile", {}))
     if eval_datasets:
         card |= {"name": name}
-        arch = canonical_arch(str(card.get("architecture", "")).split(":")[0])
-        if arch in CORNER_ARCHS:  # a keypoint graph's card, maybe from before `pattern`
-            card["pattern"] = _pattern_kind(card.get("profile", {}))
         predict = _graph_predictor(raw, card)
         card["accuracy"] = accuracy_on(predict, eval_datasets, split)
         card.pop("accuracy_val", None)
