@@ -91,14 +91,6 @@ class PoseModel:
         return self.takes_view and self.pattern_name is not None and self.corners_name is not None
 
     @property
-    def searches(self) -> bool:
-        """Whether the zoom pass may search tiles of a frame where no object was found: where
-        the `pattern` output tells the object from backgrounds, the chessboard's checker (the
-        card's `pattern`; cards without one are the chessboard's). An object's own texture
-        is matched in part by some backgrounds, enough for a tile to answer present."""
-        return self.zooms and self.card.get("pattern", "checker") == "checker"
-
-    @property
     def name(self) -> str:
         return str(self.card["name"])
 

@@ -19,16 +19,14 @@ input's crop enlarged (bicubic): no new pixels, only a scale the network reads b
 * board not found (with `search`, the default): the `search_tiles` half-size tiles of a 3x3
   grid (default `SEARCH_TILES` = 1) centred nearest the whole frame's corners, which the
   network gives even when it says absent (its best guess of where a board would be); the one
-  with the strongest pattern answers if it says present (only for models whose pattern is
-  the checker, `PoseModel.searches`: an object's own texture is matched in part by some
-  backgrounds, 0.65-0.95 on the book's class-0 renders). On the real val sources the search
+  with the strongest pattern answers if it says present. On the real val sources the search
   found 10 boards the whole frame missed at blur 0; the tile nearest that guess answered all
   that all nine tiles answered (docs/service.md, "Zoom"), for 1 input instead of 9. The
   presence logit does not count in tiles: on photos without a board it fires on some tile of
   nine, the checker pattern does not.
 
 Cost: 2 inputs for a board that is not large, 1 + `search_tiles` for an image without one (1
-without `search` or for a model that does not search), 1 for a large board.
+without `search`), 1 for a large board.
 """
 
 from __future__ import annotations
@@ -138,8 +136,7 @@ def zoomed(
     """The whole-frame answer of `model` on float32 [N, 3, H, W] in [0, 1] (and its pixel
     aspect [N] and the known focal lengths [N], `PoseModel.run`), with the zoom pass where
     it applies (module doc; `search`: also in the `search_tiles` tiles nearest the corners'
-    guess of the images where no board was found, 1 to `GRID` * `GRID`, where the model
-    `searches`; `detail`: per image
+    guess of the images where no board was found, 1 to `GRID` * `GRID`; `detail`: per image
     its frame at twice the input size, or None, `detail_of`) -> `Answer` (probabilities
     [N, 9], corners [N, 4, 2] in input pixels, pattern [N]). A model without `view` and
     `pattern` (`PoseModel.zooms`) gives its whole-frame answer."""
@@ -157,7 +154,7 @@ def zoomed(
         if p_absent < PRESENT:
             view = closer_view(corners, model.input_size)
             chosen = [] if view is None else [view]
-        elif search and model.searches:
+        elif search:
             chosen = list(tiles[search_order(corners, tiles, model.input_size)[:search_tiles]])
         else:
             chosen = []

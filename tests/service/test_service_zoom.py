@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from dataclasses import replace
 from typing import Any
 
 import cv2
@@ -169,12 +168,6 @@ def test_no_board_looks_at_the_guessed_tile_and_stays_absent(model: PoseModel) -
     unsearched = zoomed(spy, batch, np.ones(2, np.float32), search=False)  # type: ignore[arg-type]
     assert [n for n, _ in spy.calls] == [2]  # the whole frames only
     assert np.allclose(unsearched.probabilities, model.run(batch).probabilities, atol=1e-6)
-    # a model whose pattern is its object's own texture does not search (`PoseModel.searches`)
-    textured = replace(model, card=model.card | {"pattern": "texture"})
-    assert model.searches and not textured.searches
-    spy = Spy(textured)
-    zoomed(spy, batch, np.ones(2, np.float32))  # type: ignore[arg-type]
-    assert [n for n, _ in spy.calls] == [2]
 
 
 def test_a_model_without_the_view_input_answers_the_whole_frame() -> None:

@@ -57,8 +57,6 @@ def test_from_a_picture_to_a_served_model(tmp_path: Path) -> None:
     assert card["profile"]["name"] == "poster" and set(card["accuracy"]) == {
         f"free-s2-b{b}" for b in range(4)
     }
-    # the poster's own texture is its pattern, its focal prior the profile's (the default)
-    assert card["pattern"] == "texture" and card["camera_model"]["focal_prior_x_spec"] == 0.8
     # run again: every step is done, the model is written again from the same weights
     result = runner.invoke(app, [*train, "--models", str(models), *budget, "--no-bf16"])
     assert (

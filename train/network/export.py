@@ -41,7 +41,6 @@ from service.core.paths import REPO_ROOT
 from service.core.profile import load_profile
 from service.core.regions import NUM_CLASSES, Z_SPLIT_CM, class_descriptions, region_of_class
 from train.network.config import CORNER_ARCHS, canonical_arch
-from train.network.pattern import pattern_of
 
 OPSET = 17
 #: What the card says of each architecture (train.network.model.build_network).
@@ -157,14 +156,9 @@ def _camera_card(profile: dict[str, Any]) -> dict[str, Any]:
 
 def _io_card(keypoint: bool, profile: dict[str, Any]) -> dict[str, Any]:
     """The card's `input_format` and `output`: the graph's inputs and outputs (module doc),
-    and for a keypoint graph its `camera_model` and what its `pattern` output reads (of the
-    card's `profile`): "checker" (the 10 x 7 chessboard's, which photos without the board do
-    not show) or "texture" (an object's own, which some backgrounds match in part)."""
-    if not keypoint:
-        return {**io_description(keypoint)}
-    pattern = pattern_of(profile)
-    kind = "texture" if pattern is not None and not pattern.checker else "checker"
-    return {"camera_model": _camera_card(profile), "pattern": kind} | io_description(keypoint)
+    and for a keypoint graph its `camera_model` (of the card's `profile`)."""
+    camera = {"camera_model": _camera_card(profile)} if keypoint else {}
+    return camera | {**io_description(keypoint)}
 
 
 def build_card(

@@ -185,7 +185,6 @@ def test_a_keypoint_graph_is_regraphed_with_the_zoom_inputs(tmp_path):
         "focal",
     ]
     assert card["camera_model"]["focal_prior_x_spec"] == keypoint.FOCAL_PRIOR
-    assert card["pattern"] == "checker"  # the default's, which the zoom pass searches with
     assert card["camera_model"]["focal_prior_barrel_limit"] == keypoint.BARREL_LIMIT
     photos = sorted(REAL.glob("*.jpg"))[:4]
     x = np.stack([to_network_input(read_rgb(p), (160, 120)) for p in photos])
