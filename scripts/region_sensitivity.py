@@ -1,4 +1,4 @@
-"""What four corners can tell of a data set's classes: its labels re-posed from their corners.
+"""How the labelled regions hold up when posed again from four corners, exact and noisy.
 
 Each image of a data set with the object in view is posed again from its labelled corners
 (labels.csv `corner_x0..y3`, px of the set's images) with its own camera (the labels' `fx`,
@@ -7,12 +7,14 @@ one-coefficient radial lens the corner network models), by IPPE, and classed as 
 are (SPEC section 3): exactly, then with the corners moved by Gaussian noise of 0.25 / 0.5 /
 1 px per coordinate (px of the 160-px-wide network input; 0.5 is the default model's noise on
 real photos, `service.core.pose.CORNER_NOISE_INPUT_PX`; 16 seeded draws each). With the margin
-of the camera centres from the region boundaries, this says how much of a set's accuracy a
-corner method can reach, whatever network finds the corners: a photo whose labels came from
-more corners or a richer lens model than these need not come out the same.
+of the camera centres from the region boundaries, this says how sensitive a set's regions
+are to its corners: near a boundary a fraction of a pixel decides. It is not a bound on a
+model: a real photo's labels came from more of its corners and its full lens model, which
+these four corners and k1 do not reproduce exactly (the exact row), and a model fits its own
+lens.
 
-    python scripts/label_ceiling.py runs/charuco/data/real-s2-b0 runs/default/data/real-s2-b0 \
-        --split test --out docs/label_ceiling.md
+    python scripts/region_sensitivity.py runs/charuco/data/real-s2-b0 runs/default/data/real-s2-b0 \
+        --split test --out docs/region_sensitivity.md
 """
 
 from __future__ import annotations
@@ -111,9 +113,9 @@ def main() -> None:
     args = parser.parse_args()
     folders = " ".join(str(f) for f in args.data)
     lines = [
-        "# What four corners can tell: each set's classes re-posed from its labelled corners",
+        "# How the labelled regions hold up when posed again from the labelled corners",
         "",
-        written_by(f"python scripts/label_ceiling.py {folders} --split {args.split}")
+        written_by(f"python scripts/region_sensitivity.py {folders} --split {args.split}")
         + " Class % of the images with the object, posed by IPPE from the labelled corners "
         "with each image's own fx and k1 (the lens the corner network models), exactly and "
         "with Gaussian noise per coordinate (px of a 160-px-wide input; 16 draws), by the "

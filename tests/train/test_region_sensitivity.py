@@ -1,4 +1,4 @@
-"""scripts/label_ceiling.py: renders of the SPEC camera come back exactly from their corners."""
+"""scripts/region_sensitivity.py: SPEC-camera renders come back exactly from their corners."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from service.core.paths import REPO_ROOT
 from service.core.profile import load_profile
 from train.synth.generate import DatasetSpec, make_dataset
 
-SCRIPT = REPO_ROOT / "scripts" / "label_ceiling.py"
+SCRIPT = REPO_ROOT / "scripts" / "region_sensitivity.py"
 
 
 def test_exact_corners_of_renders_give_their_classes_and_noise_costs(tmp_path):
