@@ -11,6 +11,7 @@ import pytest
 from fastapi.testclient import TestClient
 from service_support import AppFactory
 
+from service.core.inputs import spec_fx
 from service.core.paths import ASSETS_DIR
 
 SOURCE = ASSETS_DIR / "real/corpus/boards/a-pipi__python_stereo_camera_calibrate__left"
@@ -119,3 +120,19 @@ def test_a_model_without_corners_gives_no_pose(app_factory: AppFactory) -> None:
     with app_factory(model_path=spec) as c:
         (result,) = answer(c, "", ROWS[:1])
     assert result["pose"] is None and result["corners"] is None
+
+
+def test_a_head_on_view_keeps_its_models_own_focal_prior(client: TestClient) -> None:
+    """The book's profile states the SPEC camera's focal length as its prior, the chessboard's
+    model the project's 0.8 x: a photo that says nothing of its lens is posed with it."""
+    book = cv2.imread(str(ASSETS_DIR / "profiles/book/texture.png"))
+    frame = np.full((480, 640, 3), 128, np.uint8)
+    h, w = 300, round(300 * book.shape[1] / book.shape[0])
+    frame[90 : 90 + h, 320 - w // 2 : 320 - w // 2 + w] = cv2.resize(book, (w, h))
+    image = ("image", ("book.png", cv2.imencode(".png", frame)[1].tobytes(), "image/png"))
+    r = client.post("/v1/predict?model=book-corners-160x120", files=[image])
+    assert r.status_code == 200, r.text
+    pose = r.json()["results"][0]["pose"]
+    spec_f = float(spec_fx(640))
+    lo, hi = pose["fx_range"]
+    assert lo < spec_f < hi and pose["fx"] == pytest.approx(spec_f, rel=1e-3)
