@@ -79,12 +79,20 @@ def profile_of(folder: Path, override: str | None) -> Any:
 
 
 def same_object(card: dict, folder: Path) -> bool:
-    """False when the model card and the data set name different object profiles."""
+    """False when the model card and the data set name different objects: profiles of other
+    names, unless they share the texture and the size (the same object seen by another
+    camera, as `chessboard-spec` or `book-spec`)."""
     model_profile = card.get("profile", {})
     data_profile = manifest_of(folder).get("profile", {})
-    a = model_profile.get("name") if isinstance(model_profile, dict) else None
-    b = data_profile.get("name") if isinstance(data_profile, dict) else None
-    return a is None or b is None or a == b
+    if not isinstance(model_profile, dict) or not isinstance(data_profile, dict):
+        return True
+    a, b = model_profile.get("name"), data_profile.get("name")
+    if a is None or b is None or a == b:
+        return True
+    keys = ("texture", "width_cm", "height_cm")
+    return all(model_profile.get(k) is not None for k in keys) and all(
+        model_profile.get(k) == data_profile.get(k) for k in keys
+    )
 
 
 def finetuned_on_real(card: dict) -> bool | None:

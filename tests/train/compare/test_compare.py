@@ -16,7 +16,7 @@ from service.settings import DEFAULT_MODEL
 from train.cli import app
 from train.compare.detection import detection_variants
 from train.compare.run import camera_focal
-from train.compare.sets import encode_png
+from train.compare.sets import encode_png, same_object
 from train.markdown import pct_cell
 from train.network.evaluate import evaluate_predictor, model_predictor, onnx_predictor
 from train.real.calibration import Calibration
@@ -201,3 +201,20 @@ def test_resize_runs_a_model_on_the_data_sets_of_another_size(tmp_path):
     assert results["--no-resize"][NAME] == {}  # no set of its size
     assert "of its input size and its object only" in texts["--no-resize"]
     assert "resized to its input" in texts["--resize"]
+
+
+def test_the_same_object_is_its_name_or_its_texture_and_size(tmp_path: Path) -> None:
+    """A model is compared on its object's data sets: another profile name is another object
+    unless the texture and the size are the same (the object seen by another camera)."""
+    book = {"name": "book", "texture": "t/book.png", "width_cm": 15.0, "height_cm": 21.0}
+    cases = [
+        ({"name": "book"}, True),
+        (book | {"name": "book-spec"}, True),
+        (book | {"name": "poster", "texture": "t/poster.png"}, False),
+        (book | {"name": "book-a5", "width_cm": 14.8}, False),
+    ]
+    for i, (profile, same) in enumerate(cases):
+        folder = tmp_path / str(i)
+        folder.mkdir()
+        (folder / "manifest.json").write_text(json.dumps({"profile": profile}))
+        assert same_object({"profile": book}, folder) is same, profile
