@@ -24,7 +24,7 @@ from service.core.onnx_contract import (
     UNDISTORTED,
     VIEW,
 )
-from service.core.pose import FOCAL_BOUNDS, FOCAL_PRIOR
+from service.core.pose import FOCAL_PRIOR, is_focal_prior
 from service.core.regions import NUM_CLASSES
 
 #: Runs of more inputs than this give the memory onnxruntime's arena took for them back
@@ -113,10 +113,7 @@ class PoseModel:
         project's `FOCAL_PRIOR` where the card does not state one."""
         camera = self.card.get("camera_model")
         value = camera.get("focal_prior_x_spec") if isinstance(camera, dict) else None
-        lo, hi = FOCAL_BOUNDS
-        if isinstance(value, int | float) and not isinstance(value, bool) and lo <= value <= hi:
-            return float(value)
-        return FOCAL_PRIOR
+        return float(value) if is_focal_prior(value) else FOCAL_PRIOR
 
     @classmethod
     def load(

@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TypeGuard
 
 import cv2
 import numpy as np
@@ -115,6 +116,13 @@ def focal_prior(size: tuple[int, int], scale: float = FOCAL_PRIOR) -> float:
     """The prior focal length (px) for an image of `size` (W, H): `scale` (the model's object
     profile's, `service.core.profile`) x the SPEC camera's fx at the image's longer side."""
     return scale * spec_fx(max(size))
+
+
+def is_focal_prior(value: object) -> TypeGuard[float]:
+    """Whether `value` can be a model's focal-length prior: a number (x the SPEC camera's fx)
+    within the `FOCAL_BOUNDS` its estimate keeps to."""
+    lo, hi = FOCAL_BOUNDS
+    return isinstance(value, int | float) and not isinstance(value, bool) and lo <= value <= hi
 
 
 def _as_points(corners: np.ndarray) -> np.ndarray:

@@ -46,7 +46,7 @@ import numpy as np
 
 from service.core.geometry import camera_lattice
 from service.core.paths import ASSETS_DIR, repo_relative
-from service.core.pose import FOCAL_BOUNDS, FOCAL_PRIOR
+from service.core.pose import FOCAL_BOUNDS, FOCAL_PRIOR, is_focal_prior
 from service.core.regions import RegionGeometry, pose_class
 
 PROFILES_DIR = ASSETS_DIR / "profiles"
@@ -171,8 +171,8 @@ def _positive(table: dict[str, Any], key: str, where: str) -> float:
 
 def _focal_prior(camera: dict[str, Any], where: str) -> float:
     value = camera.get("focal_prior", FOCAL_PRIOR)
-    lo, hi = FOCAL_BOUNDS
-    if not isinstance(value, int | float) or isinstance(value, bool) or not lo <= value <= hi:
+    if not is_focal_prior(value):
+        lo, hi = FOCAL_BOUNDS
         raise ProfileError(
             f"{where}: focal_prior must be a number from {lo} to {hi} (x the SPEC camera's "
             f"focal length), got {value!r}"

@@ -158,7 +158,7 @@ def _io_card(keypoint: bool, profile: dict[str, Any]) -> dict[str, Any]:
     """The card's `input_format` and `output`: the graph's inputs and outputs (module doc),
     and for a keypoint graph its `camera_model` (of the card's `profile`)."""
     camera = {"camera_model": _camera_card(profile)} if keypoint else {}
-    return camera | {**io_description(keypoint)}
+    return camera | io_description(keypoint)
 
 
 def build_card(
