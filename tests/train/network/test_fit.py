@@ -210,10 +210,12 @@ def test_bad_recipes(tmp_path, text, message):
 def test_shipped_recipes_are_valid_configs(recipe):
     config = load_config(recipe, {})
     # the chessboard's recipes run under runs/default (scripts/train_default.sh), another
-    # object's under runs/<object>
+    # object's under runs/<object> (or a later run's runs/<object>2, ...): one run folder
     root = "default" if recipe.stem.startswith("chessboard") else recipe.stem.split("-")[0]
-    assert config.datasets and config.out.parts[:3] == ("runs", root, "runs")
-    assert all(p.parts[:3] == ("runs", root, "data") for p in [*config.datasets, *config.select])
+    run = config.out.parts[1]
+    assert config.datasets and config.out.parts[::2] == ("runs", "runs")
+    assert run == root or (run.startswith(root) and run[len(root) :].isdigit())
+    assert all(p.parts[:3] == ("runs", run, "data") for p in [*config.datasets, *config.select])
 
 
 def test_the_training_device(tiny_set, tmp_path):
