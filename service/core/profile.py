@@ -127,6 +127,12 @@ class Profile:
         }
 
 
+def focal_prior_of(entry: dict[str, Any]) -> float:
+    """The focal prior (x the SPEC camera's) of a data set manifest's profile entry
+    (`Profile.manifest_entry`); the project's `FOCAL_PRIOR` for entries written before it."""
+    return float(entry.get("focal_prior", FOCAL_PRIOR))
+
+
 def available_profiles() -> list[str]:
     """Names of the profiles shipped under train/assets/profiles."""
     return sorted(p.parent.name for p in PROFILES_DIR.glob(f"*/{PROFILE_FILE}"))

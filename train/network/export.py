@@ -38,7 +38,7 @@ from service.core.onnx_contract import (
     io_description,
 )
 from service.core.paths import REPO_ROOT
-from service.core.profile import load_profile
+from service.core.profile import focal_prior_of, load_profile
 from service.core.regions import NUM_CLASSES, Z_SPLIT_CM, class_descriptions, region_of_class
 from train.network.config import CORNER_ARCHS, canonical_arch
 
@@ -138,7 +138,7 @@ def _camera_card(profile: dict[str, Any]) -> dict[str, Any]:
 
     align = CheckerAlign(keypoint.SIZE)
     return {
-        "focal_prior_x_spec": float(profile.get("focal_prior", keypoint.FOCAL_PRIOR)),
+        "focal_prior_x_spec": focal_prior_of(profile),
         "focal_prior_weight": keypoint.FOCAL_PRIOR_WEIGHT,
         "focal_bounds_x_spec": list(keypoint.FOCAL_BOUNDS),
         # a fitted k1 below it shortens the focal prior (`KeypointNet.prior_focal`)

@@ -22,7 +22,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from service.core.inputs import SIZES
-from service.core.pose import FOCAL_PRIOR
+from service.core.profile import focal_prior_of
 from service.core.regions import NUM_CLASSES
 from train.network.base import NormalisedNet
 from train.network.config import CORNER_ARCHS, Arch, canonical_arch
@@ -180,7 +180,7 @@ def build_network(
             size,
             board_cm=(w_cm, h_cm),
             z_split_cm=float(profile["z_split_cm"]),
-            focal_scale=float(profile.get("focal_prior", FOCAL_PRIOR)),
+            focal_scale=focal_prior_of(profile),
             stride=stride,
             pattern=pattern_of(profile),
         )
