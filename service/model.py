@@ -6,11 +6,14 @@ JSON in metadata_props `model_card` (or the `<name>.json` beside the file).
 
 from __future__ import annotations
 
+import base64
+import binascii
 import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 import onnxruntime as ort
 
@@ -21,11 +24,13 @@ from service.core.onnx_contract import (
     PATTERN,
     PIXEL_ASPECT,
     PROBABILITIES,
+    TEXTURE_KEY,
     UNDISTORTED,
     VIEW,
 )
 from service.core.pose import FOCAL_PRIOR, is_focal_prior
-from service.core.regions import NUM_CLASSES
+from service.core.refine import Texture
+from service.core.regions import NUM_CLASSES, Z_SPLIT_CM
 
 #: Runs of more inputs than this give the memory onnxruntime's arena took for them back
 #: when they end (a batch of 16 images grows it by ~70 MB, of 144 by ~640 MB, held for good
@@ -68,6 +73,22 @@ def _read_card(session: ort.InferenceSession, path: Path) -> dict[str, Any]:
     return card
 
 
+def _read_texture(session: ort.InferenceSession, path: Path) -> Texture | None:
+    """The object's texture from the ONNX metadata (`TEXTURE_KEY`: a base64 PNG), or None
+    where the model carries none; ModelLoadError where it is not a readable image."""
+    text = session.get_modelmeta().custom_metadata_map.get(TEXTURE_KEY)
+    if text is None:
+        return None
+    try:
+        data = np.frombuffer(base64.b64decode(text, validate=True), np.uint8)
+        rgb = cv2.imdecode(data, cv2.IMREAD_COLOR_RGB) if data.size else None
+    except (binascii.Error, cv2.error):
+        rgb = None
+    if rgb is None or min(rgb.shape[:2]) < 8:
+        raise ModelLoadError(f"{path}: metadata {TEXTURE_KEY!r} is not a PNG of the texture")
+    return Texture.of_rgb(rgb)
+
+
 @dataclass(frozen=True)
 class PoseModel:
     """One onnxruntime session (thread-safe, shared by all requests) and its card."""
@@ -84,6 +105,7 @@ class PoseModel:
     takes_view: bool = False  # whether the graph has the `view` input
     takes_focal: bool = False  # whether the graph has the `focal` input
     undistorted_name: str | None = None  # the optional undistorted corners output
+    texture: Texture | None = None  # the object's texture (metadata), for the refinement
 
     @property
     def zooms(self) -> bool:
@@ -105,6 +127,15 @@ class PoseModel:
         except (KeyError, TypeError, ValueError):
             return None
         return size if all(0 < v < 1e4 for v in size) else None
+
+    @property
+    def z_split_cm(self) -> float:
+        """The near / far split of the card's profile, cm (the SPEC's where not stated)."""
+        profile = self.card.get("profile")
+        value = profile.get("z_split_cm") if isinstance(profile, dict) else None
+        if isinstance(value, int | float) and not isinstance(value, bool) and 0 < value < 1e4:
+            return float(value)
+        return Z_SPLIT_CM
 
     @property
     def focal_prior(self) -> float:
@@ -194,6 +225,7 @@ class PoseModel:
             VIEW in defaults,
             FOCAL in defaults,
             None if flat_out is None else flat_out.name,
+            _read_texture(session, path) if corners_out is not None else None,
         )
 
     def _feeds(

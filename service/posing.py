@@ -10,7 +10,7 @@ lengths, and so of distances, the view allows.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -18,7 +18,7 @@ from service.cameras import KnownFocal
 from service.core.cells import RegionGrid
 from service.core.frame import object_corners
 from service.core.pose import FOCAL_PRIOR, Camera, corner_noise_px, estimate_focal, solve_pose
-from service.schemas import CellOut, CellShare, FocalSource, Pose
+from service.schemas import CellOut, CellShare, FocalSource, Lens, Pose
 
 #: Poses sampled for a cell's probabilities: the corners' noise and the focal range drawn.
 CELL_SAMPLES = 64
@@ -34,6 +34,7 @@ class Focal:
     camera: Camera
     source: FocalSource
     interval: tuple[float, float] | None = None
+    noise_px: float | None = None  # the corners' noise per coordinate, px (None: the network's)
 
 
 def focal_of(
@@ -42,22 +43,28 @@ def focal_of(
     size_cm: tuple[float, float],
     known: KnownFocal | None,
     prior: float = FOCAL_PRIOR,
+    noise_px: float | None = None,
 ) -> Focal:
-    """The focal length of one image of `size` (W, H) px: `known`'s, else estimated from its
-    corners [4, 2] px with the model's `prior` (x the SPEC camera's, `PoseModel.focal_prior`)."""
+    """The focal length of one image of `size` (W, H) px whose pinhole corners [4, 2] px
+    have `noise_px` of noise per coordinate (None: the network's, `corner_noise_px`):
+    `known`'s (its lens left out: the corners are a pinhole's), else estimated from the
+    corners with the model's `prior` (x the SPEC camera's, `PoseModel.focal_prior`)."""
     if known is not None:
-        return Focal(known.camera(size), known.source)
-    fx, interval = estimate_focal(corners, object_corners(*size_cm, z=True), size, prior)
-    return Focal(Camera(fx, size), "estimated", interval)
+        return Focal(replace(known.camera(size), dist=None), known.source, None, noise_px)
+    obj = object_corners(*size_cm, z=True)
+    fx, interval = estimate_focal(corners, obj, size, prior, noise_px)
+    return Focal(Camera(fx, size), "estimated", interval, noise_px)
 
 
 def _round(values: np.ndarray | list[float], digits: int = 3) -> list[float]:
     return [round(float(v), digits) for v in values]
 
 
-def pose_of(corners: np.ndarray, size_cm: tuple[float, float], focal: Focal) -> Pose:
-    """Corners [4, 2] px of the uploaded image, the object's size (W, H) cm and the focal
-    length -> the answer's `pose`."""
+def pose_of(
+    corners: np.ndarray, size_cm: tuple[float, float], focal: Focal, lens: Lens = "none"
+) -> Pose:
+    """Pinhole corners [4, 2] px of the uploaded image (`lens` undone), the object's size
+    (W, H) cm and the focal length -> the answer's `pose`."""
     obj = object_corners(*size_cm, z=True)
     pose = solve_pose(corners, obj, focal.camera)
     distances = None
@@ -78,6 +85,7 @@ def pose_of(corners: np.ndarray, size_cm: tuple[float, float], focal: Focal) -> 
         fx_range=None if focal.interval is None else _round(list(focal.interval)),
         distance_range_cm=distances,
         residual_px=round(pose.residual_px, 3),
+        lens=lens,
     )
 
 
@@ -99,7 +107,7 @@ def cell_of(
     obj = object_corners(*size_cm, z=True)
     pose = solve_pose(corners, obj, focal.camera)
     rng = np.random.default_rng(0)
-    noise = corner_noise_px(focal.camera.size)
+    noise = corner_noise_px(focal.camera.size) if focal.noise_px is None else focal.noise_px
     jitter = rng.normal(0.0, noise, (CELL_SAMPLES, 4, 2))
     lo, hi = focal.interval or (focal.camera.fx, focal.camera.fx)
     fxs = np.exp(rng.uniform(math.log(lo), math.log(hi), CELL_SAMPLES))

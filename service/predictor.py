@@ -12,7 +12,7 @@ import ctypes.util
 import math
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -27,15 +27,28 @@ from service.core.preprocess import (
     NetworkFrame,
     decoded_pixels,
     image_header,
+    load_grey,
     load_image,
     to_network_input,
 )
-from service.core.regions import region_of_class
+from service.core.refine import (
+    MAX_EXTENT_PX,
+    REFINED_NOISE_PX,
+    CameraLens,
+    Lens,
+    RadialLens,
+    Refinement,
+    Texture,
+    extent,
+    refine_corners,
+)
+from service.core.regions import pose_probabilities, region_of_class
 from service.exif import exif_focal
 from service.model import Answer, PoseModel
-from service.posing import Focal, cell_of, focal_of, pose_of
+from service.posing import cell_of, focal_of, pose_of
 from service.proposals import propose_boxes
-from service.schemas import Box, Detection, ImageResult, Mode, RegionOut
+from service.schemas import Box, Detection, ImageResult, Mode, RefinementOut, RegionOut
+from service.schemas import Lens as LensName
 from service.settings import Settings
 from service.sliding import (
     BoxGenerator,
@@ -107,6 +120,31 @@ def image_corners(
         return seen, seen
     flat = np.stack([f.to_image(q) for f, q in zip(frames, answer.undistorted, strict=True)])
     return seen, flat
+
+
+@dataclass(frozen=True)
+class ObjectView:
+    """Where an image shows the object: its corners [4, 2] px of the uploaded image as seen,
+    as a pinhole camera sees them with `lens` undone, and the refinement that made them
+    (None: not run)."""
+
+    seen: np.ndarray
+    pinhole: np.ndarray
+    lens: LensName
+    refinement: Refinement | None = None
+
+
+def _refinement_out(ref: Refinement) -> RefinementOut:
+    def rounded(v: float) -> float | None:
+        return round(v, 4) if math.isfinite(v) else None
+
+    return RefinementOut(
+        score=rounded(ref.score) if ref.refined else None,
+        start_score=rounded(ref.start_score),
+        half_turned=ref.turned,
+        reason=ref.reason,
+        elapsed_ms=round(ref.elapsed_ms, 2),
+    )
 
 
 @dataclass(frozen=True)
@@ -286,33 +324,29 @@ class Predictor:
             known.append(focal or self._exif_focal(image[1], (decoded.width, decoded.height)))
             prep.append(time.perf_counter() - t0)
         t0 = time.perf_counter()
-        batch = np.stack(inputs)
-        answer = self._run(batch, frames, known, detail if zoom else None)
-        corners = image_corners(answer, frames)
-        joint = None
-        if same_camera and corners is not None:
-            joint = self._joint_focal(answer, corners[1], frames)
-            if joint is not None:
-                known = [joint] * len(images)
-                answer = self._run(batch, frames, known, detail if zoom else None)
-                corners = image_corners(answer, frames)
-        probs, infer_s = answer.probabilities, time.perf_counter() - t0
+        answer = self._run(np.stack(inputs), frames, known, detail if zoom else None)
+        infer_s = time.perf_counter() - t0
         share = infer_s / len(images)
+        views = self._views(images, answer, frames, known, prep)
+        joint = self._joint_focal(views, frames) if same_camera else None
+        if joint is not None:
+            known = [joint] * len(images)
         results: list[ImageResult] = []
-        pinhole: list[np.ndarray | None] = []
-        for i, (image, p, t, k) in enumerate(zip(images, probs, prep, known, strict=True)):
-            result = _result(image[0], int(p.argmax()), p, t + share, frames[i].image_size)
-            found = corners is not None and result.class_id != 0
-            pinhole.append(corners[1][i] if corners is not None and found else None)
-            if corners is not None and found:
-                result.corners = corners[0][i].tolist()
-                # a camera with its own distortion model takes the corners as seen
-                q = corners[0][i] if k is not None and k.dist else corners[1][i]
-                self._add_pose(result, q, frames[i].image_size, k, joint, grid)
+        for i, (image, p, k, view) in enumerate(
+            zip(images, answer.probabilities, known, views, strict=True)
+        ):
+            image_size = frames[i].image_size
+            result = _result(image[0], int(p.argmax()), p, prep[i] + share, image_size)
+            if view is not None:
+                self._add_view(result, view, image_size, k, joint, grid)
             if k is not None:
-                result.fx = k.camera(frames[i].image_size).fx
+                result.fx = k.camera(image_size).fx
                 result.fx_source = k.source
             results.append(result)
+        pinhole = [
+            v.pinhole if v is not None and r.class_id else None
+            for v, r in zip(views, results, strict=True)
+        ]
         return Prediction(results, infer_s, pinhole)
 
     def _run(
@@ -341,48 +375,124 @@ class Predictor:
             )
         return self.model.run(batch, aspect, focal=focal)
 
+    def _views(
+        self,
+        images: Sequence[ImageInput],
+        answer: Answer,
+        frames: list[NetworkFrame],
+        known: Sequence[KnownFocal | None],
+        prep: list[float],
+    ) -> list[ObjectView | None]:
+        """Each image's `ObjectView` where the network found the object (None elsewhere, and
+        for graphs without corners), refined where the model carries its texture and the
+        settings ask for it (the refinement's time is added to the image's `prep`)."""
+        corners = image_corners(answer, frames)
+        if corners is None:
+            return [None] * len(images)
+        views: list[ObjectView | None] = []
+        texture = self.model.texture if self.settings.refine else None
+        for i, p in enumerate(answer.probabilities):
+            if p.argmax() == 0:
+                views.append(None)
+                continue
+            seen, k, size = corners[0][i], known[i], frames[i].image_size
+            camera = None if k is None else k.camera(size)
+            lens: Lens | None = None
+            kind: LensName = "none"
+            if camera is not None and camera.dist is not None:
+                lens, kind = CameraLens(camera), "camera"
+            elif answer.undistorted is not None:
+                centre = ((size[0] - 1) / 2.0, (size[1] - 1) / 2.0)
+                lens, kind = RadialLens.fitted(seen, corners[1][i], centre), "network"
+            pinhole = seen if lens is None else lens.undistort(seen)
+            view = ObjectView(seen, pinhole, kind)
+            if texture is not None:
+                t0 = time.perf_counter()
+                view = self._refined(images[i][1], view, texture, lens)
+                prep[i] += time.perf_counter() - t0
+            views.append(view)
+        return views
+
+    def _refined(
+        self, data: bytes, view: ObjectView, texture: Texture, lens: Lens | None
+    ) -> ObjectView:
+        """`view` with its corners refined at the photo's own resolution (`refine_corners`),
+        the photo decoded reduced as far as the object keeps `MAX_EXTENT_PX` of extent."""
+        reduction = max(1, int(extent(view.pinhole) / MAX_EXTENT_PX))
+        grey, f = load_grey(data, reduction)
+        fit = view.lens != "camera"  # a lens not known is fitted with the alignment
+        ref = refine_corners(
+            grey,
+            (view.seen + 0.5) / f - 0.5,
+            texture,
+            None if lens is None else lens.reduced(f),
+            self.settings.refine_budget_ms,
+            fit_lens=fit,
+        )
+        if not ref.refined:
+            return replace(view, refinement=ref)
+        seen, pinhole = ((q + 0.5) * f - 0.5 for q in (ref.corners, ref.pinhole))
+        return ObjectView(seen, pinhole, "fitted" if fit else view.lens, ref)
+
     def _joint_focal(
-        self, answer: Answer, corners: np.ndarray, frames: list[NetworkFrame]
+        self, views: list[ObjectView | None], frames: list[NetworkFrame]
     ) -> _JointFocal | None:
-        """One focal length fitted to the pinhole corners [N, 4, 2] px of every image the
+        """One focal length fitted to the pinhole corners [4, 2] px of every image the
         object was found in (`fit_focal`, in px of the first one's size), or None with fewer
         than 2 of them."""
         size_cm = self.model.object_size_cm
-        found = [i for i, p in enumerate(answer.probabilities) if p.argmax() != 0]
+        found = [i for i, v in enumerate(views) if v is not None]
         if size_cm is None or len(found) < 2:
             return None
         size = frames[found[0]].image_size
-        views = [corners[i] * max(size) / max(frames[i].image_size) for i in found]
-        fit = fit_focal(views, object_corners(*size_cm, z=True), size)
+        pinhole = [v.pinhole for v in views if v is not None]
+        scaled = [
+            q * max(size) / max(frames[i].image_size) for i, q in zip(found, pinhole, strict=True)
+        ]
+        fit = fit_focal(scaled, object_corners(*size_cm, z=True), size)
         return _JointFocal(fit.fx, "estimated", size, interval=fit.interval)
 
-    def _add_pose(
+    def _add_view(
         self,
         result: ImageResult,
-        corners: np.ndarray,
+        view: ObjectView,
         size: tuple[int, int],
         known: KnownFocal | None,
         joint: _JointFocal | None,
         grid: RegionGrid | None,
     ) -> None:
-        """The `pose` (and with `grid` the `cell`) of an image whose object was found, from
-        its corners [4, 2] px (as a pinhole sees them, or as seen for a camera with its own
-        distortion)."""
+        """The corners, `pose` (and with `grid` the `cell`) of an image whose object was found,
+        and its class from that pose: the probabilities of the pose's centre
+        (`pose_probabilities`) with the network's P(present), so that the class is the
+        pose's region. Without a pose (no object size, degenerate corners) the network's
+        class stands."""
+        ref = view.refinement
+        result.corners = view.seen.tolist()
+        result.corners_source = "refined" if ref is not None and ref.refined else "network"
+        if ref is not None:
+            result.refinement = _refinement_out(ref)
         size_cm = self.model.object_size_cm
         if size_cm is None:
             return
-        focal = focal_of(corners, size, size_cm, known, self.model.focal_prior)
+        noise = REFINED_NOISE_PX if result.corners_source == "refined" else None
+        focal = focal_of(view.pinhole, size, size_cm, known, self.model.focal_prior, noise)
         if joint is not None and joint.interval is not None:
             s = joint.scale(size)
-            focal = Focal(
-                focal.camera, focal.source, (joint.interval[0] * s, joint.interval[1] * s)
-            )
+            focal = replace(focal, interval=(joint.interval[0] * s, joint.interval[1] * s))
         try:
-            result.pose = pose_of(corners, size_cm, focal)
-            if grid is not None:
-                result.cell = cell_of(grid, corners, size_cm, focal)
+            pose = pose_of(view.pinhole, size_cm, focal, view.lens)
+            cell = None if grid is None else cell_of(grid, view.pinhole, size_cm, focal)
         except (ValueError, np.linalg.LinAlgError):  # corners that give no pose (degenerate)
-            result.pose = result.cell = None
+            return
+        present = 1.0 - float(result.probabilities[0])
+        probs = pose_probabilities(pose.camera_cm, self.model.z_split_cm, present)
+        class_id = int(probs.argmax())
+        result.probabilities, result.confidence = probs.tolist(), float(probs[class_id])
+        result.class_id, result.region = class_id, RegionOut(**region_of_class(class_id))
+        if class_id != 0:
+            result.pose, result.cell = pose, cell
+        else:  # the pose's region is less likely than the object's absence
+            result.corners = result.corners_source = result.refinement = None
 
     def _exif_focal(self, data: bytes, size: tuple[int, int]) -> KnownFocal | None:
         """The focal length of the photo's EXIF (`exif_focal`), px of its `size` (W, H), or

@@ -10,6 +10,13 @@ Mode = Literal["whole", "sliding", "proposals"]
 #: Where the focal length of a pose came from: the request's `fx`, a stored camera
 #: (`camera=`), the photo's EXIF, the stream's learned camera, or the view itself.
 FocalSource = Literal["query", "camera", "exif", "stream", "estimated"]
+#: The lens a pose undid before its pinhole geometry: the stored camera's distortion
+#: (OpenCV's coefficients), the radial lens fitted by aligning the object's texture, the
+#: radial k1 the corner network fitted, or none.
+Lens = Literal["camera", "fitted", "network", "none"]
+#: Where an answer's corners come from: the texture aligned at the photo's own resolution
+#: (service/core/refine.py), or the corner network's as they are.
+CornersSource = Literal["refined", "network"]
 
 
 class RegionOut(BaseModel):
@@ -62,6 +69,34 @@ class Pose(BaseModel):
         default=None, description="fx estimated: the distance over `fx_range`, cm."
     )
     residual_px: float = Field(description="RMS reprojection error of the corners, px.")
+    lens: Lens = Field(
+        default="none",
+        description="The lens undone before the pose: `camera` (the stored camera's "
+        "distortion coefficients), `fitted` (one radial coefficient fitted with the texture's "
+        "alignment at the photo's resolution), `network` (the radial k1 the corner network "
+        "fitted), `none` (a pinhole).",
+    )
+
+
+class RefinementOut(BaseModel):
+    """The alignment of the object's texture to the photo at its own resolution."""
+
+    score: float | None = Field(
+        description="Correlation of the texture with the photo at the refined corners (-1..1); "
+        "null where it was not aligned."
+    )
+    start_score: float | None = Field(
+        description="The same at the start (the network's corners, or the texture's matched "
+        "features where the network's were far off); null where not measured."
+    )
+    half_turned: bool = Field(
+        description="The texture matched the photo better turned by a half turn than in the "
+        "network's corner order, and the corners were reordered."
+    )
+    reason: str | None = Field(
+        description="Why the network's corners were kept (corners_source = network)."
+    )
+    elapsed_ms: float
 
 
 class CellShare(BaseModel):
@@ -105,6 +140,16 @@ class ImageResult(BaseModel):
         "(+X,+Y), (-X,+Y) of the object frame (a corner the photo cuts off lies outside "
         "the image); with the camera's intrinsics they give the "
         "full pose (e.g. cv2.solvePnP). Else null.",
+    )
+    corners_source: CornersSource | None = Field(
+        default=None,
+        description="With corners: `refined` (the object's texture aligned to the photo at its "
+        "own resolution, started from the network's corners) or `network` (the network's "
+        "corners from its 160 x 120 input: the model carries no texture, refinement is off, "
+        "or the alignment did not hold, `refinement.reason`).",
+    )
+    refinement: RefinementOut | None = Field(
+        default=None, description="With corners, where the refinement ran: how it went."
     )
     fx: float | None = Field(
         default=None,

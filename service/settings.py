@@ -107,6 +107,19 @@ class Settings(BaseSettings):
         description="Tiles searched where no board was found: those centred nearest the "
         "whole frame's corner guess (9: all; service/zoom.py).",
     )
+    refine: bool = Field(
+        default=True,
+        description="Whole mode, corner models that carry their object's texture: align the "
+        "texture to the photo at its own resolution, started from the network's corners "
+        "(service/core/refine.py); off: the network's corners as they are.",
+    )
+    refine_budget_ms: float = Field(
+        default=150.0,
+        gt=0,
+        le=10_000,
+        description="Time one image's refinement may take, ms: past it the alignment stops "
+        "and the network's corners are kept (the feature matching start is not tried).",
+    )
     exif_focal: bool = Field(
         default=True,
         description="Whole mode, models that take a focal length: where a request gives no "

@@ -29,6 +29,11 @@ PROBABILITIES, CORNERS, PATTERN = "probabilities", "corners", "pattern"
 UNDISTORTED = "undistorted"
 #: The metadata_props key holding the model card (JSON).
 CARD_KEY = "model_card"
+#: The metadata_props key holding the object's front-on texture (a PNG, base64), which the
+#: service aligns to the photo at its own resolution (`service.core.refine`).
+TEXTURE_KEY = "texture_png"
+#: A texture embedded in a model has at most this many px on its longer side.
+TEXTURE_MAX_PX = 1024
 
 #: (u0, v0, s): the input is the whole frame.
 DEFAULT_VIEW = np.array([0.0, 0.0, 1.0], np.float32)

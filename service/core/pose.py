@@ -279,12 +279,14 @@ def estimate_focal(
     object_points: np.ndarray,
     size: tuple[int, int],
     prior: float = FOCAL_PRIOR,
+    noise_px: float | None = None,
 ) -> tuple[float, tuple[float, float]]:
-    """One view's corners [4, 2] px -> the focal length px the pose takes and the range (lo,
-    hi) px the view allows (`focal_interval` within the `CAMERA_BOUNDS`): the network's prior
-    (`focal_prior` of `prior`, x the SPEC camera's) where it lies in that range, else the
-    range's end nearest it (a head-on view keeps the prior, an oblique one decides)."""
-    lo, hi = focal_interval([corners], object_points, size, factors=CAMERA_BOUNDS)
+    """One view's corners [4, 2] px (`noise_px` per coordinate, None: `corner_noise_px`) ->
+    the focal length px the pose takes and the range (lo, hi) px the view allows
+    (`focal_interval` within the `CAMERA_BOUNDS`): the network's prior (`focal_prior` of
+    `prior`, x the SPEC camera's) where it lies in that range, else the range's end nearest
+    it (a head-on view keeps the prior, an oblique one decides)."""
+    lo, hi = focal_interval([corners], object_points, size, noise_px, CAMERA_BOUNDS)
     return float(np.clip(focal_prior(size, prior), lo, hi)), (lo, hi)
 
 

@@ -193,6 +193,31 @@ def load_image(
     return DecodedImage(rgb, *((h, w) if turned else (w, h)))
 
 
+_REDUCED_GREY = {
+    2: cv2.IMREAD_REDUCED_GRAYSCALE_2,
+    4: cv2.IMREAD_REDUCED_GRAYSCALE_4,
+    8: cv2.IMREAD_REDUCED_GRAYSCALE_8,
+}
+
+
+def load_grey(data: bytes, reduction: int = 1) -> tuple[np.ndarray, int]:
+    """Image bytes (already read by `load_image`: size guarded) -> grey uint8 [h, w], EXIF
+    orientation applied, and the factor it is reduced by: a JPEG decoded at 1 / the largest
+    of 8, 4, 2 not above `reduction` (libjpeg's DCT scaling), anything else at full size
+    (factor 1). Pixel (u, v) of the reduced image is ((u + 0.5) f - 0.5, (v + 0.5) f - 0.5)
+    of the full one."""
+    jpeg = image_header(data).format == "jpeg"
+    factor = next((f for f in (8, 4, 2) if f <= reduction), 1) if jpeg else 1
+    flags = _REDUCED_GREY[factor] if factor > 1 else cv2.IMREAD_GRAYSCALE
+    try:
+        grey = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), flags)
+    except cv2.error as exc:
+        raise ImageDecodeError("could not decode the image") from exc
+    if grey is None or grey.size == 0:
+        raise ImageDecodeError("could not decode the image (corrupt?)")
+    return grey, factor
+
+
 def decode_image(data: bytes, max_pixels: int | None = None) -> np.ndarray:
     """Decode image bytes (JPEG, PNG, WebP, BMP, GIF) to RGB uint8 [H, W, 3] at full size.
 

@@ -9,6 +9,7 @@ around the object, in the object frame (`service.core.frame`, cm):
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Literal, TypedDict
 
@@ -47,6 +48,34 @@ def pose_class(c: ArrayLike, z_split_cm: float) -> NDArray[np.int64]:
     x, y, z = p[..., 0], p[..., 1], p[..., 2]
     quadrant = np.where(y >= 0, np.where(x >= 0, 1, 2), np.where(x < 0, 3, 4)).astype(np.int64)
     return quadrant + np.where(z >= z_split_cm, 4, 0).astype(np.int64)
+
+
+#: The spread of a pose's class probabilities (`pose_probabilities`), x the camera's distance
+#: for the x/y side and x |z| for near/far: the corner network's (`side_spread`,
+#: `depth_spread` of train/network/keypoint.py).
+SIDE_SPREAD, DEPTH_SPREAD = 0.08, 0.08
+
+
+def pose_probabilities(c: ArrayLike, z_split_cm: float, present: float) -> NDArray[np.float64]:
+    """A camera centre `c` (3,) cm in the object frame and P(object present) -> the 9 class
+    probabilities float64 (9,): P(x >= 0), P(y >= 0) and P(z < z_split) as normal CDFs
+    around the centre (spreads `SIDE_SPREAD` x the distance, `DEPTH_SPREAD` x |z|), class 0
+    1 - present. Their largest of classes 1-8 is `pose_class(c)`."""
+    x, y, z = (float(v) for v in np.asarray(c, dtype=float).reshape(3))
+    side = SIDE_SPREAD * max(math.sqrt(x * x + y * y + z * z), 1.0)
+    px, py = _cdf(x / side), _cdf(y / side)
+    near = _cdf((z_split_cm - z) / (DEPTH_SPREAD * max(abs(z), 1.0)))
+    sides = {1: (px, py), -1: (1 - px, 1 - py)}
+    quadrants = [sides[sx][0] * sides[sy][1] for sx, sy in QUADRANT_SIGNS]
+    return np.array(
+        [1 - present] + [present * near * q for q in quadrants]
+        + [present * (1 - near) * q for q in quadrants]
+    )  # fmt: skip
+
+
+def _cdf(t: float) -> float:
+    """The standard normal CDF at `t`."""
+    return 0.5 * (1.0 + math.erf(t / math.sqrt(2.0)))
 
 
 def quadrant_of_class(class_id: ArrayLike) -> NDArray[np.int64]:

@@ -16,6 +16,7 @@ is stored in the ONNX `metadata_props` under `model_card` and written next to it
 
 from __future__ import annotations
 
+import base64
 import io
 import json
 import warnings
@@ -33,6 +34,8 @@ from service.core.onnx_contract import (
     PATTERN,
     PIXEL_ASPECT,
     PROBABILITIES,
+    TEXTURE_KEY,
+    TEXTURE_MAX_PX,
     UNDISTORTED,
     VIEW,
     io_description,
@@ -220,14 +223,43 @@ def build_card(
     }
 
 
+def texture_png(card: dict[str, Any]) -> bytes | None:
+    """The card's object texture (its profile's `texture`, a repository path) as PNG bytes,
+    its longer side at most `TEXTURE_MAX_PX`, or None for a card without a readable one."""
+    import cv2
+
+    texture = (
+        card.get("profile", {}).get("texture") if isinstance(card.get("profile"), dict) else None
+    )
+    path = REPO_ROOT / str(texture) if texture else None
+    bgr = cv2.imread(str(path), cv2.IMREAD_COLOR) if path is not None and path.is_file() else None
+    if bgr is None:
+        return None
+    f = TEXTURE_MAX_PX / max(bgr.shape[:2])
+    if f < 1:
+        bgr = cv2.resize(bgr, None, fx=f, fy=f, interpolation=cv2.INTER_AREA)
+    ok, png = cv2.imencode(".png", bgr)
+    return png.tobytes() if ok else None
+
+
 def with_card(model_bytes: bytes, card: dict[str, Any]) -> bytes:
-    """ONNX bytes with `model_card` = card JSON set in metadata_props."""
+    """ONNX bytes with `model_card` = card JSON set in metadata_props, and for a corner
+    graph `texture_png` = the object's texture (`texture_png`; one the graph carries
+    already is kept where the card's profile has none at hand)."""
     import onnx
 
     model = onnx.load_from_string(model_bytes)
+    kept = {p.key: p.value for p in model.metadata_props}
     del model.metadata_props[:]
-    entry = model.metadata_props.add()
-    entry.key, entry.value = CARD_KEY, json.dumps(card)
+    entries = {CARD_KEY: json.dumps(card)}
+    png = texture_png(card) if any(o.name == CORNERS for o in model.graph.output) else None
+    if png is not None:
+        entries[TEXTURE_KEY] = base64.b64encode(png).decode("ascii")
+    elif TEXTURE_KEY in kept:
+        entries[TEXTURE_KEY] = kept[TEXTURE_KEY]
+    for key, value in entries.items():
+        entry = model.metadata_props.add()
+        entry.key, entry.value = key, value
     model.producer_name = "planar-pose"
     return model.SerializeToString()
 

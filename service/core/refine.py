@@ -1,0 +1,547 @@
+"""The object's corners refined at the photo's own resolution: its texture aligned to the photo.
+
+The corner network reads a 160 x 120 input, so its corners are good to about half an input
+pixel: 4 px of a 1280 x 720 photo. Here the object's front-on texture is aligned to the photo
+itself by a homography, started from those corners (OpenCV's ECC, `cv2.findTransformECC`,
+coarse to fine over a pyramid):
+
+    crop      the photo around the start corners (a margin of `MARGIN` of the object's
+              extent), made a pinhole image where the camera's lens is known (the crop
+              undistorted through OpenCV's 5 coefficients, `cv2.initUndistortRectifyMap`),
+              at a scale that brings the object to at most `MAX_EXTENT_PX`
+    half turn the texture compared with the crop in both half-turn orders of the start
+              corners (the network reads the order from a 160 x 120 input): the better
+              correlation starts
+    pyramid   ECC from the coarsest level (the object about `COARSE_PX` wide) to the finest,
+              each level started from the one before; pixels outside the photo do not count
+    checks    kept only where ECC converged, correlates better than the start, and moved no
+              corner more than `MAX_SHIFT` of the object's extent; else the start is kept
+
+Frames and units: image pixels (u, v), origin at the top-left pixel's centre; the texture
+in its own pixels, its corners in the object's order (`service.core.frame.CORNER_ORDER`:
+bottom-left, bottom-right, top-right, top-left of the front-on texture).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, replace
+from functools import cached_property
+from typing import Protocol
+
+import cv2
+import numpy as np
+
+from service.core.pose import Camera
+
+#: The crop around the start corners, as a share of the object's extent on each side.
+MARGIN = 0.15
+#: The object's extent (px) the finest level works at: larger objects are aligned on a
+#: reduced crop (the texture's detail, not the photo's, then bounds the precision).
+MAX_EXTENT_PX = 480
+#: The object's extent (px) at the pyramid's coarsest level.
+COARSE_PX = 60
+#: The radial lens fit (`fit_radial_lens`), in units of kappa (W/2)^2 (W the photo's longer
+#: side; webcams and phones about -0.3 to 0.1): the range it keeps to, the step of its
+#: three samples, and the least curvature of their correlations that counts as a signal.
+LENS_RANGE, LENS_STEP, LENS_MIN_CURVE = (-0.8, 0.4), 0.1, 1e-3
+#: The refined corners' noise per coordinate, px of the photo, as the pose's focal estimate
+#: and cell take it (the ChArUco val frames: 0.5 px median error at 640 x 360).
+REFINED_NOISE_PX = 1.0
+#: Objects smaller than this (px) are not aligned.
+MIN_EXTENT_PX = 16
+#: The Gaussian smoothing ECC applies to both images at each level (taps).
+GAUSS_TAPS = 5
+#: A refinement that moves a corner by more than this share of the extent is refused.
+MAX_SHIFT = 0.25
+#: ECC's iterations per level and its convergence threshold on the correlation's increment.
+ITERATIONS, EPSILON = 40, 1e-4
+#: The least correlation of a refined alignment (good ones of the ChArUco val frames: 0.78-0.97,
+#: alignments onto the wrong place: up to 0.3).
+MIN_SCORE = 0.5
+#: An alignment from the network's corners that correlates less than this is tried again from
+#: the texture's features matched in the photo (`feature_start`), and the better one kept.
+GOOD_SCORE = 0.7
+#: Feature matching: the photo's longer side is reduced to this (px), the ratio test's
+#: threshold, the RANSAC reprojection threshold (px of the reduced photo), the least inliers.
+FEATURE_SIDE, RATIO, RANSAC_PX, MIN_INLIERS = 640, 0.75, 4.0, 12
+
+
+@dataclass(frozen=True)
+class Texture:
+    """An object's front-on texture for alignment: grey float32 [h, w] in [0, 1]."""
+
+    grey: np.ndarray
+
+    @classmethod
+    def of_rgb(cls, rgb: np.ndarray) -> Texture:
+        """RGB uint8 [h, w, 3] -> the texture."""
+        grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY).astype(np.float32) / np.float32(255.0)
+        return cls(grey)
+
+    @property
+    def corners(self) -> np.ndarray:
+        """The texture's corners [4, 2] in its pixels, in the object's corner order."""
+        h, w = self.grey.shape
+        return np.array([[-0.5, h - 0.5], [w - 0.5, h - 0.5], [w - 0.5, -0.5], [-0.5, -0.5]])
+
+    @cached_property
+    def features(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """SIFT keypoints (x, y) [K, 2] px and descriptors float32 [K, 128] of the texture at
+        `FEATURE_SIDE` (computed once), or None where it has too few of them."""
+        image = self.at_extent(FEATURE_SIDE)
+        points, descriptors = _sift(np.clip(image * 255.0 + 0.5, 0, 255).astype(np.uint8))
+        if descriptors is None or len(points) < MIN_INLIERS:
+            return None
+        scale = max(self.grey.shape) / max(image.shape)
+        return (points + 0.5) * scale - 0.5, descriptors
+
+    def at_extent(self, extent_px: float) -> np.ndarray:
+        """The texture resized so that its longer side is `extent_px` (area average down,
+        bilinear up)."""
+        h, w = self.grey.shape
+        f = extent_px / max(w, h)
+        size = (max(8, round(w * f)), max(8, round(h * f)))
+        interpolation = cv2.INTER_AREA if f < 1 else cv2.INTER_LINEAR
+        return cv2.resize(self.grey, size, interpolation=interpolation)
+
+
+@dataclass(frozen=True)
+class Refinement:
+    """A refinement's answer: the corners [4, 2] px of the photo as seen and as a pinhole
+    camera sees them (the same where no lens is known), whether they are the refined ones
+    (else the start's, unchanged), the alignment's correlation at the start and at the end
+    (-1..1; the start's where not refined), whether the start's order was half turned, and
+    why it was not refined (None where it was); and the lens the pinhole corners undo: the
+    one given, or (`fit_lens`) the radial lens the alignment fitted."""
+
+    corners: np.ndarray
+    pinhole: np.ndarray
+    refined: bool
+    start_score: float
+    score: float
+    turned: bool
+    reason: str | None
+    elapsed_ms: float
+    lens: Lens | None = None
+
+
+def extent(corners: np.ndarray) -> float:
+    """The object's extent in px: the longest side or diagonal of its corners [4, 2]."""
+    q = np.asarray(corners, np.float64)
+    return float(max(np.linalg.norm(q[i] - q[j]) for i in range(4) for j in range(i + 1, 4)))
+
+
+def scaled_camera(camera: Camera, factor: float) -> Camera:
+    """`camera` for its image reduced by `factor` (pixel (u, v) of the reduced image is
+    ((u + 0.5) f - 0.5, (v + 0.5) f - 0.5) of the full one): focal lengths / f, the principal
+    point moved alike, the distortion (of normalised coordinates) the same."""
+    if factor == 1:
+        return camera
+    K = camera.matrix
+    w, h = camera.size
+    size = (max(1, math.ceil(w / factor)), max(1, math.ceil(h / factor)))
+    cx, cy = ((K[0, 2] + 0.5) / factor - 0.5, (K[1, 2] + 0.5) / factor - 0.5)
+    return Camera(K[0, 0] / factor, size, K[1, 1] / factor, cx, cy, camera.dist)
+
+
+class Lens(Protocol):
+    """A lens's distortion in px of its image: where a pinhole would see points, and back."""
+
+    def undistort(self, points: np.ndarray) -> np.ndarray:
+        """Points [N, 2] px as the image shows them -> where a pinhole sees them."""
+        ...
+
+    def distort(self, points: np.ndarray) -> np.ndarray:
+        """Points [N, 2] px where a pinhole sees them -> where the image shows them."""
+        ...
+
+    def reduced(self, factor: float) -> Lens:
+        """The lens in px of its image reduced by `factor` (pixel centres kept)."""
+        ...
+
+
+@dataclass(frozen=True)
+class CameraLens:
+    """A calibrated camera's lens: OpenCV's distortion coefficients (`camera.dist`)."""
+
+    camera: Camera
+
+    def undistort(self, points: np.ndarray) -> np.ndarray:
+        q = np.asarray(points, np.float64).reshape(-1, 1, 2)
+        K = self.camera.matrix
+        return cv2.undistortPoints(q, K, self.camera.coefficients, P=K).reshape(-1, 2)
+
+    def distort(self, points: np.ndarray) -> np.ndarray:
+        q = np.asarray(points, np.float64).reshape(-1, 2)
+        K = self.camera.matrix
+        rays = np.column_stack([(q - K[:2, 2]) / [K[0, 0], K[1, 1]], np.ones(len(q))])
+        zero = np.zeros(3)
+        seen, _ = cv2.projectPoints(rays, zero, zero, K, self.camera.coefficients)
+        return seen.reshape(-1, 2)
+
+    def reduced(self, factor: float) -> CameraLens:
+        return CameraLens(scaled_camera(self.camera, factor))
+
+
+@dataclass(frozen=True)
+class RadialLens:
+    """One radial coefficient about `centre` (x, y) px, the division model the corner network
+    fits: x_u = c + (x_d - c) / (1 + kappa |x_d - c|^2), kappa in px^-2 (< 0: barrel)."""
+
+    centre: tuple[float, float]
+    kappa: float
+
+    @classmethod
+    def fitted(
+        cls, seen: np.ndarray, pinhole: np.ndarray, centre: tuple[float, float]
+    ) -> RadialLens:
+        """The kappa that maps the points `seen` [N, 2] px to `pinhole` [N, 2] px best
+        (least squares of x_d - x_u = kappa r_d^2 (x_u - c))."""
+        c = np.asarray(centre, np.float64)
+        d, u = np.asarray(seen, np.float64) - c, np.asarray(pinhole, np.float64) - c
+        basis = (d * d).sum(1, keepdims=True) * u
+        denominator = float((basis * basis).sum())
+        kappa = float(((d - u) * basis).sum()) / denominator if denominator > 0 else 0.0
+        return cls(centre, kappa if math.isfinite(kappa) else 0.0)
+
+    def undistort(self, points: np.ndarray) -> np.ndarray:
+        c = np.asarray(self.centre, np.float64)
+        d = np.asarray(points, np.float64).reshape(-1, 2) - c
+        out: np.ndarray = c + d / (1.0 + self.kappa * (d * d).sum(1, keepdims=True))
+        return out
+
+    def distort(self, points: np.ndarray) -> np.ndarray:
+        """The division model's exact inverse, r_d = 2 r_u / (1 + sqrt(1 - 4 kappa r_u^2))
+        (clamped where a pincushion has no inverse), as the network's `Lens.distort_uv`."""
+        c = np.asarray(self.centre, np.float64)
+        u = np.asarray(points, np.float64).reshape(-1, 2) - c
+        root = np.sqrt(np.maximum(1.0 - 4.0 * self.kappa * (u * u).sum(1, keepdims=True), 0.0))
+        out: np.ndarray = c + u * 2.0 / (1.0 + root)
+        return out
+
+    def reduced(self, factor: float) -> RadialLens:
+        cx, cy = ((v + 0.5) / factor - 0.5 for v in self.centre)
+        return RadialLens((cx, cy), self.kappa * factor * factor)
+
+
+@dataclass(frozen=True)
+class _Crop:
+    """A region of the pinhole image at `scale` crop px per image px: crop pixel (x, y) is
+    pinhole image pixel origin + (x, y) / scale; `grey` float32 [h, w] in [0, 1] and the mask
+    of the pixels the photo has, uint8 [h, w]."""
+
+    grey: np.ndarray
+    mask: np.ndarray
+    origin: np.ndarray
+    scale: float
+
+    def to_crop(self, points: np.ndarray) -> np.ndarray:
+        return (np.asarray(points, np.float64) - self.origin) * self.scale
+
+    def to_image(self, points: np.ndarray) -> np.ndarray:
+        return np.asarray(points, np.float64) / self.scale + self.origin
+
+
+def _crop(grey: np.ndarray, pinhole: np.ndarray, lens: Lens | None, scale: float) -> _Crop:
+    """The crop around the pinhole corners [4, 2] px of the photo `grey` uint8 [H, W] (a
+    `MARGIN` of their extent around them) as a pinhole sees it (`lens` undone; None: the
+    photo is a pinhole's), at `scale`: the photo's region reduced by an integer factor near
+    the scale first (area average: no aliasing), then resampled through the lens."""
+    margin = MARGIN * extent(pinhole)
+    origin = pinhole.min(0) - margin
+    w, h = (np.ceil((pinhole.max(0) + margin - origin) * scale)).astype(int)
+    xs, ys = np.meshgrid(np.arange(w) / scale + origin[0], np.arange(h) / scale + origin[1])
+    flat = np.column_stack([xs.ravel(), ys.ravel()])
+    seen = flat if lens is None else lens.distort(flat)
+    H, W = grey.shape
+    lo = np.maximum(np.floor(seen.min(0)) - 1, 0).astype(int)
+    hi = np.minimum(np.ceil(seen.max(0)) + 2, [W, H]).astype(int)
+    if np.any(hi - lo < 8):
+        raise ValueError("the object lies outside the photo")
+    k = max(1, int(1.0 / scale))
+    region = grey[lo[1] : hi[1], lo[0] : hi[0]]
+    if k > 1:
+        size = (max(1, region.shape[1] // k), max(1, region.shape[0] // k))
+        region = cv2.resize(
+            region[: size[1] * k, : size[0] * k], size, interpolation=cv2.INTER_AREA
+        )
+    at = ((seen - lo + 0.5) / k - 0.5).astype(np.float32)
+    mx, my = at[:, 0].reshape(h, w), at[:, 1].reshape(h, w)
+    crop = cv2.remap(region, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    rh, rw = region.shape
+    inside = (mx >= 0) & (mx <= rw - 1) & (my >= 0) & (my <= rh - 1)
+    inside &= (seen[:, 0] >= 0).reshape(h, w) & (seen[:, 0] <= W - 1).reshape(h, w)
+    inside &= (seen[:, 1] >= 0).reshape(h, w) & (seen[:, 1] <= H - 1).reshape(h, w)
+    if np.count_nonzero(inside) < 0.2 * inside.size:
+        raise ValueError("the object lies outside the photo")
+    return _Crop(_unit(crop), inside.astype(np.uint8) * 255, origin, scale)
+
+
+def _unit(grey: np.ndarray) -> np.ndarray:
+    """uint8 [h, w] -> float32 [h, w] in [0, 1]."""
+    return grey.astype(np.float32) / np.float32(255.0)
+
+
+def _level(points: np.ndarray, factor: float) -> np.ndarray:
+    """Pixels [N, 2] -> pixels of the image reduced by `factor` (pixel centres kept)."""
+    return (np.asarray(points, np.float64) + 0.5) / factor - 0.5
+
+
+def _homography(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    return cv2.getPerspectiveTransform(src.astype(np.float32), dst.astype(np.float32))
+
+
+def _score(template: np.ndarray, crop: _Crop, H: np.ndarray) -> float:
+    """The correlation of `template` with the crop warped onto it by H (template px -> crop
+    px), over the pixels the photo has; -1 where too few of them are left."""
+    h, w = template.shape
+    flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
+    warped = cv2.warpPerspective(crop.grey, H, (w, h), flags=flags)
+    valid = cv2.warpPerspective(
+        crop.mask, H, (w, h), flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP
+    )
+    if np.count_nonzero(valid) < 0.2 * valid.size:
+        return -1.0
+    return float(cv2.computeECC(template, warped, valid))
+
+
+class _OverBudget(Exception):
+    """The refinement's time budget ran out."""
+
+
+def _align(
+    texture: Texture,
+    crop: _Crop,
+    start: np.ndarray,
+    extent_px: float,
+    deadline: float,
+    finest_only: bool = False,
+) -> tuple[np.ndarray, float]:
+    """ECC from the corners [4, 2] px of the crop `start`, coarse to fine (`finest_only`:
+    the finest level alone, for a start already close) -> the refined corners [4, 2] px of
+    the crop and the final correlation; cv2.error where it fails, _OverBudget where
+    `deadline` (`time.perf_counter()`) passes between two levels."""
+    levels = max(1, min(5, 1 + int(math.log2(max(extent_px / COARSE_PX, 1.0)))))
+    if finest_only:
+        levels = 1
+    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, ITERATIONS, EPSILON)
+    corners, score = start, -1.0
+    for level in reversed(range(levels)):
+        if time.perf_counter() > deadline:
+            raise _OverBudget
+        factor = 2.0**level
+        template = texture.at_extent(extent_px / factor)
+        size = (
+            max(8, round(crop.grey.shape[1] / factor)),
+            max(8, round(crop.grey.shape[0] / factor)),
+        )
+        image = cv2.resize(crop.grey, size, interpolation=cv2.INTER_AREA) if level else crop.grey
+        mask = cv2.resize(crop.mask, size, interpolation=cv2.INTER_NEAREST) if level else crop.mask
+        tex = Texture(template).corners
+        H0 = _homography(tex, _level(corners, factor)).astype(np.float32)
+        score, H = cv2.findTransformECC(
+            template, image, H0, cv2.MOTION_HOMOGRAPHY, criteria, mask, GAUSS_TAPS
+        )
+        moved = cv2.perspectiveTransform(tex.reshape(-1, 1, 2), np.asarray(H, np.float64))
+        corners = (moved.reshape(4, 2) + 0.5) * factor - 0.5
+    return corners, float(score)
+
+
+def _sift(grey: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    """uint8 [H, W] -> SIFT keypoints (x, y) [K, 2] px and descriptors [K, 128] (or None)."""
+    sift = cv2.SIFT_create(nfeatures=2000)  # type: ignore[attr-defined]
+    keypoints, descriptors = sift.detectAndCompute(grey, None)
+    return np.array([k.pt for k in keypoints], np.float64).reshape(-1, 2), descriptors
+
+
+def feature_start(grey: np.ndarray, texture: Texture) -> np.ndarray | None:
+    """The object's corners [4, 2] px of the photo `grey` uint8 [H, W] from the texture's
+    SIFT features matched in it (ratio test, RANSAC homography), or None where fewer than
+    `MIN_INLIERS` agree: a start where the network's corners are far off."""
+    ours = texture.features
+    if ours is None:
+        return None
+    f = min(1.0, FEATURE_SIDE / max(grey.shape))
+    small = grey if f == 1.0 else cv2.resize(grey, None, fx=f, fy=f, interpolation=cv2.INTER_AREA)
+    points, descriptors = _sift(small)
+    if descriptors is None or len(points) < MIN_INLIERS:
+        return None
+    pairs = cv2.BFMatcher(cv2.NORM_L2).knnMatch(ours[1], descriptors, k=2)
+    good = [m[0] for m in pairs if len(m) == 2 and m[0].distance < RATIO * m[1].distance]
+    if len(good) < MIN_INLIERS:
+        return None
+    src = ours[0][[m.queryIdx for m in good]]
+    dst = points[[m.trainIdx for m in good]]
+    H, inliers = cv2.findHomography(src, dst, cv2.RANSAC, RANSAC_PX)
+    if H is None or int(inliers.sum()) < MIN_INLIERS:
+        return None
+    small_corners = cv2.perspectiveTransform(texture.corners.reshape(-1, 1, 2), H).reshape(4, 2)
+    corners: np.ndarray = (small_corners + 0.5) / f - 0.5
+    return corners if np.isfinite(corners).all() else None
+
+
+@dataclass(frozen=True)
+class _Aligned:
+    """One alignment's pinhole corners [4, 2] px of the photo, its correlation, the start's,
+    whether the start was half turned, and why it is refused (None: it holds)."""
+
+    pinhole: np.ndarray
+    score: float
+    start_score: float
+    turned: bool
+    refused: str | None
+
+
+def _aligned_from(
+    grey: np.ndarray, start: np.ndarray, texture: Texture, lens: Lens | None, deadline: float
+) -> _Aligned:
+    """The texture aligned to the photo `grey` uint8 [H, W] from the pinhole corners [4, 2]
+    px `start`, in the half-turn order that correlates better."""
+    size, nan = extent(start), float("nan")
+    if not np.isfinite(start).all() or size < MIN_EXTENT_PX:
+        return _Aligned(start, nan, nan, False, "the object is too small to align")
+    scale = min(1.0, MAX_EXTENT_PX / size)
+    try:
+        crop = _crop(grey, start, lens, scale)
+    except ValueError as exc:
+        return _Aligned(start, nan, nan, False, str(exc))
+    full = texture.at_extent(size * scale)
+    tex = Texture(full).corners
+    orders = [crop.to_crop(start), crop.to_crop(np.roll(start, 2, 0))]
+    starts = [_score(full, crop, _homography(tex, q)) for q in orders]
+    turned = starts[1] > starts[0]
+    begin, start_score = orders[int(turned)], starts[int(turned)]
+
+    def refused(reason: str) -> _Aligned:
+        return _Aligned(start, start_score, start_score, turned, reason)
+
+    try:
+        moved, score = _align(texture, crop, begin, size * scale, deadline)
+    except cv2.error:
+        return refused("the alignment did not converge")
+    except _OverBudget:
+        return refused("the alignment ran out of its time budget")
+    shift = float(np.linalg.norm(moved - begin, axis=1).max()) / crop.scale
+    if not np.isfinite(moved).all() or shift > MAX_SHIFT * size:
+        return refused("the alignment moved the corners too far")
+    if score < max(start_score, MIN_SCORE):
+        return refused("the alignment correlates too little")
+    return _Aligned(crop.to_image(moved), score, start_score, turned, None)
+
+
+def _realigned(
+    grey: np.ndarray,
+    pinhole: np.ndarray,
+    old: Lens,
+    new: RadialLens,
+    texture: Texture,
+    deadline: float,
+) -> _Aligned:
+    """An alignment's pinhole corners [4, 2] px under the lens `old` aligned again under the
+    lens `new` from where they move to, at the finest level alone."""
+    start = new.undistort(old.distort(pinhole))
+    size, nan = extent(start), float("nan")
+    scale = min(1.0, MAX_EXTENT_PX / size)
+    try:
+        crop = _crop(grey, start, new, scale)
+        moved, score = _align(texture, crop, crop.to_crop(start), size * scale, deadline, True)
+    except (ValueError, cv2.error):
+        return _Aligned(start, nan, nan, False, "the alignment did not converge")
+    return _Aligned(crop.to_image(moved), score, nan, False, None)
+
+
+def fit_radial_lens(
+    grey: np.ndarray, aligned: _Aligned, lens: RadialLens, texture: Texture, deadline: float
+) -> tuple[_Aligned, RadialLens]:
+    """The radial lens about `lens.centre` whose undistorted photo the texture fits best:
+    the alignment repeated at kappa (W/2)^2 = `lens`'s and `LENS_STEP` either side (W the
+    photo's longer side), the vertex of the parabola through their correlations (kept within
+    `LENS_RANGE`) aligned again; the best of them -> (its alignment, its lens). Where the
+    correlations do not curve (an object too small to show its lens) `lens` stays."""
+    unit = (0.5 * max(grey.shape)) ** 2
+    k0 = float(np.clip(lens.kappa * unit, *LENS_RANGE))
+    tried = {k0: aligned} if k0 == lens.kappa * unit else {}
+    for k in (k0 - LENS_STEP, k0, k0 + LENS_STEP):
+        if k not in tried and time.perf_counter() < deadline:
+            tried[k] = _realigned(
+                grey, aligned.pinhole, lens, RadialLens(lens.centre, k / unit), texture, deadline
+            )
+    ks = sorted(tried)
+    scores = [tried[k].score if tried[k].refused is None else -1.0 for k in ks]
+    if len(ks) == 3 and min(scores) > -1.0:
+        curve = scores[0] - 2 * scores[1] + scores[2]
+        if curve < -LENS_MIN_CURVE:
+            k = float(
+                np.clip(ks[1] + LENS_STEP * (scores[0] - scores[2]) / (2 * curve), *LENS_RANGE)
+            )
+            if k not in tried and time.perf_counter() < deadline:
+                tried[k] = _realigned(
+                    grey,
+                    aligned.pinhole,
+                    lens,
+                    RadialLens(lens.centre, k / unit),
+                    texture,
+                    deadline,
+                )
+        else:
+            tried = {k0: tried[k0]} if k0 in tried else tried
+    best = max(tried, key=lambda k: tried[k].score if tried[k].refused is None else -1.0)
+    found = tried[best]
+    if found.refused is not None or found.score < aligned.score:
+        return aligned, lens
+    return replace(found, start_score=aligned.start_score, turned=aligned.turned), RadialLens(
+        lens.centre, best / unit
+    )
+
+
+def refine_corners(
+    grey: np.ndarray,
+    corners: np.ndarray,
+    texture: Texture,
+    lens: Lens | None = None,
+    budget_ms: float = 150.0,
+    fit_lens: bool = False,
+) -> Refinement:
+    """The photo `grey` uint8 [H, W], the object's corners [4, 2] px as seen (the
+    network's), its texture and the lens of the photo (None: a pinhole's) -> the corners
+    aligned to the photo (`Refinement`; the start's where no alignment holds).
+
+    The alignment starts from the network's corners; where it correlates less than
+    `GOOD_SCORE` and time is left of `budget_ms`, also from the texture's features matched in
+    the photo (`feature_start`), and the better of the two is kept. With `fit_lens` (a lens
+    not known: `lens` a `RadialLens` guess, or None), the radial lens is fitted too
+    (`fit_radial_lens`)."""
+    t0 = time.perf_counter()
+    deadline = t0 + budget_ms / 1000.0
+    seen = np.asarray(corners, np.float64).reshape(4, 2)
+    pinhole = seen if lens is None else lens.undistort(seen)
+    best = _aligned_from(grey, pinhole, texture, lens, deadline)
+    if (best.refused is not None or best.score < GOOD_SCORE) and time.perf_counter() < deadline:
+        found = feature_start(grey, texture)
+        if found is not None:
+            start = found if lens is None else lens.undistort(found)
+            other = _aligned_from(grey, start, texture, lens, deadline)
+            if other.refused is None and (best.refused is not None or other.score > best.score):
+                best = other
+    if fit_lens and best.refused is None:
+        guess = lens if isinstance(lens, RadialLens) else RadialLens(_centre(grey), 0.0)
+        if lens is None:  # the alignment's corners under the guess: the same, kappa 0
+            best = replace(best, pinhole=guess.undistort(best.pinhole))
+        best, lens = fit_radial_lens(grey, best, guess, texture, deadline)
+    ms = 1000.0 * (time.perf_counter() - t0)
+    if best.refused is not None:
+        start_score = best.start_score
+        return Refinement(
+            seen, pinhole, False, start_score, start_score, best.turned, best.refused, ms, lens
+        )
+    out = best.pinhole if lens is None else lens.distort(best.pinhole)
+    return Refinement(
+        out, best.pinhole, True, best.start_score, best.score, best.turned, None, ms, lens
+    )
+
+
+def _centre(grey: np.ndarray) -> tuple[float, float]:
+    """The centre (x, y) px of an image [H, W]."""
+    return ((grey.shape[1] - 1) / 2.0, (grey.shape[0] - 1) / 2.0)
