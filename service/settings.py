@@ -114,11 +114,13 @@ class Settings(BaseSettings):
         "(service/core/refine.py); off: the network's corners as they are.",
     )
     refine_budget_ms: float = Field(
-        default=150.0,
+        default=1000.0,
         gt=0,
         le=10_000,
-        description="Time one image's refinement may take, ms: past it the alignment stops "
-        "and the network's corners are kept (the feature matching start is not tried).",
+        description="Time one image's refinement may take, ms (a safety bound: it takes "
+        "10-100 ms; the work itself is bounded by the crop's size and ECC's iterations): past "
+        "it the alignment stops and the network's corners, or the last alignment that held, "
+        "are kept.",
     )
     exif_focal: bool = Field(
         default=True,

@@ -39,16 +39,20 @@ from service.core.pose import Camera
 MARGIN = 0.15
 #: The object's extent (px) the finest level works at: larger objects are aligned on a
 #: reduced crop (the texture's detail, not the photo's, then bounds the precision).
-MAX_EXTENT_PX = 480
+MAX_EXTENT_PX = 240
 #: The object's extent (px) at the pyramid's coarsest level.
 COARSE_PX = 60
+#: The crop's lens map is computed every this many crop px (bilinear between).
+MAP_STEP = 8
 #: The radial lens fit (`fit_radial_lens`), in units of kappa (W/2)^2 (W the photo's longer
 #: side; webcams and phones about -0.3 to 0.1): the range it keeps to, the step of its
 #: three samples, and the least curvature of their correlations that counts as a signal.
 LENS_RANGE, LENS_STEP, LENS_MIN_CURVE = (-0.8, 0.4), 0.1, 1e-3
+#: How many times the lens fit moves its three samples towards the parabola's vertex.
+LENS_MOVES = 2
 #: The refined corners' noise per coordinate, px of the photo, as the pose's focal estimate
 #: and cell take it (the ChArUco val frames: 0.5 px median error at 640 x 360).
-REFINED_NOISE_PX = 1.0
+REFINED_NOISE_PX = 0.5
 #: Objects smaller than this (px) are not aligned.
 MIN_EXTENT_PX = 16
 #: The Gaussian smoothing ECC applies to both images at each level (taps).
@@ -56,7 +60,7 @@ GAUSS_TAPS = 5
 #: A refinement that moves a corner by more than this share of the extent is refused.
 MAX_SHIFT = 0.25
 #: ECC's iterations per level and its convergence threshold on the correlation's increment.
-ITERATIONS, EPSILON = 40, 1e-4
+ITERATIONS, EPSILON = 20, 1e-4
 #: The least correlation of a refined alignment (good ones of the ChArUco val frames: 0.78-0.97,
 #: alignments onto the wrong place: up to 0.3).
 MIN_SCORE = 0.5
@@ -248,32 +252,34 @@ def _crop(grey: np.ndarray, pinhole: np.ndarray, lens: Lens | None, scale: float
     """The crop around the pinhole corners [4, 2] px of the photo `grey` uint8 [H, W] (a
     `MARGIN` of their extent around them) as a pinhole sees it (`lens` undone; None: the
     photo is a pinhole's), at `scale`: the photo's region reduced by an integer factor near
-    the scale first (area average: no aliasing), then resampled through the lens."""
+    the scale first (area average: no aliasing), then resampled through the lens (computed
+    every `MAP_STEP` crop px, bilinear between: a lens is smooth)."""
     margin = MARGIN * extent(pinhole)
     origin = pinhole.min(0) - margin
     w, h = (np.ceil((pinhole.max(0) + margin - origin) * scale)).astype(int)
-    xs, ys = np.meshgrid(np.arange(w) / scale + origin[0], np.arange(h) / scale + origin[1])
-    flat = np.column_stack([xs.ravel(), ys.ravel()])
-    seen = flat if lens is None else lens.distort(flat)
+    gw, gh = w // MAP_STEP + 2, h // MAP_STEP + 2
+    xs, ys = np.meshgrid(np.arange(gw) * MAP_STEP, np.arange(gh) * MAP_STEP)
+    flat = np.column_stack([xs.ravel(), ys.ravel()]) / scale + origin
+    seen = (flat if lens is None else lens.distort(flat)).reshape(gh, gw, 2)
     H, W = grey.shape
-    lo = np.maximum(np.floor(seen.min(0)) - 1, 0).astype(int)
-    hi = np.minimum(np.ceil(seen.max(0)) + 2, [W, H]).astype(int)
+    lo = np.maximum(np.floor(seen.reshape(-1, 2).min(0)) - 1, 0).astype(int)
+    hi = np.minimum(np.ceil(seen.reshape(-1, 2).max(0)) + 2, [W, H]).astype(int)
     if np.any(hi - lo < 8):
         raise ValueError("the object lies outside the photo")
     k = max(1, int(1.0 / scale))
     region = grey[lo[1] : hi[1], lo[0] : hi[0]]
     if k > 1:
         size = (max(1, region.shape[1] // k), max(1, region.shape[0] // k))
-        region = cv2.resize(
-            region[: size[1] * k, : size[0] * k], size, interpolation=cv2.INTER_AREA
-        )
-    at = ((seen - lo + 0.5) / k - 0.5).astype(np.float32)
-    mx, my = at[:, 0].reshape(h, w), at[:, 1].reshape(h, w)
-    crop = cv2.remap(region, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        region = region[: size[1] * k, : size[0] * k]
+        region = cv2.resize(region, size, interpolation=cv2.INTER_AREA)
+    coarse = ((seen - lo + 0.5) / k - 0.5).astype(np.float32)
+    up = np.array([[1.0 / MAP_STEP, 0.0, 0.0], [0.0, 1.0 / MAP_STEP, 0.0]])
+    flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
+    maps = cv2.warpAffine(coarse, up, (w, h), flags=flags, borderMode=cv2.BORDER_REPLICATE)
+    crop = cv2.remap(region, maps, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     rh, rw = region.shape
+    mx, my = maps[..., 0], maps[..., 1]
     inside = (mx >= 0) & (mx <= rw - 1) & (my >= 0) & (my <= rh - 1)
-    inside &= (seen[:, 0] >= 0).reshape(h, w) & (seen[:, 0] <= W - 1).reshape(h, w)
-    inside &= (seen[:, 1] >= 0).reshape(h, w) & (seen[:, 1] <= H - 1).reshape(h, w)
     if np.count_nonzero(inside) < 0.2 * inside.size:
         raise ValueError("the object lies outside the photo")
     return _Crop(_unit(crop), inside.astype(np.uint8) * 255, origin, scale)
@@ -320,12 +326,12 @@ def _align(
     finest_only: bool = False,
 ) -> tuple[np.ndarray, float]:
     """ECC from the corners [4, 2] px of the crop `start`, coarse to fine (`finest_only`:
-    the finest level alone, for a start already close) -> the refined corners [4, 2] px of
-    the crop and the final correlation; cv2.error where it fails, _OverBudget where
+    the crop's own level alone, for a start already close) -> the refined corners [4, 2] px
+    of the crop and the final correlation; cv2.error where it fails, _OverBudget where
     `deadline` (`time.perf_counter()`) passes between two levels."""
-    levels = max(1, min(5, 1 + int(math.log2(max(extent_px / COARSE_PX, 1.0)))))
-    if finest_only:
-        levels = 1
+    levels = (
+        1 if finest_only else max(1, min(5, 1 + int(math.log2(max(extent_px / COARSE_PX, 1.0)))))
+    )
     criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, ITERATIONS, EPSILON)
     corners, score = start, -1.0
     for level in reversed(range(levels)):
@@ -455,45 +461,40 @@ def _realigned(
 def fit_radial_lens(
     grey: np.ndarray, aligned: _Aligned, lens: RadialLens, texture: Texture, deadline: float
 ) -> tuple[_Aligned, RadialLens]:
-    """The radial lens about `lens.centre` whose undistorted photo the texture fits best:
-    the alignment repeated at kappa (W/2)^2 = `lens`'s and `LENS_STEP` either side (W the
-    photo's longer side), the vertex of the parabola through their correlations (kept within
-    `LENS_RANGE`) aligned again; the best of them -> (its alignment, its lens). Where the
-    correlations do not curve (an object too small to show its lens) `lens` stays."""
+    """The radial lens about `lens.centre` whose undistorted photo the texture fits best,
+    and the alignment through it: the alignment repeated with kappa (W/2)^2 at a centre
+    (`lens`'s first) and `LENS_STEP` either side (W the photo's longer side), the centre
+    moved towards the vertex of the parabola through their correlations while it lies
+    beyond them (`LENS_MOVES` times at most), and the vertex (within `LENS_RANGE`) aligned
+    again; kept where it correlates better than `aligned` -> (alignment, lens). Where the
+    correlations do not curve (an object too small to show its lens), or time runs out,
+    `aligned` and `lens` stay."""
     unit = (0.5 * max(grey.shape)) ** 2
-    k0 = float(np.clip(lens.kappa * unit, *LENS_RANGE))
-    tried = {k0: aligned} if k0 == lens.kappa * unit else {}
-    for k in (k0 - LENS_STEP, k0, k0 + LENS_STEP):
-        if k not in tried and time.perf_counter() < deadline:
-            tried[k] = _realigned(
-                grey, aligned.pinhole, lens, RadialLens(lens.centre, k / unit), texture, deadline
-            )
-    ks = sorted(tried)
-    scores = [tried[k].score if tried[k].refused is None else -1.0 for k in ks]
-    if len(ks) == 3 and min(scores) > -1.0:
-        curve = scores[0] - 2 * scores[1] + scores[2]
-        if curve < -LENS_MIN_CURVE:
-            k = float(
-                np.clip(ks[1] + LENS_STEP * (scores[0] - scores[2]) / (2 * curve), *LENS_RANGE)
-            )
-            if k not in tried and time.perf_counter() < deadline:
-                tried[k] = _realigned(
-                    grey,
-                    aligned.pinhole,
-                    lens,
-                    RadialLens(lens.centre, k / unit),
-                    texture,
-                    deadline,
-                )
-        else:
-            tried = {k0: tried[k0]} if k0 in tried else tried
-    best = max(tried, key=lambda k: tried[k].score if tried[k].refused is None else -1.0)
-    found = tried[best]
+    lo, hi = LENS_RANGE[0] + LENS_STEP, LENS_RANGE[1] - LENS_STEP
+    centre, scores = float(np.clip(lens.kappa * unit, lo, hi)), dict[float, float]()
+    for _ in range(1 + LENS_MOVES):
+        ks = (centre - LENS_STEP, centre, centre + LENS_STEP)
+        for k in ks:
+            if k not in scores:
+                if time.perf_counter() > deadline:
+                    return aligned, lens
+                new = RadialLens(lens.centre, k / unit)
+                sample = _realigned(grey, aligned.pinhole, lens, new, texture, deadline)
+                scores[k] = -1.0 if sample.refused is not None else sample.score
+        s0, s1, s2 = (scores[k] for k in ks)
+        curve = s0 - 2 * s1 + s2
+        if min(s0, s1, s2) <= -1.0 or curve > -LENS_MIN_CURVE:
+            return aligned, lens
+        vertex = centre + LENS_STEP * (s0 - s2) / (2 * curve)
+        if abs(vertex - centre) <= LENS_STEP:
+            break
+        centre = float(np.clip(vertex, centre - 2 * LENS_STEP, centre + 2 * LENS_STEP))
+        centre = float(np.clip(centre, lo, hi))
+    fitted = RadialLens(lens.centre, float(np.clip(vertex, *LENS_RANGE)) / unit)
+    found = _realigned(grey, aligned.pinhole, lens, fitted, texture, deadline)
     if found.refused is not None or found.score < aligned.score:
         return aligned, lens
-    return replace(found, start_score=aligned.start_score, turned=aligned.turned), RadialLens(
-        lens.centre, best / unit
-    )
+    return replace(found, start_score=aligned.start_score, turned=aligned.turned), fitted
 
 
 def refine_corners(
@@ -501,7 +502,7 @@ def refine_corners(
     corners: np.ndarray,
     texture: Texture,
     lens: Lens | None = None,
-    budget_ms: float = 150.0,
+    budget_ms: float = 1000.0,
     fit_lens: bool = False,
 ) -> Refinement:
     """The photo `grey` uint8 [H, W], the object's corners [4, 2] px as seen (the

@@ -1,6 +1,7 @@
 """The Open Inference Protocol (KServe v2) under /v2: tritonclient, the client a KServe/Triton
-user has, against a live server with FP32 and BYTES inputs (JSON and binary tensors), the same
-probabilities as /v1/predict; the protocol's error cases in its error shape."""
+user has, against a live server with FP32 and BYTES inputs (JSON and binary tensors): images
+get the same probabilities as /v1/predict (the whole pipeline: refinement, the pose's class),
+a network input tensor the graph's own; the protocol's error cases in its error shape."""
 
 from __future__ import annotations
 
@@ -18,6 +19,8 @@ from service_support import CARD, OTHER_MODELS, REAL, SERVE, card_of
 from tritonclient.utils import InferenceServerException
 
 from service.core.preprocess import load_image, to_network_input
+from service.model import PoseModel
+from service.settings import DEFAULT_MODEL
 from service.zoom import detail_decode_size
 
 PHOTOS = [(REAL / name).read_bytes() for name in ("left01.jpg", "right05.jpg", "left12.jpg")]
@@ -77,10 +80,13 @@ def test_health_and_metadata(triton_client: triton.InferenceServerClient) -> Non
 
 
 @pytest.mark.parametrize("binary", [True, False], ids=["binary", "json"])
-def test_fp32_network_input_gives_the_v1_probabilities(
-    triton_client: triton.InferenceServerClient, expected: np.ndarray, binary: bool
+def test_fp32_network_input_gives_the_graphs_probabilities(
+    triton_client: triton.InferenceServerClient, binary: bool
 ) -> None:
+    """A network input holds no photo to refine the corners in or pose from: the answer is
+    the graph's own, as onnxruntime gives it."""
     tensor = network_inputs(SIZE)
+    expected = PoseModel.load(DEFAULT_MODEL).predict(tensor)
     inp = triton.InferInput("image", list(tensor.shape), "FP32")
     inp.set_data_from_numpy(tensor, binary_data=binary)
     outputs = [triton.InferRequestedOutput(n, binary_data=False) for n in ("probabilities",)]
