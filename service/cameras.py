@@ -47,7 +47,9 @@ class CameraStoreError(RuntimeError):
 @dataclass(frozen=True)
 class KnownFocal:
     """A focal length a request knows and where it came from: fx (and optionally fy, the
-    principal point, OpenCV's distortion) px of images `size` (W, H) (None: any size)."""
+    principal point, OpenCV's distortion) px of images `size` (W, H) (None: any size);
+    `lens_learned`: the distortion was learned from photos (`service.core.calibration`): each
+    image fits its own lens instead, which answered more of the ChArUco val frames."""
 
     fx: float
     source: FocalSource
@@ -56,6 +58,7 @@ class KnownFocal:
     cx: float | None = None
     cy: float | None = None
     dist: tuple[float, ...] | None = None
+    lens_learned: bool = False
 
     @classmethod
     def of(cls, camera: CameraOut) -> KnownFocal:
@@ -64,7 +67,8 @@ class KnownFocal:
             camera.width, camera.height
         )  # fmt: skip
         dist = None if camera.dist is None else tuple(camera.dist)
-        return cls(camera.fx, "camera", size, camera.fy, camera.cx, camera.cy, dist)
+        learned = camera.source == "photos"
+        return cls(camera.fx, "camera", size, camera.fy, camera.cx, camera.cy, dist, learned)
 
     def scale(self, size: tuple[int, int]) -> float:
         """Pixels of an image of `size` (W, H) per pixel of the camera's own images."""

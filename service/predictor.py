@@ -17,9 +17,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from service.cameras import KnownFocal
+from service.core.calibration import fit_camera
 from service.core.cells import RegionGrid
 from service.core.frame import object_corners
-from service.core.pose import fit_focal
 from service.core.preprocess import (
     DecodedImage,
     ImageDecodeError,
@@ -125,13 +125,20 @@ def image_corners(
 @dataclass(frozen=True)
 class ObjectView:
     """Where an image shows the object: its corners [4, 2] px of the uploaded image as seen,
-    as a pinhole camera sees them with `lens` undone, and the refinement that made them
-    (None: not run)."""
+    as a pinhole camera sees them with `lens` undone, the refinement that made them (None:
+    not run) and the radial lens it fitted (kappa px^-2 of the uploaded image about its
+    centre, `service.core.refine.RadialLens`; None: none fitted)."""
 
     seen: np.ndarray
     pinhole: np.ndarray
     lens: LensName
     refinement: Refinement | None = None
+    kappa: float | None = None
+
+
+def _centre(size: tuple[int, int]) -> tuple[float, float]:
+    """The centre (x, y) px of an image of `size` (W, H)."""
+    return ((size[0] - 1) / 2.0, (size[1] - 1) / 2.0)
 
 
 def _refinement_out(ref: Refinement) -> RefinementOut:
@@ -152,8 +159,11 @@ class Prediction:
     results: list[ImageResult]
     inference_s: float  # the batched onnxruntime call, seconds
     #: per image, where the object was found: its corners [4, 2] px of the uploaded image as
-    #: a pinhole camera would see them (the network's lens fit undone), else None
+    #: a pinhole camera would see them (the lens undone), else None
     pinhole: list[np.ndarray | None]
+    #: per image, the radial lens its refinement fitted (kappa px^-2 about the image's
+    #: centre, `ObjectView.kappa`), else None
+    kappas: list[float | None]
 
 
 def _box(box: tuple[int, int, int, int], scale: tuple[float, float], size: tuple[int, int]) -> Box:
@@ -343,11 +353,11 @@ class Predictor:
                 result.fx = k.camera(image_size).fx
                 result.fx_source = k.source
             results.append(result)
-        pinhole = [
-            v.pinhole if v is not None and r.class_id else None
-            for v, r in zip(views, results, strict=True)
-        ]
-        return Prediction(results, infer_s, pinhole)
+        found = [v if r.class_id else None for v, r in zip(views, results, strict=True)]
+        pinhole = [None if v is None else v.pinhole for v in found]
+        return Prediction(
+            results, infer_s, pinhole, [None if v is None else v.kappa for v in found]
+        )
 
     def _run(
         self,
@@ -397,13 +407,14 @@ class Predictor:
                 continue
             seen, k, size = corners[0][i], known[i], frames[i].image_size
             camera = None if k is None else k.camera(size)
+            # a lens learned from photos is each image's own to fit (docs/decisions.md)
+            learned = k is not None and k.lens_learned
             lens: Lens | None = None
             kind: LensName = "none"
-            if camera is not None and camera.dist is not None:
+            if camera is not None and camera.dist is not None and not learned:
                 lens, kind = CameraLens(camera), "camera"
-            elif answer.undistorted is not None:
-                centre = ((size[0] - 1) / 2.0, (size[1] - 1) / 2.0)
-                lens, kind = RadialLens.fitted(seen, corners[1][i], centre), "network"
+            elif answer.undistorted is not None:  # fitted again by the refinement
+                lens, kind = RadialLens.fitted(seen, corners[1][i], _centre(size)), "network"
             pinhole = seen if lens is None else lens.undistort(seen)
             view = ObjectView(seen, pinhole, kind)
             if texture is not None:
@@ -432,25 +443,27 @@ class Predictor:
         if not ref.refined:
             return replace(view, refinement=ref)
         seen, pinhole = ((q + 0.5) * f - 0.5 for q in (ref.corners, ref.pinhole))
-        return ObjectView(seen, pinhole, "fitted" if fit else view.lens, ref)
+        kappa = ref.lens.kappa / f**2 if isinstance(ref.lens, RadialLens) else None
+        return ObjectView(seen, pinhole, "fitted" if fit else view.lens, ref, kappa)
 
     def _joint_focal(
         self, views: list[ObjectView | None], frames: list[NetworkFrame]
     ) -> _JointFocal | None:
-        """One focal length fitted to the pinhole corners [4, 2] px of every image the
-        object was found in (`fit_focal`, in px of the first one's size), or None with fewer
-        than 2 of them."""
+        """One camera fitted to the pinhole corners [4, 2] px of every image the object was
+        found in (`fit_camera`, in px of the first one's size), or None with fewer than 2."""
         size_cm = self.model.object_size_cm
-        found = [i for i, v in enumerate(views) if v is not None]
+        found = [(v, f.image_size) for v, f in zip(views, frames, strict=True) if v is not None]
         if size_cm is None or len(found) < 2:
             return None
-        size = frames[found[0]].image_size
-        pinhole = [v.pinhole for v in views if v is not None]
-        scaled = [
-            q * max(size) / max(frames[i].image_size) for i, q in zip(found, pinhole, strict=True)
+        size = found[0][1]
+        scales = [max(size) / max(image_size) for _, image_size in found]
+        scaled = [v.pinhole * s for (v, _), s in zip(found, scales, strict=True)]
+        kappas = [
+            None if v.kappa is None else v.kappa / s**2
+            for (v, _), s in zip(found, scales, strict=True)
         ]
-        fit = fit_focal(scaled, object_corners(*size_cm, z=True), size)
-        return _JointFocal(fit.fx, "estimated", size, interval=fit.interval)
+        fit = fit_camera(scaled, kappas, object_corners(*size_cm, z=True), size)
+        return _JointFocal(fit.fx, "estimated", size, interval=fit.fx_range)
 
     def _add_view(
         self,
@@ -538,4 +551,4 @@ class Predictor:
             ]
             results.append(result)
             start += len(boxes)
-        return Prediction(results, infer_s, [None] * len(results))
+        return Prediction(results, infer_s, [None] * len(results), [None] * len(results))

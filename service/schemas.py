@@ -263,6 +263,12 @@ class CameraOut(BaseModel):
     fx_range: list[float] | None = Field(
         default=None, description="From photos: the focal lengths [lo, hi] px they allow."
     )
+    k1_se: float | None = Field(
+        default=None,
+        description="From photos: the standard error of the learned lens's k1 (`dist`, "
+        "OpenCV's coefficients; null where the photos fitted no lens: fx alone is learned "
+        "where it is above 0.05).",
+    )
     created: str
 
 

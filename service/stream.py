@@ -429,7 +429,7 @@ class StreamSession:
         result, pinhole = prediction.results[0], prediction.pinhole[0]
         if self.camera is not None and pinhole is not None and result.image_size:
             w, h = result.image_size
-            self.camera.offer(pinhole, (w, h))
+            self.camera.offer(pinhole, (w, h), prediction.kappas[0])
         return prediction
 
     async def _send(self, text: str) -> None:

@@ -2,9 +2,10 @@
 
 Each answered frame whose object was found offers its corners. A view is kept when the camera
 has turned by `MIN_TURN_DEG` or more since every kept view (a still camera adds nothing);
-once `MIN_VIEWS` are kept, their joint focal length (`service.core.pose.fit_focal`, the fit
-of `POST /v1/cameras`: views that do not fit are dropped) is taken when the views pin it
-(`MAX_FX_SPREAD`), and fitted again with every new view, over the latest `MAX_VIEWS`.
+once `MIN_VIEWS` are kept, their camera (`service.core.calibration.fit_camera`, the fit of
+`POST /v1/cameras`: views that do not fit are dropped; the lens too where the frames' refinements
+pin it) is taken when the views pin its focal length, and fitted again with every new view,
+over the latest `MAX_VIEWS`.
 """
 
 from __future__ import annotations
@@ -16,13 +17,13 @@ import cv2
 import numpy as np
 
 from service.cameras import KnownFocal
+from service.core.calibration import fit_camera
 from service.core.frame import object_corners
-from service.core.pose import Camera, fit_focal, focal_prior, solve_pose
+from service.core.pose import Camera, focal_prior, solve_pose
 
 MIN_VIEWS = 5
 MAX_VIEWS = 30
 MIN_TURN_DEG = 4.0
-MAX_FX_SPREAD = 0.3
 
 
 class StreamCamera:
@@ -32,16 +33,19 @@ class StreamCamera:
         self.object = object_corners(*size_cm, z=True)
         self.size: tuple[int, int] | None = None
         self.views: deque[np.ndarray] = deque(maxlen=MAX_VIEWS)
+        self.kappas: deque[float | None] = deque(maxlen=MAX_VIEWS)  # each view's fitted lens
         self.turns: deque[np.ndarray] = deque(maxlen=MAX_VIEWS)  # each view's rotation
         self.known: KnownFocal | None = None
 
-    def offer(self, corners: np.ndarray, size: tuple[int, int]) -> None:
-        """A frame's corners [4, 2] px of an image of `size` (W, H): kept if the camera turned
-        since the kept views, then the focal length fitted again. Frames of another size
-        start over (another camera, or another resolution)."""
+    def offer(self, corners: np.ndarray, size: tuple[int, int], kappa: float | None = None) -> None:
+        """A frame's pinhole corners [4, 2] px of an image of `size` (W, H) and the radial
+        lens its refinement fitted (kappa px^-2, `service.predictor.Prediction.kappas`):
+        kept if the camera turned since the kept views, then the camera fitted again. Frames
+        of another size start over (another camera, or another resolution)."""
         if size != self.size:
             self.size, self.known = size, None
             self.views.clear()
+            self.kappas.clear()
             self.turns.clear()
         q = np.asarray(corners, np.float64)
         try:
@@ -51,15 +55,16 @@ class StreamCamera:
         if any(_angle_deg(R, other) < MIN_TURN_DEG for other in self.turns):
             return
         self.views.append(q)
+        self.kappas.append(kappa)
         self.turns.append(R)
         if len(self.views) < MIN_VIEWS:
             return
         try:
-            fit = fit_focal(list(self.views), self.object, size)
+            fit = fit_camera(list(self.views), list(self.kappas), self.object, size)
         except (ValueError, cv2.error):
             return
-        if (fit.interval[1] - fit.interval[0]) / fit.fx <= MAX_FX_SPREAD:
-            self.known = KnownFocal(fit.fx, "stream", size)
+        if fit.pinned:
+            self.known = KnownFocal(fit.fx, "stream", size, dist=fit.dist, lens_learned=True)
 
 
 def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
