@@ -10,19 +10,16 @@ from fastapi import APIRouter, Query, Request, Response
 from pydantic import ValidationError
 
 from service.cameras import CameraNotFound, CameraStore, CameraStoreError, CameraStoreFull
-from service.core.calibration import fit_camera
-from service.core.frame import object_corners
-from service.core.preprocess import ImageDecodeError, ImageTooLargeError, landscape_pixels
+from service.core.preprocess import ImageDecodeError, ImageTooLargeError
 from service.deps import AUTHORISED, CamerasDep, LimiterDep, PredictorDep, SettingsDep
 from service.errors import ApiError
-from service.predictor import Predictor, too_large_code
+from service.learning import MIN_PHOTOS, learn_camera
+from service.predictor import too_large_code
 from service.schemas import ERROR_RESPONSES, CameraIn, CameraList, CameraOut
 from service.uploads import read_images
 
 router = APIRouter(tags=["cameras"], dependencies=AUTHORISED)
 
-#: Photos of the object a camera is learned from, at least.
-MIN_PHOTOS = 3
 
 CAMERA_BODY: dict[str, Any] = {
     "requestBody": {
@@ -63,57 +60,6 @@ async def _stored(cameras: CameraStore, fields: dict[str, Any]) -> CameraOut:
         raise _store_error(exc) from None
 
 
-def learn(predictor: Predictor, images: list[tuple[str | None, bytes]]) -> dict[str, Any]:
-    """Photos of the object by one camera -> the camera's fields (`fit_camera` of the
-    corners found and refined in them: fx, and the lens where the photos pin it);
-    ValueError saying why it cannot be learned."""
-    size_cm = predictor.model.object_size_cm
-    if size_cm is None or predictor.model.corners_name is None:
-        raise ValueError(f"model {predictor.model.name} gives no corners: pick a corner model")
-    prediction = predictor.predict(images, "whole")
-    found = [
-        ((r.image_size[0], r.image_size[1]), q, kappa)
-        for r, q, kappa in zip(
-            prediction.results, prediction.pinhole, prediction.kappas, strict=True
-        )
-        if q is not None and r.image_size is not None
-    ]
-    if len(found) < MIN_PHOTOS:
-        raise ValueError(
-            f"the object was found in {len(found)} of {len(images)} photos; "
-            f"{MIN_PHOTOS} or more are needed"
-        )
-    w, h = max(found[0][0]), min(found[0][0])  # landscape: portraits are the camera turned
-    odd = sorted({size for size, _, _ in found if sorted(size) != [h, w]})
-    if odd:
-        raise ValueError(
-            f"photos of {w}x{h} and of {', '.join(f'{a}x{b}' for a, b in odd)}: "
-            "send one camera's photos, all of one size"
-        )
-    # a portrait is the camera turned: its corners turned back to landscape (fx and a centred
-    # principal point stay)
-    views = [landscape_pixels(q, size) for size, q, _ in found]
-    fit = fit_camera(views, [k for _, _, k in found], object_corners(*size_cm, z=True), (w, h))
-    used = int(fit.used.sum())
-    if used < MIN_PHOTOS or not fit.pinned:
-        raise ValueError(
-            f"the {used} photos that fit leave fx between {fit.fx_range[0]:.0f} and "
-            f"{fit.fx_range[1]:.0f} px: add photos that view the object obliquely "
-            "(tilted 20-50 degrees), from several sides"
-        )
-    return {
-        "fx": round(fit.fx, 3),
-        "dist": None if fit.dist is None else [round(v, 6) for v in fit.dist],
-        "width": w,
-        "height": h,
-        "source": "photos",
-        "photos_used": used,
-        "residual_px": round(fit.residual_px, 3),
-        "fx_range": [round(v, 3) for v in fit.fx_range],
-        "k1_se": None if fit.k1_se is None else round(fit.k1_se, 4),
-    }
-
-
 @router.post(
     "/v1/cameras",
     response_model=CameraOut,
@@ -149,7 +95,7 @@ async def create_camera(
         )
     images = await read_images(request, settings.max_images)
     try:
-        fields = await anyio.to_thread.run_sync(learn, predictor, images, limiter=limiter)
+        fields = await anyio.to_thread.run_sync(learn_camera, predictor, images, limiter=limiter)
     except ImageTooLargeError as exc:
         raise ApiError(413, too_large_code(exc), str(exc)) from None
     except ImageDecodeError as exc:
