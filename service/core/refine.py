@@ -310,7 +310,10 @@ def _score(template: np.ndarray, crop: _Crop, H: np.ndarray) -> float:
     )
     if np.count_nonzero(valid) < 0.2 * valid.size:
         return -1.0
-    return float(cv2.computeECC(template, warped, valid))
+    try:
+        return float(cv2.computeECC(template, warped, valid))
+    except cv2.error:  # a plain region: no correlation to speak of
+        return -1.0
 
 
 class _OverBudget(Exception):
@@ -455,6 +458,8 @@ def _realigned(
         moved, score = _align(texture, crop, crop.to_crop(start), size * scale, deadline, True)
     except (ValueError, cv2.error):
         return _Aligned(start, nan, nan, False, "the alignment did not converge")
+    except _OverBudget:
+        return _Aligned(start, nan, nan, False, "the alignment ran out of its time budget")
     return _Aligned(crop.to_image(moved), score, nan, False, None)
 
 

@@ -137,6 +137,17 @@ def test_a_time_budget_that_runs_out_keeps_the_start() -> None:
     assert np.array_equal(ref.corners, START)
 
 
+@pytest.mark.parametrize("budget_ms", [2.0, 8.0, 20.0, 40.0])
+def test_any_time_budget_ends_in_an_answer_with_a_lens_fit_running(budget_ms: float) -> None:
+    """Wherever the budget runs out (the first alignment, the features, the lens fit), the
+    answer is the start's or an alignment that held, never an error."""
+    tex = texture("charuco")
+    centre = ((SIZE[0] - 1) / 2, (SIZE[1] - 1) / 2)
+    ref = refine_corners(photo(tex), START, tex, RadialLens(centre, 0.0), budget_ms, True)
+    assert ref.refined or np.array_equal(ref.corners, START)
+    assert ref.refined or ref.reason is not None
+
+
 def test_a_known_lens_is_undone() -> None:
     """A webcam's barrel lens (OpenCV's coefficients): the corners as seen come back as the
     lens shows them, the pinhole ones as a pinhole would."""

@@ -1,0 +1,126 @@
+"""What the refinement at the photo's resolution costs, measured in one run: ms per image
+through the service's whole mode (`service.predictor.Predictor`, one onnxruntime thread, as
+one worker runs it) with the refinement off and on, per corner model, on
+
+* a 1280x720 JPEG of the model's object (a render of its profile by the project's renderer,
+  the camera drawn as the data sets draw it, nothing known of it; the lens is fitted), and
+  the same with its camera registered (the lens known: no fit);
+* a 1280x720 JPEG without the object (a background photo): the refinement does not run.
+
+The issue's budget: a board photo at most 1.5x the time without the refinement, a photo
+without the object no more. Each time is the best of `--repeat` rounds of `--seconds`.
+
+    .venv/bin/python benchmarks/bench_refine.py [--seconds 2] [--repeat 3] [--write-docs]
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import os
+import platform
+from pathlib import Path
+
+import cv2
+import numpy as np
+from bench_inference import best_ms  # benchmarks/, the script's own folder
+from docs_section import write_section
+
+from service.cameras import KnownFocal
+from service.core.geometry import intrinsics
+from service.core.profile import load_profile
+from service.model import PoseModel
+from service.predictor import Predictor
+from service.settings import Settings
+from train.markdown import table
+from train.synth.generate import DatasetSpec, plan_dataset
+from train.synth.render import Renderer
+
+ROOT = Path(__file__).resolve().parent.parent
+DOCS = ROOT / "docs" / "benchmarks.md"
+NO_OBJECT = ROOT / "train/assets/backgrounds/photos/camera.jpg"
+SIZE = (1280, 720)
+MODELS = {"chessboard": "chessboard-corners-160x120", "charuco": "charuco-corners-160x120",
+          "book": "book-corners-160x120"}  # fmt: skip
+BUDGET_OBJECT, BUDGET_EMPTY = 1.5, 1.0
+
+
+def jpeg(bgr: np.ndarray) -> bytes:
+    ok, data = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, 90])
+    if not ok:
+        raise SystemExit("error: cannot encode a JPEG")
+    return bytes(data.tobytes())
+
+
+def object_photo(obj: str, seed: int = 5) -> tuple[bytes, KnownFocal]:
+    """A 1280x720 JPEG of the object, near and oblique, without lens distortion, and its
+    camera (the renderer's pinhole)."""
+    profile = load_profile(obj)
+    plan = plan_dataset(DatasetSpec("free", 2, 0, 9, seed, profile))
+    view = next(v for v, k in zip(plan.views, plan.classes, strict=True) if k == 1)
+    view = type(view)(**{**view.__dict__, "k1": 0.0})
+    rgb = Renderer(profile, SIZE, jitter=False, seed=seed).render(view, 0, np.random.default_rng(0))
+    K = intrinsics(SIZE, view.focal_scale)
+    camera = KnownFocal(K[0, 0], "camera", SIZE, K[1, 1], K[0, 2], K[1, 2], (0.0,) * 5)
+    return jpeg(cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)), camera
+
+
+def empty_photo() -> bytes:
+    bgr = cv2.imread(str(NO_OBJECT), cv2.IMREAD_COLOR)
+    if bgr is None:
+        raise SystemExit(f"error: cannot read {NO_OBJECT}")
+    return jpeg(cv2.resize(bgr, SIZE, interpolation=cv2.INTER_LINEAR))
+
+
+def measure(obj: str, seconds: float, repeat: int) -> list[list[str]]:
+    """The rows of one model: each photo, ms off and on, the ratio, within the budget."""
+    model = PoseModel.load(ROOT / "models" / f"{MODELS[obj]}.onnx", intra_op_threads=1)
+    off, on = (Predictor(model, Settings(refine=r)) for r in (False, True))
+    board, camera = object_photo(obj)
+    cases = [("object, nothing known", board, None, BUDGET_OBJECT),
+             ("object, camera registered", board, camera, BUDGET_OBJECT),
+             ("no object", empty_photo(), None, BUDGET_EMPTY)]  # fmt: skip
+    rows = []
+    for what, data, known, budget in cases:
+        source = on.predict([(None, data)], "whole", known).results[0].corners_source or "-"
+        ms = [
+            best_ms(
+                lambda p=p, d=data, k=known: p.predict([(None, d)], "whole", k), 1, seconds, repeat
+            )
+            for p in (off, on)
+        ]
+        ratio = ms[1] / ms[0]
+        # a ratio within the timer's noise of the budget counts as within it
+        ok = "yes" if ratio <= budget * 1.05 else "no"
+        rows.append([f"`{model.name}`", what, source, f"{ms[0]:.1f}", f"{ms[1]:.1f}",
+                     f"{ratio:.2f}x", f"{budget:g}x", ok])  # fmt: skip
+        print(" | ".join(rows[-1]), flush=True)
+    return rows
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seconds", type=float, default=2.0, help="length of one round")
+    parser.add_argument("--repeat", type=int, default=3, help="rounds; the best counts")
+    parser.add_argument("--write-docs", action="store_true", help="update docs/benchmarks.md")
+    args = parser.parse_args()
+    when = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
+    header = (
+        f"`.venv/bin/python benchmarks/bench_refine.py --seconds {args.seconds:g} --repeat "
+        f"{args.repeat}`, {when}, {platform.machine()}, {os.cpu_count()} CPUs, load average "
+        f"{os.getloadavg()[0]:.2f} at start. ms per 1280x720 JPEG through whole mode, best of "
+        "the rounds."
+    )
+    print(header)
+    rows = [row for obj in MODELS for row in measure(obj, args.seconds, args.repeat)]
+    head = ["model", "photo", "corners", "refine off ms", "refine on ms", "on / off", "budget",
+            "within"]  # fmt: skip
+    body = [header, "", *table(head, rows), "",
+            f"* load average {os.getloadavg()[0]:.2f} at end"]  # fmt: skip
+    print("\n".join(body))
+    if args.write_docs:
+        write_section(DOCS, "bench_refine", "Refinement at the photo's resolution", body)
+
+
+if __name__ == "__main__":
+    main()
