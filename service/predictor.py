@@ -122,6 +122,20 @@ def image_corners(
     return seen, flat
 
 
+#: A tracked frame's alignment must correlate this well, else the network answers it.
+TRACK_SCORE = 0.7
+
+
+@dataclass(frozen=True)
+class Track:
+    """Where a stream's last answered frame showed the object: its corners [4, 2] px as
+    seen, the radial lens fitted there (kappa px^-2, None: none), P(present)."""
+
+    corners: np.ndarray
+    kappa: float | None
+    present: float
+
+
 @dataclass(frozen=True)
 class ObjectView:
     """Where an image shows the object: its corners [4, 2] px of the uploaded image as seen,
@@ -506,6 +520,55 @@ class Predictor:
             result.pose, result.cell = pose, cell
         else:  # the pose's region is less likely than the object's absence
             result.corners = result.corners_source = result.refinement = None
+
+    def track(
+        self,
+        data: bytes,
+        last: Track,
+        focal: KnownFocal | None = None,
+        grid: RegionGrid | None = None,
+    ) -> Prediction | None:
+        """One frame of a stream whose object the frame before showed at `last`: its corners
+        refined from there (no network, no feature search, the last frame's lens), or None
+        where the model carries no texture, refinement is off, or the alignment does not
+        hold at `TRACK_SCORE` (then the network answers the frame, `predict`); the errors of
+        `predict` for an image it refuses."""
+        texture, size_cm = self.model.texture, self.model.object_size_cm
+        if texture is None or size_cm is None or not self.settings.refine:
+            return None
+        t0 = time.perf_counter()
+        self.check_pixels([(None, data)], "whole")  # the size limits, from the header
+        header = image_header(data)
+        grey, f = load_grey(data, max(1, int(extent(last.corners) / MAX_EXTENT_PX)))
+        size = (header.width, header.height)
+        if (grey.shape[1] > grey.shape[0]) != (size[0] > size[1]):  # EXIF turned it
+            size = (size[1], size[0])
+        camera = None if focal is None else focal.camera(size)
+        learned = focal is not None and focal.lens_learned
+        lens: Lens = RadialLens(_centre(size), last.kappa or 0.0)
+        kind: LensName = "fitted"
+        if camera is not None and camera.dist is not None and not learned:
+            lens, kind = CameraLens(camera), "camera"
+        ref = refine_corners(
+            grey,
+            (last.corners + 0.5) / f - 0.5,
+            texture,
+            lens.reduced(f),
+            self.settings.refine_budget_ms,
+            features=False,
+        )
+        if not ref.refined or ref.score < TRACK_SCORE:
+            return None
+        seen, pinhole = ((q + 0.5) * f - 0.5 for q in (ref.corners, ref.pinhole))
+        kappa = last.kappa if kind == "fitted" else None
+        view = ObjectView(seen, pinhole, kind, ref, kappa)
+        probs = np.array([1 - last.present] + [last.present / 8] * 8)
+        result = _result(None, 1, probs, 0.0, size)
+        self._add_view(result, view, size, focal, None, grid)
+        result.tracked = True
+        result.elapsed_ms = 1000.0 * (time.perf_counter() - t0)
+        found = result.class_id != 0
+        return Prediction([result], 0.0, [pinhole if found else None], [kappa if found else None])
 
     def _exif_focal(self, data: bytes, size: tuple[int, int]) -> KnownFocal | None:
         """The focal length of the photo's EXIF (`exif_focal`), px of its `size` (W, H), or

@@ -151,6 +151,12 @@ class ImageResult(BaseModel):
     refinement: RefinementOut | None = Field(
         default=None, description="With corners, where the refinement ran: how it went."
     )
+    tracked: bool | None = Field(
+        default=None,
+        description="Streams: the corners were refined from the previous frame's, without the "
+        "network (which answers a frame where the track is lost, and every STREAM_TRACK_EVERY "
+        "frames); null outside streams.",
+    )
     fx: float | None = Field(
         default=None,
         description="Whole mode: the camera's focal length the class used, in pixels of the "

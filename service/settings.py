@@ -122,6 +122,15 @@ class Settings(BaseSettings):
         "it the alignment stops and the network's corners, or the last alignment that held, "
         "are kept.",
     )
+    stream_track_every: int = Field(
+        default=10,
+        ge=0,
+        le=10_000,
+        description="Streams, whole mode, models that carry their texture: a frame after one "
+        "whose object was found is refined from that frame's corners without the network "
+        "(`tracked` in the answer); the network still answers every this many frames, to "
+        "catch drift. 0: the network answers every frame.",
+    )
     exif_focal: bool = Field(
         default=True,
         description="Whole mode, models that take a focal length: where a request gives no "

@@ -43,7 +43,7 @@ from service.core.cells import RegionGrid
 from service.core.preprocess import ImageDecodeError, ImageTooLargeError
 from service.core.regions import region_of_class
 from service.metrics import Metrics
-from service.predictor import Prediction, Predictor, too_large_code
+from service.predictor import Prediction, Predictor, Track, too_large_code
 from service.schemas import ImageResult, Mode, RegionOut
 from service.stream_camera import StreamCamera
 
@@ -327,6 +327,8 @@ class StreamSession:
         self.limiter, self.metrics, self.max_frame_bytes = limiter, metrics, max_frame_bytes
         self.queue = FrameQueue(depth)
         self.smoother = Smoother(options.smooth)
+        self.track: Track | None = None  # where the last frame showed the object
+        self.tracked = 0  # frames tracked since the network last answered
 
     def hello(self) -> dict[str, Any]:
         """The first message: the stream is open and what it runs."""
@@ -420,16 +422,38 @@ class StreamSession:
         return json.dumps({**where, **result.model_dump(mode="json")})
 
     def _predict(self, data: bytes) -> Prediction:
-        """One frame's answer (with the learned camera once there is one); its corners are
-        then offered to the camera the stream learns."""
+        """One frame's answer (with the learned camera once there is one): tracked from the
+        last frame's corners where it can be (`Predictor.track`), else the network's; its
+        corners are then offered to the camera the stream learns."""
         known = self.focal or (self.camera.known if self.camera is not None else None)
-        prediction = self.predictor.predict(
-            [(None, data)], self.options.mode, known, grid=self.options.grid
-        )
+        prediction = self._tracked(data, known)
+        if prediction is None:
+            prediction = self.predictor.predict(
+                [(None, data)], self.options.mode, known, grid=self.options.grid
+            )
+            self.tracked = 0
+            if prediction.results[0].corners is not None:
+                prediction.results[0].tracked = False
         result, pinhole = prediction.results[0], prediction.pinhole[0]
+        self.track = None
+        if result.corners is not None and result.class_id:
+            present = 1.0 - result.probabilities[0]
+            self.track = Track(np.array(result.corners), prediction.kappas[0], present)
         if self.camera is not None and pinhole is not None and result.image_size:
             w, h = result.image_size
             self.camera.offer(pinhole, (w, h), prediction.kappas[0])
+        return prediction
+
+    def _tracked(self, data: bytes, known: KnownFocal | None) -> Prediction | None:
+        """The frame tracked from the last one, or None where the network answers it: no
+        track, tracking off or due the network (`Settings.stream_track_every`), not whole
+        mode, or the track lost."""
+        every = self.predictor.settings.stream_track_every
+        if self.track is None or self.options.mode != "whole" or self.tracked + 1 >= every:
+            return None
+        prediction = self.predictor.track(data, self.track, known, self.options.grid)
+        if prediction is not None:
+            self.tracked += 1
         return prediction
 
     async def _send(self, text: str) -> None:

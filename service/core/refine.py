@@ -509,6 +509,7 @@ def refine_corners(
     lens: Lens | None = None,
     budget_ms: float = 1000.0,
     fit_lens: bool = False,
+    features: bool = True,
 ) -> Refinement:
     """The photo `grey` uint8 [H, W], the object's corners [4, 2] px as seen (the
     network's), its texture and the lens of the photo (None: a pinhole's) -> the corners
@@ -516,7 +517,8 @@ def refine_corners(
 
     The alignment starts from the network's corners; where it correlates less than
     `GOOD_SCORE` and time is left of `budget_ms`, also from the texture's features matched in
-    the photo (`feature_start`), and the better of the two is kept. With `fit_lens` (a lens
+    the photo (`feature_start`; not with `features` off), and the better of the two is kept.
+    With `fit_lens` (a lens
     not known: `lens` a `RadialLens` guess, or None), the radial lens is fitted too
     (`fit_radial_lens`)."""
     t0 = time.perf_counter()
@@ -524,7 +526,8 @@ def refine_corners(
     seen = np.asarray(corners, np.float64).reshape(4, 2)
     pinhole = seen if lens is None else lens.undistort(seen)
     best = _aligned_from(grey, pinhole, texture, lens, deadline)
-    if (best.refused is not None or best.score < GOOD_SCORE) and time.perf_counter() < deadline:
+    weak = best.refused is not None or best.score < GOOD_SCORE
+    if features and weak and time.perf_counter() < deadline:
         found = feature_start(grey, texture)
         if found is not None:
             start = found if lens is None else lens.undistort(found)
