@@ -83,8 +83,15 @@ def test_video_frames_come_back_in_order_as_predict_answers_them(
         assert got["class_id"] == want["class_id"]
         assert got["region"] == want["region"]
         assert got["box"] == want["box"]
-        assert got["probabilities"] == pytest.approx(want["probabilities"], abs=1e-6)
         assert set(want) <= set(got)  # the /v1/predict result, plus seq and dropped
+        if got.get("tracked"):  # refined from the last frame's corners: the same place
+            assert np.abs(np.array(got["corners"]) - want["corners"]).max() < 1.0
+        else:
+            assert got["probabilities"] == pytest.approx(want["probabilities"], abs=1e-6)
+    # whole mode tracks a view from frame to frame; the network answers every 10th frame
+    tracked = [bool(a.get("tracked")) for a in answers]
+    assert any(tracked) == (mode == "whole")
+    assert "".join("t" if t else "n" for t in tracked).count("t" * 10) == 0
     # The rendered classes (a segment counts by its majority): the empty frames are class 0
     # and every view of the board is seen as the board (the x/y side is the model's accuracy,
     # measured in docs/results.md, not the stream's behaviour).
