@@ -7,7 +7,7 @@ from typing import Any
 
 from service.core.calibration import fit_camera
 from service.core.frame import object_corners
-from service.core.preprocess import landscape_pixels
+from service.core.preprocess import camera_pixels
 from service.predictor import Predictor
 
 #: Photos of the object a camera is learned from, at least.
@@ -43,7 +43,7 @@ def learn_camera(predictor: Predictor, images: list[tuple[str | None, bytes]]) -
         )
     # a portrait is the camera turned: its corners turned back to landscape (fx and a centred
     # principal point stay)
-    views = [landscape_pixels(q, size) for size, q, _ in found]
+    views = [camera_pixels(q, size, (w, h)) for size, q, _ in found]
     fit = fit_camera(views, [k for _, _, k in found], object_corners(*size_cm, z=True), (w, h))
     used = int(fit.used.sum())
     if used < MIN_PHOTOS or not fit.pinned:

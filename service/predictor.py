@@ -25,6 +25,7 @@ from service.core.preprocess import (
     ImageDecodeError,
     ImageTooLargeError,
     NetworkFrame,
+    camera_pixels,
     decoded_pixels,
     image_header,
     load_grey,
@@ -464,19 +465,20 @@ class Predictor:
         self, views: list[ObjectView | None], frames: list[NetworkFrame]
     ) -> _JointFocal | None:
         """One camera fitted to the pinhole corners [4, 2] px of every image the object was
-        found in (`fit_camera`, in px of the first one's size), or None with fewer than 2."""
+        found in (`fit_camera`, in px of the first one's size turned to landscape,
+        `camera_pixels`), or None with fewer than 2."""
         size_cm = self.model.object_size_cm
         found = [(v, f.image_size) for v, f in zip(views, frames, strict=True) if v is not None]
         if size_cm is None or len(found) < 2:
             return None
-        size = found[0][1]
-        scales = [max(size) / max(image_size) for _, image_size in found]
-        scaled = [v.pinhole * s for (v, _), s in zip(found, scales, strict=True)]
+        first = found[0][1]
+        size = (max(first), min(first))  # the camera's landscape frame: portraits turned
+        corners = [camera_pixels(v.pinhole, image_size, size) for v, image_size in found]
         kappas = [
-            None if v.kappa is None else v.kappa / s**2
-            for (v, _), s in zip(found, scales, strict=True)
+            None if v.kappa is None else v.kappa * (max(image_size) / max(size)) ** 2
+            for v, image_size in found
         ]
-        fit = fit_camera(scaled, kappas, object_corners(*size_cm, z=True), size)
+        fit = fit_camera(corners, kappas, object_corners(*size_cm, z=True), size)
         return _JointFocal(fit.fx, "estimated", size, interval=fit.fx_range)
 
     def _add_view(

@@ -247,6 +247,17 @@ def landscape_pixels(uv: np.ndarray, image_size: tuple[int, int]) -> np.ndarray:
     return up
 
 
+def camera_pixels(uv: np.ndarray, image_size: tuple[int, int], size: tuple[int, int]) -> np.ndarray:
+    """Pixels [..., 2] of an image of `image_size` (W0, H0) -> pixels of the landscape
+    camera frame of `size` (W, H), W >= H: a portrait turned to landscape first
+    (`landscape_pixels`: the camera turned), then scaled by the ratio of the longer sides
+    (pixel centres kept). The one rule by which photos of one camera at several sizes and
+    orientations are fitted together (`POST /v1/cameras`, `same_camera`)."""
+    s = max(size) / max(image_size)
+    out: np.ndarray = (landscape_pixels(uv, image_size) + 0.5) * s - 0.5
+    return out
+
+
 @dataclass(frozen=True)
 class NetworkFrame:
     """How an image of `image_size` = (W0, H0) pixels becomes a network input of `size` =

@@ -50,9 +50,13 @@ MAP_STEP = 8
 LENS_RANGE, LENS_STEP, LENS_MIN_CURVE = (-0.8, 0.4), 0.1, 1e-3
 #: How many times the lens fit moves its three samples towards the parabola's vertex.
 LENS_MOVES = 2
+#: The least gain in correlation a fitted lens must bring over the start's: less is noise
+#: (a head-on view of a lens-free photo gains 0.0002, the ChArUco val frames 0.01-0.05).
+LENS_MIN_GAIN = 0.002
 #: The refined corners' noise per coordinate, px of the photo, as the pose's focal estimate
-#: and cell take it (the ChArUco val frames: 0.5 px median error at 640 x 360).
-REFINED_NOISE_PX = 0.5
+#: and cell take it (the ChArUco val frames at 1280x720: 1.0 px median error against their
+#: labels with the camera's lens known, 1.6 px with the lens fitted).
+REFINED_NOISE_PX = 1.0
 #: Objects smaller than this (px) are not aligned.
 MIN_EXTENT_PX = 16
 #: The Gaussian smoothing ECC applies to both images at each level (taps).
@@ -251,8 +255,8 @@ class _Crop:
 def _crop(grey: np.ndarray, pinhole: np.ndarray, lens: Lens | None, scale: float) -> _Crop:
     """The crop around the pinhole corners [4, 2] px of the photo `grey` uint8 [H, W] (a
     `MARGIN` of their extent around them) as a pinhole sees it (`lens` undone; None: the
-    photo is a pinhole's), at `scale`: the photo's region reduced by an integer factor near
-    the scale first (area average: no aliasing), then resampled through the lens (computed
+    photo is a pinhole's), at `scale`: the photo's region reduced by the scale first (area
+    average: no aliasing), then resampled through the lens (computed
     every `MAP_STEP` crop px, bilinear between: a lens is smooth)."""
     margin = MARGIN * extent(pinhole)
     origin = pinhole.min(0) - margin
@@ -266,13 +270,14 @@ def _crop(grey: np.ndarray, pinhole: np.ndarray, lens: Lens | None, scale: float
     hi = np.minimum(np.ceil(seen.reshape(-1, 2).max(0)) + 2, [W, H]).astype(int)
     if np.any(hi - lo < 8):
         raise ValueError("the object lies outside the photo")
-    k = max(1, int(1.0 / scale))
     region = grey[lo[1] : hi[1], lo[0] : hi[0]]
-    if k > 1:
-        size = (max(1, region.shape[1] // k), max(1, region.shape[0] // k))
-        region = region[: size[1] * k, : size[0] * k]
-        region = cv2.resize(region, size, interpolation=cv2.INTER_AREA)
-    coarse = ((seen - lo + 0.5) / k - 0.5).astype(np.float32)
+    f = np.ones(2)  # region px per photo px, along x and y
+    if scale < 1:
+        full = np.array([region.shape[1], region.shape[0]])
+        reduced = np.maximum(np.round(full * scale), 1).astype(int)
+        region = cv2.resize(region, tuple(reduced), interpolation=cv2.INTER_AREA)
+        f = reduced / full
+    coarse = ((seen - lo + 0.5) * f - 0.5).astype(np.float32)
     up = np.array([[1.0 / MAP_STEP, 0.0, 0.0], [0.0, 1.0 / MAP_STEP, 0.0]])
     flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
     maps = cv2.warpAffine(coarse, up, (w, h), flags=flags, borderMode=cv2.BORDER_REPLICATE)
@@ -471,9 +476,9 @@ def fit_radial_lens(
     (`lens`'s first) and `LENS_STEP` either side (W the photo's longer side), the centre
     moved towards the vertex of the parabola through their correlations while it lies
     beyond them (`LENS_MOVES` times at most), and the vertex (within `LENS_RANGE`) aligned
-    again; kept where it correlates better than `aligned` -> (alignment, lens). Where the
-    correlations do not curve (an object too small to show its lens), or time runs out,
-    `aligned` and `lens` stay."""
+    again; kept where it correlates better than `aligned` by `LENS_MIN_GAIN` -> (alignment,
+    lens). Where the correlations do not curve (an object too small to show its lens), or
+    time runs out, `aligned` and `lens` stay."""
     unit = (0.5 * max(grey.shape)) ** 2
     lo, hi = LENS_RANGE[0] + LENS_STEP, LENS_RANGE[1] - LENS_STEP
     centre, scores = float(np.clip(lens.kappa * unit, lo, hi)), dict[float, float]()
@@ -497,7 +502,7 @@ def fit_radial_lens(
         centre = float(np.clip(centre, lo, hi))
     fitted = RadialLens(lens.centre, float(np.clip(vertex, *LENS_RANGE)) / unit)
     found = _realigned(grey, aligned.pinhole, lens, fitted, texture, deadline)
-    if found.refused is not None or found.score < aligned.score:
+    if found.refused is not None or found.score < aligned.score + LENS_MIN_GAIN:
         return aligned, lens
     return replace(found, start_score=aligned.start_score, turned=aligned.turned), fitted
 

@@ -113,6 +113,26 @@ def test_same_camera_fits_one_focal_length_to_all_the_photos(client: TestClient)
     assert r.status_code == 422 and "2 or more" in r.json()["error"]["message"]
 
 
+def test_same_camera_turns_portraits_of_the_camera_back_first(client: TestClient) -> None:
+    """Half of one camera's photos turned to portrait (the camera turned): the joint focal
+    length is the one of the photos as they were taken."""
+    rows = ROWS[:8]
+    want = {r["pose"]["fx"] for r in answer(client, "?same_camera=true", rows) if r["pose"]}
+    files = []
+    for i, row in enumerate(rows):
+        name, (filename, data, media) = photo(row)
+        if i % 2:
+            bgr = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+            data = cv2.imencode(".png", cv2.rotate(bgr, cv2.ROTATE_90_CLOCKWISE))[1].tobytes()
+            filename, media = filename + ".png", "image/png"
+        files.append((name, (filename, data, media)))
+    r = client.post("/v1/predict?same_camera=true", files=files)
+    assert r.status_code == 200, r.text
+    got = {res["pose"]["fx"] for res in r.json()["results"] if res["pose"]}
+    assert len(want) == len(got) == 1
+    assert got.pop() == pytest.approx(want.pop(), rel=0.02)
+
+
 def test_a_model_without_corners_gives_no_pose(app_factory: AppFactory) -> None:
     from service.settings import DEFAULT_MODEL_DIR
 
@@ -127,7 +147,7 @@ def test_a_head_on_view_keeps_its_models_own_focal_prior(client: TestClient) -> 
     model the project's 0.8 x: a photo that says nothing of its lens is posed with it."""
     book = cv2.imread(str(ASSETS_DIR / "profiles/book/texture.png"))
     frame = np.full((480, 640, 3), 128, np.uint8)
-    h, w = 300, round(300 * book.shape[1] / book.shape[0])
+    h, w = 294, 210  # the profile's 15 x 21 cm exactly: a head-on view is a true rectangle
     frame[90 : 90 + h, 320 - w // 2 : 320 - w // 2 + w] = cv2.resize(book, (w, h))
     image = ("image", ("book.png", cv2.imencode(".png", frame)[1].tobytes(), "image/png"))
     r = client.post("/v1/predict?model=book-corners-160x120", files=[image])
