@@ -123,6 +123,10 @@ def image_corners(
     return seen, flat
 
 
+#: The refinement runs on photos with at least this many times the network input's pixels
+#: along their longer side: below, the network read every pixel there is (chessboard renders
+#: at 160x120: 85 % right with the network's corners, 79 % refined; docs/decisions.md).
+MIN_PHOTO_SCALE = 2.0
 #: A tracked frame's alignment must correlate this well, else the network answers it.
 TRACK_SCORE = 0.7
 
@@ -409,8 +413,9 @@ class Predictor:
         prep: list[float],
     ) -> list[ObjectView | None]:
         """Each image's `ObjectView` where the network found the object (None elsewhere, and
-        for graphs without corners), refined where the model carries its texture and the
-        settings ask for it (the refinement's time is added to the image's `prep`)."""
+        for graphs without corners), refined where the model carries its texture, the
+        settings ask for it and the photo has more pixels than the network read
+        (`MIN_PHOTO_SCALE`; the refinement's time is added to the image's `prep`)."""
         corners = image_corners(answer, frames)
         if corners is None:
             return [None] * len(images)
@@ -432,7 +437,7 @@ class Predictor:
                 lens, kind = RadialLens.fitted(seen, corners[1][i], _centre(size)), "network"
             pinhole = seen if lens is None else lens.undistort(seen)
             view = ObjectView(seen, pinhole, kind)
-            if texture is not None:
+            if texture is not None and max(size) >= MIN_PHOTO_SCALE * max(self.model.input_size):
                 t0 = time.perf_counter()
                 view = self._refined(images[i][1], view, texture, lens)
                 prep[i] += time.perf_counter() - t0
@@ -532,7 +537,8 @@ class Predictor:
     ) -> Prediction | None:
         """One frame of a stream whose object the frame before showed at `last`: its corners
         refined from there (no network, no feature search, the last frame's lens), or None
-        where the model carries no texture, refinement is off, or the alignment does not
+        where the model carries no texture, refinement is off, the frame is small
+        (`MIN_PHOTO_SCALE`), or the alignment does not
         hold at `TRACK_SCORE` (then the network answers the frame, `predict`); the errors of
         `predict` for an image it refuses."""
         texture, size_cm = self.model.texture, self.model.object_size_cm
@@ -545,6 +551,8 @@ class Predictor:
         size = (header.width, header.height)
         if (grey.shape[1] > grey.shape[0]) != (size[0] > size[1]):  # EXIF turned it
             size = (size[1], size[0])
+        if max(size) < MIN_PHOTO_SCALE * max(self.model.input_size):
+            return None
         camera = None if focal is None else focal.camera(size)
         learned = focal is not None and focal.lens_learned
         lens: Lens = RadialLens(_centre(size), last.kappa or 0.0)
