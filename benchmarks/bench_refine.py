@@ -10,15 +10,23 @@ one worker runs it) with the refinement off and on, per corner model, on
 The issue's budget: a board photo at most 1.5x the time without the refinement, a photo
 without the object no more. Each time is the best of `--repeat` rounds of `--seconds`.
 
+Streams (`Predictor.track`, as `WS /v1/stream` runs it, the network every 10th frame)
+against the network on every frame: ms per frame and frames/s per core on a still sequence
+(the 1280x720 ChArUco render, fresh sensor noise of 2 grey levels per frame) and the spread
+of its `camera_cm` (RMS distance from their mean, cm); and class right on a video-like
+sequence (the ChArUco val source's frames in order, 6 frames/s, its camera registered).
+
     .venv/bin/python benchmarks/bench_refine.py [--seconds 2] [--repeat 3] [--write-docs]
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
 import datetime as dt
 import os
 import platform
+import time
 from pathlib import Path
 
 import cv2
@@ -30,15 +38,18 @@ from service.cameras import KnownFocal
 from service.core.geometry import intrinsics
 from service.core.profile import load_profile
 from service.model import PoseModel
-from service.predictor import Predictor
+from service.predictor import Predictor, Track
+from service.schemas import ImageResult
 from service.settings import Settings
 from train.markdown import table
+from train.synth.background import BackgroundPool, shipped_backgrounds
 from train.synth.generate import DatasetSpec, plan_dataset
 from train.synth.render import Renderer
 
 ROOT = Path(__file__).resolve().parent.parent
 DOCS = ROOT / "docs" / "benchmarks.md"
 NO_OBJECT = ROOT / "train/assets/backgrounds/photos/camera.jpg"
+VIDEO = ROOT / "train/assets/real/charuco/boards/mprib__caliscope__4-cam-recording-cam-0"
 SIZE = (1280, 720)
 MODELS = {"chessboard": "chessboard-corners-160x120", "charuco": "charuco-corners-160x120",
           "book": "book-corners-160x120"}  # fmt: skip
@@ -59,7 +70,9 @@ def object_photo(obj: str, seed: int = 5) -> tuple[bytes, KnownFocal]:
     plan = plan_dataset(DatasetSpec("free", 2, 0, 9, seed, profile))
     view = next(v for v, k in zip(plan.views, plan.classes, strict=True) if k == 1)
     view = type(view)(**{**view.__dict__, "k1": 0.0})
-    rgb = Renderer(profile, SIZE, jitter=False, seed=seed).render(view, 0, np.random.default_rng(0))
+    pool = BackgroundPool(SIZE, shipped_backgrounds())  # the default pool: GBs at 1280x720
+    renderer = Renderer(profile, SIZE, jitter=False, backgrounds=pool, seed=seed)
+    rgb = renderer.render(view, 0, np.random.default_rng(0))
     K = intrinsics(SIZE, view.focal_scale)
     camera = KnownFocal(K[0, 0], "camera", SIZE, K[1, 1], K[0, 2], K[1, 2], (0.0,) * 5)
     return jpeg(cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)), camera
@@ -98,6 +111,70 @@ def measure(obj: str, seconds: float, repeat: int) -> list[list[str]]:
     return rows
 
 
+def registered(row: dict[str, str]) -> KnownFocal:
+    """A labels.csv row's calibration as a registered camera (OpenCV's 5 coefficients)."""
+    size = (int(row["width"]), int(row["height"]))
+    fx, fy, cx, cy = (float(row[k]) for k in ("fx", "fy", "cx", "cy"))
+    dist = tuple(float(row[k]) for k in ("k1", "k2", "p1", "p2", "k3"))
+    return KnownFocal(fx, "camera", size, fy, cx, cy, dist)
+
+
+def stream(
+    predictor: Predictor, frames: list[bytes], known: KnownFocal | None, every: int
+) -> tuple[list[ImageResult], float]:
+    """Each frame's answer as the stream gives it (tracked from the last one, the network
+    every `every` frames; 1: the network on every frame) and the mean ms per frame."""
+    results, track, since = [], None, 0
+    start = time.perf_counter()
+    for data in frames:
+        tracked = None
+        if track is not None and since + 1 < every:
+            tracked = predictor.track(data, track, known)
+        prediction = tracked or predictor.predict([(None, data)], "whole", known)
+        since = since + 1 if tracked else 0
+        result = prediction.results[0]
+        track = None
+        if result.corners is not None and result.class_id:
+            present = 1.0 - result.probabilities[0]
+            track = Track(np.array(result.corners), prediction.kappas[0], present)
+        results.append(result)
+    return results, 1000 * (time.perf_counter() - start) / len(frames)
+
+
+def spread_cm(results: list[ImageResult]) -> float:
+    """RMS distance (cm) of the answers' camera centres from their mean."""
+    centres = np.array([r.pose.camera_cm for r in results if r.pose is not None])
+    if not len(centres):
+        return float("nan")
+    return float(np.sqrt(((centres - centres.mean(0)) ** 2).sum(1).mean()))
+
+
+def stream_rows() -> list[list[str]]:
+    """The streams' rows: still sequence (ms, frames/s, spread) and video-like (class)."""
+    model = PoseModel.load(ROOT / "models" / f"{MODELS['charuco']}.onnx", intra_op_threads=1)
+    predictor = Predictor(model, Settings())
+    board, _ = object_photo("charuco")
+    bgr = cv2.imdecode(np.frombuffer(board, np.uint8), cv2.IMREAD_COLOR).astype(np.float64)
+    rng = np.random.default_rng(0)
+    still = [jpeg(np.clip(bgr + rng.normal(0, 2, bgr.shape), 0, 255).astype(np.uint8))
+             for _ in range(40)]  # fmt: skip
+    with (VIDEO / "labels.csv").open(newline="", encoding="utf-8") as f:
+        labels = sorted(csv.DictReader(f), key=lambda row: row["file"])
+    frames = [(VIDEO / row["file"]).read_bytes() for row in labels]
+    camera = registered(labels[0])
+    rows = []
+    for what, every in (("network every frame", 1), ("tracked, network every 10th", 10)):
+        answers, ms = stream(predictor, still, None, every)
+        seen, _ = stream(predictor, frames, camera, every)
+        truth = [int(row["class"]) for row in labels]
+        right = np.mean([r.class_id == k for r, k in zip(seen, truth, strict=True)])
+        tracked = np.mean([bool(r.tracked) for r in answers])
+        rows.append([what, f"{100 * tracked:.0f}", f"{ms:.1f}", f"{1000 / ms:.1f}",
+                     f"{spread_cm(answers):.3f}", f"{100 * right:.1f}"])  # fmt: skip
+        print(" | ".join(rows[-1]), flush=True)
+    return rows
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=2.0, help="length of one round")
@@ -115,7 +192,13 @@ def main() -> None:
     rows = [row for obj in MODELS for row in measure(obj, args.seconds, args.repeat)]
     head = ["model", "photo", "corners", "refine off ms", "refine on ms", "on / off", "budget",
             "within"]  # fmt: skip
+    streams = stream_rows()
+    stream_head = ["stream", "tracked %", "ms per frame", "frames/s per core",
+                   "camera_cm spread (still), cm", "class right (video-like) %"]  # fmt: skip
     body = [header, "", *table(head, rows), "",
+            f"Streams, `{MODELS['charuco']}` on one thread: a still 1280x720 sequence of 40 "
+            "frames; the ChArUco val source's frames in order (640x360, its camera "
+            "registered).", "", *table(stream_head, streams), "",
             f"* load average {os.getloadavg()[0]:.2f} at end"]  # fmt: skip
     print("\n".join(body))
     if args.write_docs:

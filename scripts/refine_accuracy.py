@@ -47,6 +47,7 @@ from service.model import PoseModel
 from service.predictor import Predictor
 from service.settings import Settings
 from train.markdown import pct_cell, table, written_by
+from train.synth.background import BackgroundPool, procedural_backgrounds, shipped_backgrounds
 
 MODELS = {
     "chessboard": "chessboard-corners-160x120",
@@ -121,6 +122,13 @@ def _blurred(rgb: np.ndarray, level: int, size: tuple[int, int]) -> np.ndarray:
     return cv2.sepFilter2D(rgb, -1, taps, taps, borderType=cv2.BORDER_REPLICATE)
 
 
+def backgrounds(size: tuple[int, int]) -> BackgroundPool:
+    """The shipped background photos and procedural textures at `size` (the renderer's
+    default pool adds the corpus's photos: GBs of memory at 640x480)."""
+    w, h = size
+    return BackgroundPool(size, shipped_backgrounds() + procedural_backgrounds(8, (2 * w, 2 * h)))
+
+
 def renders(obj: str, size: tuple[int, int], blur: int, count: int, seed: int) -> list[Photo]:
     """`count` renders of the object's profile at `size` and `blur` (variant free)."""
     from train.synth.generate import DatasetSpec, plan_dataset
@@ -128,7 +136,7 @@ def renders(obj: str, size: tuple[int, int], blur: int, count: int, seed: int) -
 
     profile = load_profile(obj)
     plan = plan_dataset(DatasetSpec("free", 2, 0, count, seed, profile))
-    renderer = Renderer(profile, size, jitter=True, seed=seed)
+    renderer = Renderer(profile, size, jitter=True, backgrounds=backgrounds(size), seed=seed)
     rng = np.random.default_rng(seed)
     photos = []
     for label, view in zip(plan.classes, plan.views, strict=True):
