@@ -35,6 +35,7 @@ from bench_inference import best_ms  # benchmarks/, the script's own folder
 from docs_section import write_section
 
 from service.cameras import KnownFocal
+from service.core.dataset import camera_of_row
 from service.core.geometry import intrinsics
 from service.core.profile import load_profile
 from service.model import PoseModel
@@ -111,14 +112,6 @@ def measure(obj: str, seconds: float, repeat: int) -> list[list[str]]:
     return rows
 
 
-def registered(row: dict[str, str]) -> KnownFocal:
-    """A labels.csv row's calibration as a registered camera (OpenCV's 5 coefficients)."""
-    size = (int(row["width"]), int(row["height"]))
-    fx, fy, cx, cy = (float(row[k]) for k in ("fx", "fy", "cx", "cy"))
-    dist = tuple(float(row[k]) for k in ("k1", "k2", "p1", "p2", "k3"))
-    return KnownFocal(fx, "camera", size, fy, cx, cy, dist)
-
-
 def stream(
     predictor: Predictor, frames: list[bytes], known: KnownFocal | None, every: int
 ) -> tuple[list[ImageResult], float]:
@@ -161,7 +154,8 @@ def stream_rows() -> list[list[str]]:
     with (VIDEO / "labels.csv").open(newline="", encoding="utf-8") as f:
         labels = sorted(csv.DictReader(f), key=lambda row: row["file"])
     frames = [(VIDEO / row["file"]).read_bytes() for row in labels]
-    camera = registered(labels[0])
+    calibration = camera_of_row(labels[0])
+    camera = None if calibration is None else KnownFocal.of_camera(calibration)
     rows = []
     for what, every in (("network every frame", 1), ("tracked, network every 10th", 10)):
         answers, ms = stream(predictor, still, None, every)

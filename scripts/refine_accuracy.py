@@ -39,6 +39,7 @@ import cv2
 import numpy as np
 
 from service.cameras import KnownFocal
+from service.core.dataset import camera_of_row, corners_of_row
 from service.core.paths import REPO_ROOT
 from service.core.profile import load_profile
 from service.core.regions import is_far, quadrant_of_class
@@ -74,30 +75,18 @@ class Photo:
     camera: KnownFocal | None
 
 
-def _camera(row: dict[str, str]) -> KnownFocal | None:
-    """A labels.csv row's calibration as a registered camera, or None without one."""
-    if not row.get("fx") or not row.get("width"):
-        return None
-    size = (int(float(row["width"])), int(float(row["height"])))
-    dist = tuple(float(row.get(k) or 0.0) for k in ("k1", "k2", "p1", "p2", "k3"))
-    fx, fy, cx, cy = (float(row[k]) for k in ("fx", "fy", "cx", "cy"))
-    return KnownFocal(fx, "camera", size, fy, cx, cy, dist)
-
-
-def _corners(row: dict[str, str]) -> np.ndarray | None:
-    if not row.get("corner_x0"):
-        return None
-    return np.array([[float(row[f"corner_{a}{i}"]) for a in "xy"] for i in range(4)])
-
-
 def folder_photos(folder: Path) -> list[Photo]:
     """The photos of a labelled folder (labels.csv beside images/)."""
     with (folder / "labels.csv").open(newline="", encoding="utf-8") as f:
         rows = list(csv.DictReader(f))
-    return [
-        Photo((folder / r["file"]).read_bytes(), int(r["class"]), _corners(r), _camera(r))
-        for r in rows
-    ]
+    photos = []
+    for r in rows:
+        camera = camera_of_row(r)
+        known = None if camera is None else KnownFocal.of_camera(camera)
+        photos.append(
+            Photo((folder / r["file"]).read_bytes(), int(r["class"]), corners_of_row(r), known)
+        )
+    return photos
 
 
 def real_sources(obj: str) -> Iterator[tuple[str, str, Path]]:

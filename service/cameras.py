@@ -70,6 +70,11 @@ class KnownFocal:
         learned = camera.source == "photos"
         return cls(camera.fx, "camera", size, camera.fy, camera.cx, camera.cy, dist, learned)
 
+    @classmethod
+    def of_camera(cls, camera: Camera, source: FocalSource = "camera") -> KnownFocal:
+        """A calibrated camera (`service.core.pose.Camera`) as a request knows it."""
+        return cls(camera.fx, source, camera.size, camera.fy, camera.cx, camera.cy, camera.dist)
+
     def scale(self, size: tuple[int, int]) -> float:
         """Pixels of an image of `size` (W, H) per pixel of the camera's own images."""
         return 1.0 if self.size is None else max(size) / max(self.size)

@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from service.core.pose import Camera
 from service.core.preprocess import ImageDecodeError, decode_image, resize_rgb
 from service.core.regions import NUM_CLASSES, boundary_margin_cm
 
@@ -55,6 +56,27 @@ LABEL_COLUMNS = [
     "k1",
     *CORNER_COLUMNS,
 ]
+
+
+#: OpenCV's 5 distortion coefficients as labels.csv names them.
+DIST_COLUMNS = ("k1", "k2", "p1", "p2", "k3")
+
+
+def camera_of_row(row: dict[str, str]) -> Camera | None:
+    """A labelled real photo's calibration (its row's fx, fy, cx, cy at width x height, and
+    OpenCV's 5 coefficients), or None for a row without one (renders, class-0 photos)."""
+    if not row.get("fx") or not row.get("width"):
+        return None
+    size = (int(float(row["width"])), int(float(row["height"])))
+    fx, fy, cx, cy = (float(row[k]) for k in ("fx", "fy", "cx", "cy"))
+    return Camera(fx, size, fy, cx, cy, tuple(float(row.get(k) or 0.0) for k in DIST_COLUMNS))
+
+
+def corners_of_row(row: dict[str, str]) -> np.ndarray | None:
+    """A row's labelled corners [4, 2] px (`CORNER_COLUMNS`), or None for a row without."""
+    if not row.get("corner_x0"):
+        return None
+    return np.array([float(row[c]) for c in CORNER_COLUMNS]).reshape(4, 2)
 
 
 class DatasetError(ValueError):
