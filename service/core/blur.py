@@ -47,9 +47,9 @@ def blur_image(rgb: np.ndarray, level: int, size: int | tuple[int, int]) -> np.n
     """
     if level not in BLUR_LEVELS:
         raise ValueError(f"blur level must be 0, 1, 2 or 3, got {level!r}")
-    index = size_index(size)
-    if level == 0:
+    if level == 0:  # no kernel: any size
         return rgb
+    index = size_index(size)
     k, sigma = KERNELS[index][level]
     g = gaussian_taps(k, sigma)
     anchor = ((k - 1) // 2, (k - 1) // 2)
