@@ -225,11 +225,11 @@ def main() -> None:
         for bf16 in (False, True)
         for compiled in (False, True)
     }
-    keypoint_ms = {(a, bf16): ms for (a, bf16, compiled), ms in measured.items() if not compiled}
+    corner_ms = {(a, bf16): ms for (a, bf16, compiled), ms in measured.items() if not compiled}
     key_rows = []
     for arch, config in first.items():
-        fp32, bf16 = keypoint_ms[arch, False], keypoint_ms[arch, True]
-        recipe_ms = keypoint_ms[arch, config.bf16]
+        fp32, bf16 = corner_ms[arch, False], corner_ms[arch, True]
+        recipe_ms = corner_ms[arch, config.bf16]
         compiled_ms = [measured[arch, b, True] for b in (False, True)]
         key_rows.append(
             [arch, f"{fp32:.2f}", f"{bf16:.2f}", f"{fp32 / bf16:.2f}x"]
@@ -237,8 +237,8 @@ def main() -> None:
             + [f"{THESIS_MS[160, 120] / recipe_ms:.1f}x"]
         )
         print(" | ".join(key_rows[-1]))
-    rows, total = recipe_rows(stages, keypoint_ms)
-    _, all_bf16 = recipe_rows([(n, a, replace(c, bf16=True)) for n, a, c in stages], keypoint_ms)
+    rows, total = recipe_rows(stages, corner_ms)
+    _, all_bf16 = recipe_rows([(n, a, replace(c, bf16=True)) for n, a, c in stages], corner_ms)
     lines = [
         header,
         "",

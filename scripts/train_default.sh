@@ -93,12 +93,12 @@ export_model chessboard-corners-160x120 chessboard-corners-160x120 2 "The defaul
 Since 3.5.0 its graph serves the zoom pass (service/zoom.py), with which its accuracies are measured; \
 since 3.6.0 it also takes the camera's focal length where the caller knows it (input focal; /v1/predict?fx=); \
 since 3.7.0 its corner alignment fits the lens's radial distortion per image (train/network/align.py); \
-since 3.8.0 a fitted barrel stronger than a lens's own (BARREL_LIMIT, train/network/keypoint.py) \
+since 3.8.0 a fitted barrel stronger than a lens's own (BARREL_LIMIT, train/network/corners.py) \
 shortens its focal-length prior; \
 since 3.9.0 each heat-map cell also gives each corner's offset from the cell, so that a corner the \
-frame cuts off lies beyond the frame (train/network/keypoint.py); \
+frame cuts off lies beyond the frame (train/network/corners.py); \
 since 3.10.0 the half turn is also read against the checker blurred as the SPEC's heaviest blur \
-level blurs it, which inverts the pattern of squares under about 5 px (KeypointNet.parity)." \
+level blurs it, which inverts the pattern of squares under about 5 px (CornerNet.parity)." \
     $(printf -- "--eval-val %s " "$D"/real-s2-b{0,1,2,3})  # the val sources it was selected on
 
 if [ "${SPEC:-0}" = 1 ]; then

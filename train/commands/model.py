@@ -181,7 +181,7 @@ def export(
     regraph: Annotated[
         bool,
         typer.Option(
-            help="With a keypoint .onnx: export its weights again in this version's graph "
+            help="With a corner .onnx: export its weights again in this version's graph "
             "form (the zoom pass's view input and pattern output), as --version."
         ),
     ] = False,
@@ -200,7 +200,7 @@ def export(
     if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.-]*", name):
         raise fail(f"--name {name!r}: use letters, digits, '.', '_' or '-'", code=2)
     if regraph and checkpoint.suffix != ".onnx":
-        raise fail("--regraph takes a keypoint .onnx model", code=2)
+        raise fail("--regraph takes a corner .onnx model", code=2)
     if not checkpoint.is_file():
         raise fail(f"checkpoint not found: {checkpoint}")
     for path in [*(eval_data or []), *(eval_val or [])]:

@@ -2,7 +2,7 @@
 
 Input of every network: float32 [N, 3, H, W], RGB in [0, 1] (what
 `service.core.preprocess.to_network_input` makes). `train.network.model` builds the networks
-by architecture name; `ConvNet`, `KeypointNet` (the corner networks) and the SPEC `PoseNet`
+by architecture name; `ConvNet`, `CornerNet` (the corner networks) and the SPEC `PoseNet`
 derive from `NormalisedNet`.
 """
 

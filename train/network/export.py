@@ -1,10 +1,10 @@
 """Export a training checkpoint to ONNX with its model card (SPEC section 8; docs/architecture.md).
 
 The graph takes `image` float32 [N, 3, H, W], RGB in [0, 1] (dynamic N; the normalisation is
-inside) and returns `probabilities` float32 [N, 9] (softmax); the keypoint networks also take
+inside) and returns `probabilities` float32 [N, 9] (softmax); the corner networks also take
 `pixel_aspect` float32 [N] (an input with the default [1], an overridable initializer: a
 caller that feeds only `image` gets square pixels), `view` float32 [N, 3] (default
-[[0, 0, 1]]: the input is the camera's whole frame; `train.network.keypoint.KeypointNet.answer`
+[[0, 0, 1]]: the input is the camera's whole frame; `train.network.corners.CornerNet.answer`
 says what a crop's view is) and `focal` float32 [N] (default [0]: unknown, self-calibrated;
 else the camera's focal length in frame pixels of the input's width), and return `corners`
 float32 [N, 4, 2], the object's image corners in frame pixels in
@@ -47,17 +47,17 @@ OPSET = 17
 ARCHITECTURES = {
     "spec": "spec: the SPEC section 8 network (tanh, L2 pooling), batch norm folded away",
     "convnet": "convnet: train/network/convnet.py (ReLU, batch norm, max pooling, 3x4 head)",
-    "corners-coarse": "corners-coarse: train/network/keypoint.py (U-Net corner heat maps, "
-    "corners aligned to the checker pattern, class from the corners' pose with a prior camera "
-    "and the squares' colour parity)",
-    "corners": "corners: train/network/keypoint.py with corner heat maps at 80x60 "
-    "(stride 2), corners aligned to the checker pattern (train/network/align.py)",
+    "corners-coarse": "corners-coarse: train/network/corners.py (U-Net corner heat maps, "
+    "corners aligned to the object's texture, class from the corners' pose with a prior camera "
+    "and the texture's half turn)",
+    "corners": "corners: train/network/corners.py with corner heat maps at 80x60 "
+    "(stride 2), corners aligned to the object's texture (train/network/align.py)",
 }
 
 
 def onnx_bytes(net: Any) -> bytes:
     """Serialise a pose network (eval mode) to ONNX bytes, dynamic batch: output
-    `probabilities` (softmax); the keypoint networks also take `pixel_aspect` (default 1),
+    `probabilities` (softmax); the corner networks also take `pixel_aspect` (default 1),
     `view` (default (0, 0, 1)) and `focal` (default 0) and output `corners`, `pattern` and
     `undistorted`."""
     import onnx
@@ -67,9 +67,9 @@ def onnx_bytes(net: Any) -> bytes:
 
     w, h = net.size
     wrapper = Probabilities(net).eval()
-    keypoint = takes_pixel_aspect(net)
+    corner = takes_pixel_aspect(net)
     image = torch.rand(2, 3, h, w)
-    if keypoint:
+    if corner:
         inputs = [IMAGE, PIXEL_ASPECT, VIEW, FOCAL]
         outputs = [PROBABILITIES, CORNERS, PATTERN, UNDISTORTED]
         defaults = DEFAULTS
@@ -130,20 +130,20 @@ def _data_summary(data: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 
 def _camera_card(profile: dict[str, Any]) -> dict[str, Any]:
-    """The keypoint graph's camera model (`train.network.keypoint`): constants of the geometry
+    """The corner graph's camera model (`train.network.corners`): constants of the geometry
     after the corners, baked into the graph when it is exported (docs/camera_model.md); the
     focal-length prior is the object's (its card's `profile`, `service.core.profile`)."""
-    from train.network import keypoint
-    from train.network.align import CheckerAlign
+    from train.network import corners as corner_net
+    from train.network.align import TextureAlign
 
-    align = CheckerAlign(keypoint.SIZE)
+    align = TextureAlign(corner_net.SIZE)
     return {
         "focal_prior_x_spec": focal_prior_of(profile),
-        "focal_prior_weight": keypoint.FOCAL_PRIOR_WEIGHT,
-        "focal_bounds_x_spec": list(keypoint.FOCAL_BOUNDS),
-        # a fitted k1 below it shortens the focal prior (`KeypointNet.prior_focal`)
-        "focal_prior_barrel_limit": keypoint.BARREL_LIMIT,
-        "radial_k1": keypoint.RADIAL_PRIOR,
+        "focal_prior_weight": corner_net.FOCAL_PRIOR_WEIGHT,
+        "focal_bounds_x_spec": list(corner_net.FOCAL_BOUNDS),
+        # a fitted k1 below it shortens the focal prior (`CornerNet.prior_focal`)
+        "focal_prior_barrel_limit": corner_net.BARREL_LIMIT,
+        "radial_k1": corner_net.RADIAL_PRIOR,
         # k1 fitted per image by the corner alignment around that prior (train/network/align.py)
         "radial_fit": {
             "prior_sd": align.radial_sd,
@@ -154,11 +154,11 @@ def _camera_card(profile: dict[str, Any]) -> dict[str, Any]:
     }
 
 
-def _io_card(keypoint: bool, profile: dict[str, Any]) -> dict[str, Any]:
+def _io_card(corner: bool, profile: dict[str, Any]) -> dict[str, Any]:
     """The card's `input_format` and `output`: the graph's inputs and outputs (module doc),
-    and for a keypoint graph its `camera_model` (of the card's `profile`)."""
-    camera = {"camera_model": _camera_card(profile)} if keypoint else {}
-    return camera | io_description(keypoint)
+    and for a corner graph its `camera_model` (of the card's `profile`)."""
+    camera = {"camera_model": _camera_card(profile)} if corner else {}
+    return camera | io_description(corner)
 
 
 def build_card(
@@ -173,7 +173,7 @@ def build_card(
     z_split = float(profile.get("z_split_cm", Z_SPLIT_CM))
     descriptions = class_descriptions(z_split)
     arch = canonical_arch(checkpoint.get("arch", "spec"))
-    keypoint = arch in CORNER_ARCHS
+    corner = arch in CORNER_ARCHS
     training: dict[str, Any] = {
         "data": _data_summary(checkpoint.get("data", [])),
         "seed": checkpoint["config"].get("seed"),
@@ -208,7 +208,7 @@ def build_card(
         "date": datetime.now(UTC).isoformat(timespec="seconds"),
         "architecture": ARCHITECTURES[arch],
         "input": list(checkpoint["size"]),
-        **_io_card(keypoint, profile),
+        **_io_card(corner, profile),
         "classes": [
             {"id": k, "label": region_of_class(k)["label"], "description": descriptions[k]}
             for k in range(NUM_CLASSES)
@@ -270,13 +270,13 @@ def _graph_predictor(raw: bytes, card: dict[str, Any]) -> Any:
 
 
 def regraph(onnx_path: Path) -> bytes:
-    """A shipped keypoint graph exported again from its own weights
+    """A shipped corner graph exported again from its own weights
     (`train.network.onnx_weights`) in this version's form (`onnx_bytes`: the inputs and
     outputs of the zoom pass)."""
     from train.network.model import export_form
-    from train.network.onnx_weights import keypoint_from_onnx
+    from train.network.onnx_weights import corner_net_from_onnx
 
-    net, _ = keypoint_from_onnx(onnx_path)
+    net, _ = corner_net_from_onnx(onnx_path)
     return onnx_bytes(export_form(net))
 
 
@@ -327,7 +327,7 @@ def recard(
     """Measure a shipped ONNX model again on `eval_datasets` (and the val split of
     `val_datasets`, `export`) and write it with its card's accuracies replaced (training
     provenance unchanged; val figures it is not measured on again are dropped) as
-    out_dir/<name>.onnx + .json. With a `version`, a keypoint graph is first exported again
+    out_dir/<name>.onnx + .json. With a `version`, a corner graph is first exported again
     from its weights in this version's form (`regraph`) and its card says so. Without
     `eval_datasets` (and no `version`) the model is only renamed: graph, accuracies and
     dates unchanged, `renamed_from` in the card."""

@@ -10,7 +10,7 @@ sets), stops early when it stops improving and writes into `config.out`:
 * `log.jsonl` one JSON line per epoch (loss, accuracy, learning rate, time).
 
 With `init`, the weights (and the input normalisation) come from a checkpoint, or from a
-shipped keypoint model's ONNX graph: fine-tuning, e.g. on a real data set. A run is
+shipped corner model's ONNX graph: fine-tuning, e.g. on a real data set. A run is
 deterministic on CPU for a seed: batches and augmentation draw from generators seeded by
 (seed, epoch), so a resumed run ends where an uninterrupted one does.
 """
@@ -39,7 +39,11 @@ from train.network.model import (
     channel_stats,
     log_probabilities,
 )
-from train.network.onnx_weights import OnnxWeightsError, keypoint_from_onnx, recalibrate_batch_norm
+from train.network.onnx_weights import (
+    OnnxWeightsError,
+    corner_net_from_onnx,
+    recalibrate_batch_norm,
+)
 
 CHECKPOINT_FORMAT = "planar-pose-checkpoint/1"
 
@@ -391,7 +395,7 @@ def _initial_network(
         from_onnx = config.init.suffix == ".onnx"
         if from_onnx:
             try:
-                net, parent = keypoint_from_onnx(config.init)
+                net, parent = corner_net_from_onnx(config.init)
             except OnnxWeightsError as exc:
                 raise TrainingError(f"--init {exc}") from None
         else:

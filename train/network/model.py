@@ -27,7 +27,7 @@ from service.core.regions import NUM_CLASSES
 from train.network.base import NormalisedNet
 from train.network.config import CORNER_ARCHS, Arch, canonical_arch
 from train.network.convnet import ConvNet
-from train.network.keypoint import KeypointNet
+from train.network.corners import CornerNet
 from train.network.pattern import pattern_of
 
 #: Supported input sizes (W, H) -> hidden width of the classifier (SPEC section 8 table).
@@ -155,7 +155,7 @@ def fold_batch_norm(net: PoseNet) -> PoseNet:
 
 
 #: Architectures: "spec" (`PoseNet`, SPEC section 8), "convnet" (`train.network.convnet`),
-#: "corners-coarse" and "corners" (`train.network.keypoint`, heat maps at stride 4 / 2).
+#: "corners-coarse" and "corners" (`train.network.corners`, heat maps at stride 4 / 2).
 ARCHS: tuple[str, ...] = get_args(Arch)
 
 
@@ -174,9 +174,9 @@ def build_network(
     if arch in CORNER_ARCHS:
         stride = 2 if arch == "corners" else 4
         if not profile:
-            return KeypointNet(size, stride=stride)
+            return CornerNet(size, stride=stride)
         w_cm, h_cm = float(profile["width_cm"]), float(profile["height_cm"])
-        return KeypointNet(
+        return CornerNet(
             size,
             board_cm=(w_cm, h_cm),
             z_split_cm=float(profile["z_split_cm"]),
@@ -203,7 +203,7 @@ def export_form(net: NormalisedNet) -> NormalisedNet:
 
 
 def takes_pixel_aspect(net: NormalisedNet) -> bool:
-    """Whether the network reads the pixel aspect of its input (the keypoint networks, whose
+    """Whether the network reads the pixel aspect of its input (the corner networks, whose
     class comes from the geometry of the board's corners)."""
     return hasattr(net, "answer")
 
@@ -222,7 +222,7 @@ def log_probabilities(
 
 class Probabilities(nn.Module):
     """Wrap a pose network so it outputs probabilities [N, 9] (softmax) and, for a network
-    with an `answer` (the keypoint network, which also takes the pixel aspect [N], the
+    with an `answer` (the corner network, which also takes the pixel aspect [N], the
     view [N, 3] and the known focal length [N]), its corners [N, 4, 2] px, pattern
     evidence [N] and corners without the lens's distortion [N, 4, 2] px: the exported
     graph."""

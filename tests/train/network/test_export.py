@@ -158,15 +158,15 @@ def test_catalog_lists_every_card_with_its_measured_accuracy(tmp_path):
         write_catalog(empty)
 
 
-def test_a_keypoint_graph_is_regraphed_with_the_zoom_inputs(tmp_path):
-    """`export --regraph`: a shipped keypoint graph of an older form (no `view`, no `pattern`)
+def test_a_corner_graph_is_regraphed_with_the_zoom_inputs(tmp_path):
+    """`export --regraph`: a shipped corner graph of an older form (no `view`, no `pattern`)
     comes back from its own weights with both, answering as before with the default view."""
     from typer.testing import CliRunner
 
     from train.cli import app
-    from train.network import keypoint
+    from train.network import corners as corner_net
     from train.network.export import recard
-    from train.network.onnx_weights import keypoint_from_onnx
+    from train.network.onnx_weights import corner_net_from_onnx
     from train.real.realset import build_real_dataset
 
     old = REPO_ROOT / "tests" / "fixtures" / "corners-3.4.0-no-offsets.onnx"
@@ -184,14 +184,14 @@ def test_a_keypoint_graph_is_regraphed_with_the_zoom_inputs(tmp_path):
         "view",
         "focal",
     ]
-    assert card["camera_model"]["focal_prior_x_spec"] == keypoint.FOCAL_PRIOR
-    assert card["camera_model"]["focal_prior_barrel_limit"] == keypoint.BARREL_LIMIT
+    assert card["camera_model"]["focal_prior_x_spec"] == corner_net.FOCAL_PRIOR
+    assert card["camera_model"]["focal_prior_barrel_limit"] == corner_net.BARREL_LIMIT
     photos = sorted(REAL.glob("*.jpg"))[:4]
     x = np.stack([to_network_input(read_rgb(p), (160, 120)) for p in photos])
     # the weights answer as the network read back from the old graph does with this version's
     # geometry (the lens fit of the corners, the camera model): the same corners and
     # probabilities
-    net, _ = keypoint_from_onnx(old)
+    net, _ = corner_net_from_onnx(old)
     with torch.no_grad():
         want_corners = net.eval().corners(torch.from_numpy(x)).numpy()
         want = net.logits(torch.from_numpy(x)).exp().numpy()
@@ -200,9 +200,9 @@ def test_a_keypoint_graph_is_regraphed_with_the_zoom_inputs(tmp_path):
     runner = CliRunner()
     args = ["export", "--name", "x", "--out-dir", str(tmp_path / "cli"), "--regraph"]
     result = runner.invoke(app, [*args, str(tmp_path / "best.pt"), "--eval", str(real)])
-    assert result.exit_code == 2 and "--regraph takes a keypoint .onnx model" in result.output
+    assert result.exit_code == 2 and "--regraph takes a corner .onnx model" in result.output
     spec = REPO_ROOT / "models" / "chessboard-spec-160x120.onnx"
     result = runner.invoke(app, [*args, str(spec), "--eval", str(real)])
-    assert result.exit_code == 1 and "not a planar-pose keypoint network" in result.output
+    assert result.exit_code == 1 and "not a planar-pose corner network" in result.output
     result = runner.invoke(app, [*args, str(old), "--eval-val", str(tmp_path / "none")])
     assert result.exit_code == 1 and "not a data set (no labels.csv)" in result.output

@@ -1,4 +1,5 @@
-"""A corner-keypoint pose network: the class comes from geometry, not from a classifier.
+"""The corner network (architectures `corners`, `corners-coarse`): the class comes from geometry,
+not from a classifier.
 
 The x/y side of the camera is a small perspective effect (a camera 5 cm off the board's axis
 at 60 cm makes the near edge of the board about 1 px longer than the far one at 160x120), and
@@ -64,12 +65,12 @@ from service.core.inputs import SIZES
 from service.core.pose import FOCAL_BOUNDS, FOCAL_PRIOR
 from service.core.profile import DEFAULT_PROFILE, load_profile
 from service.core.regions import QUADRANT_SIGNS, Z_SPLIT_CM
-from train.network.align import CheckerAlign, Lens, square_homography
+from train.network.align import Lens, TextureAlign, square_homography
 from train.network.base import NormalisedNet, conv_block
 from train.network.pattern import CHECKER_SQUARES, Pattern
 
 SIZE = SIZES[2]
-# The focal length (`KeypointNet.focal_length`): Zhang's constraints with a prior. The prior
+# The focal length (`CornerNet.focal_length`): Zhang's constraints with a prior. The prior
 # and the bounds (`service.core.pose`, which the service's pose shares) are x the SPEC
 # camera's focal length, the weight in the units of the normalised constraints; chosen on the
 # corpus's val and train sources with the SPEC-camera and long-lens renders as second checks
@@ -101,7 +102,7 @@ SQUARES = CHECKER_SQUARES  # squares of the board along its width (x) and height
 # corpus's train and val sources), with one mostly over 0.6
 PATTERN_CORR, PATTERN_SLOPE = 0.4, 20.0
 # what the networks before 3.9.0 lack, the corner offsets: zero where a checkpoint or a graph
-# has none (`KeypointNet._load_from_state_dict`, `onnx_weights.keypoint_from_onnx`)
+# has none (`CornerNet._load_from_state_dict`, `onnx_weights.corner_net_from_onnx`)
 ZERO_IF_ABSENT = ("offset.weight", "offset.bias")
 
 
@@ -129,7 +130,7 @@ def _parity_blur_matrices(n: int) -> torch.Tensor:
 
 
 class Observation(NamedTuple):
-    """What one image [N, 3, H, W] says before the camera model (`KeypointNet.observe`)."""
+    """What one image [N, 3, H, W] says before the camera model (`CornerNet.observe`)."""
 
     corners: torch.Tensor  # [N, 4, 2] input px, aligned, in the heat maps' order
     parity: torch.Tensor  # [N] in [-1, 1], > 0 when that order is the object's
@@ -142,7 +143,7 @@ def _block(cin: int, cout: int) -> nn.Sequential:
     return nn.Sequential(conv_block(cin, cout), conv_block(cout, cout))
 
 
-class KeypointNet(NormalisedNet):
+class CornerNet(NormalisedNet):
     """The network above for input `size` (W, H) = 160x120 and a board of `board_cm`
     (width, height; default: the default profile's) with the region split `z_split_cm`; the
     camera prior is the SPEC camera with its focal length times `focal_scale` and the principal
@@ -184,7 +185,7 @@ class KeypointNet(NormalisedNet):
         # the object's texture as the half turn and the alignment read it (default: the checker)
         self.textured = pattern is not None and not pattern.checker
         cells = pattern.cells if self.textured else SQUARES
-        self.align = CheckerAlign(size, SQUARES, pattern)  # no weights: geometry only
+        self.align = TextureAlign(size, SQUARES, pattern)  # no weights: geometry only
         self.presence = nn.Sequential(
             nn.Flatten(), nn.Linear(2 * 128, 64), nn.ReLU(), nn.Linear(64, 1)
         )
