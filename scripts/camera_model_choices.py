@@ -48,6 +48,7 @@ from service.core.dataset import LoadedDataset, load_dataset, read_splits
 from service.core.geometry import intrinsics
 from service.core.inputs import SIZES
 from service.core.paths import REPO_ROOT
+from service.core.pose import FOCAL_BOUNDS
 from service.core.preprocess import NetworkFrame, to_network_input
 from service.core.profile import load_profile
 from service.core.regions import Z_SPLIT_CM, pose_class
@@ -273,7 +274,7 @@ def focal_bounds_table(net: CornerNet, cache: dict[tuple[str, int], Cached]) -> 
     rows = []
     for upper in FOCAL_UPPER:
         net.focal_bounds[1] = spec_f * upper
-        name = f"{corner_net.FOCAL_BOUNDS[0]:g}-{upper:g} x SPEC"
+        name = f"{FOCAL_BOUNDS[0]:g}-{upper:g} x SPEC"
         rows.append([name, *_cells(cache, lambda c: c.accuracy(net, True))])
     net.focal_bounds.copy_(code)
     return rows
@@ -465,7 +466,7 @@ def main() -> None:
         "## The bounds of the focal-length estimate (the code's prior and weight): class "
         "accuracy (%) at blur 0 / 1 / 2 / 3",
         "",
-        f"The code's: {corner_net.FOCAL_BOUNDS[0]:g}-{corner_net.FOCAL_BOUNDS[1]:g} x SPEC.",
+        f"The code's: {FOCAL_BOUNDS[0]:g}-{FOCAL_BOUNDS[1]:g} x SPEC.",
         "",
         *table(["focal-length bounds", *SPLIT_HEADER], focal_bounds_table(net, cache)),
         "",

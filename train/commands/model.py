@@ -212,7 +212,14 @@ def export(
         new_version = version if regraph else None
         path, card = guard(
             lambda: recard(
-                checkpoint, name, out_dir, eval_data, split, notes or None, new_version, eval_val
+                checkpoint,
+                name,
+                out_dir,
+                eval_data or [],
+                split,
+                notes or None,
+                new_version,
+                eval_val,
             )
         )
     else:

@@ -6,8 +6,9 @@ No torch here: the baseline is OpenCV and the comparison runs the CNN through on
 from __future__ import annotations
 
 import json
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated
 
 import typer
 from rich.table import Table
@@ -49,7 +50,7 @@ def label(
     if truth is not None and not truth.is_file():
         raise fail(f"ground truth not found: {truth}")
 
-    def progress(paths: list[Path]) -> Any:
+    def progress(paths: Iterable[Path]) -> Iterable[Path]:
         return tqdm(paths, desc="labelling", unit="image")
 
     manifest = guard(lambda: label_folder(images_dir, out_dir, prof, cal, clicked, seed, progress))

@@ -25,7 +25,7 @@ import numpy as np
 
 from service.core.geometry import camera_centre
 from service.core.regions import pose_class
-from train.compare.baseline import BaselinePrediction, failure_summary, run_baseline
+from train.compare.baseline import BaselinePrediction, Peer, failure_summary, run_baseline
 from train.network.evaluate import compute_metrics
 from train.real.calibration import Camera
 from train.real.corners import ChessboardPattern, find_grid, orient_grid, to_grey
@@ -95,7 +95,7 @@ class ChessboardPeer:
 
 
 def evaluate_peer(
-    peer: ChessboardPeer,
+    peer: Peer,
     images: np.ndarray | Sequence[np.ndarray],
     labels: np.ndarray,
     cameras: Sequence[Camera],

@@ -164,6 +164,14 @@ class TextureAlign(nn.Module):
     (`train.network.pattern`), its cells take the squares' place and the template is its
     texture blurred by `sigma_sq` cells."""
 
+    # buffers
+    st: torch.Tensor  # [P, 2] the points in the unit square
+    template: torch.Tensor  # [P] the blurred texture there
+    blur: torch.Tensor  # the Gaussian kernel of `blur_px`
+    px_to_unit: torch.Tensor  # [2]
+    basis: torch.Tensor  # [8, 4, 2]
+    k1_axis: torch.Tensor  # [9]
+
     def __init__(
         self,
         size: tuple[int, int],
@@ -186,17 +194,18 @@ class TextureAlign(nn.Module):
         self.steps, self.max_step, self.max_move, self.damping = steps, max_step, max_move, damping
         self.radial_sd, self.k1_range, self.max_k1_step = radial_sd, k1_range, max_k1_step
         self.k1_min_corr = k1_min_corr
-        self.textured = textured = pattern is not None and not pattern.checker
-        if textured:
-            squares = pattern.cells
+        texture = pattern if pattern is not None and not pattern.checker else None
+        self.textured = texture is not None
+        if texture is not None:
+            squares = texture.cells
         axes = []
         for n in squares:
             k = round((n - 2 * inset) * per_square)
             axes.append(inset + (np.arange(k) + 0.5) * (n - 2 * inset) / k)  # squares
         u, v = np.meshgrid(*axes, indexing="xy")
         st = np.stack([u.ravel() / squares[0], v.ravel() / squares[1]], 1)
-        if textured:
-            template = pattern.sample(st, blur_cells=sigma_sq)
+        if texture is not None:
+            template = texture.sample(st, blur_cells=sigma_sq)
         else:
             template = -_blurred_wave(u.ravel(), sigma_sq) * _blurred_wave(v.ravel(), sigma_sq)
         self.register_buffer("st", torch.tensor(st, dtype=torch.float32), persistent=False)

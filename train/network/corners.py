@@ -150,6 +150,26 @@ class CornerNet(NormalisedNet):
     point at the image centre; heat maps at `stride` 4 or 2 input pixels."""
 
     corner_order = "upper"  # `fit._corner_loss`: corner 0 is the upper end of the 0-2 diagonal
+    # buffers (`__init__` says what each holds)
+    grid_u: torch.Tensor  # [W / stride] px
+    grid_v: torch.Tensor  # [H / stride] px
+    px_to_unit: torch.Tensor  # [2]
+    principal: torch.Tensor  # [2] px
+    focal: torch.Tensor  # [] px
+    focal_bounds: torch.Tensor  # [2] px
+    self_calibrate: torch.Tensor  # [] 0 or 1
+    radial_prior: torch.Tensor  # [] k1
+    to_unit: torch.Tensor  # [3, 3]
+    square_st: torch.Tensor  # [cells, 2]
+    parity_shifts: torch.Tensor  # [9, 2]
+    templates: torch.Tensor  # [2, 9, cells] (a texture)
+    checker: torch.Tensor  # [cells] +-1 (the checker)
+    blur_u: torch.Tensor
+    blur_v: torch.Tensor
+    z_split: torch.Tensor  # [] cm
+    side_spread: torch.Tensor  # []
+    depth_spread: torch.Tensor  # []
+    parity_gain: torch.Tensor  # []
 
     def __init__(
         self,
@@ -183,17 +203,19 @@ class CornerNet(NormalisedNet):
         self.up0 = conv_block(32 + 16, 16) if stride == 2 else None
         self.heat = nn.Conv2d(16 if stride == 2 else 32, 4, 1)
         # the object's texture as the half turn and the alignment read it (default: the checker)
-        self.textured = pattern is not None and not pattern.checker
-        cells = pattern.cells if self.textured else SQUARES
+        texture = pattern if pattern is not None and not pattern.checker else None
+        self.textured = texture is not None
+        cells = texture.cells if texture is not None else SQUARES
         self.align = TextureAlign(size, SQUARES, pattern)  # no weights: geometry only
         self.presence = nn.Sequential(
             nn.Flatten(), nn.Linear(2 * 128, 64), nn.ReLU(), nn.Linear(64, 1)
         )
         # the corners' offsets from the cells (`_soft_argmax`): zero to start with, as in the
         # networks before them (`_load_from_state_dict`)
-        self.offset = nn.Conv2d(self.heat.in_channels, 8, 1)
-        nn.init.zeros_(self.offset.weight)
-        nn.init.zeros_(self.offset.bias)
+        self.offset = offset = nn.Conv2d(self.heat.in_channels, 8, 1)
+        assert offset.bias is not None  # nn.Conv2d's default bias=True
+        nn.init.zeros_(offset.weight)
+        nn.init.zeros_(offset.bias)
         w, h = size[0] // stride, size[1] // stride
         self.register_buffer("grid_u", (torch.arange(w) * stride + (stride - 1) / 2).float())
         self.register_buffer("grid_v", (torch.arange(h) * stride + (stride - 1) / 2).float())
@@ -228,11 +250,11 @@ class CornerNet(NormalisedNet):
         third = torch.tensor([-1.0, 0.0, 1.0]) / 3
         shifts = torch.stack(torch.meshgrid(third / cells[0], third / cells[1], indexing="xy"), -1)
         self.register_buffer("parity_shifts", shifts.reshape(-1, 2), persistent=False)
-        if self.textured:
+        if texture is not None:
             # the texture at the 9 shifted grids of cell centres, in the order read and half
             # turned ((s, t) -> (1 - s, 1 - t)): [2, 9, cells]
             st = (self.square_st[None] + self.parity_shifts[:, None]).reshape(-1, 2).numpy()
-            both = [pattern.sample(st), pattern.sample(1.0 - st)]
+            both = [texture.sample(st), texture.sample(1.0 - st)]
             templates = torch.tensor(np.stack(both), dtype=torch.float32)
             self.register_buffer("templates", templates.reshape(2, 9, -1), persistent=False)
         else:

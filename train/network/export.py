@@ -38,6 +38,7 @@ from service.core.onnx_contract import (
     io_description,
 )
 from service.core.paths import REPO_ROOT
+from service.core.pose import FOCAL_BOUNDS
 from service.core.profile import focal_prior_of, load_profile
 from service.core.regions import NUM_CLASSES, Z_SPLIT_CM, class_descriptions, region_of_class
 from train.network.config import CORNER_ARCHS, canonical_arch
@@ -82,7 +83,7 @@ def onnx_bytes(net: Any) -> bytes:
         torch.onnx.export(
             wrapper,
             example,
-            buf,
+            buf,  # type: ignore[arg-type]  # a file object is accepted (torch.onnx.export doc)
             dynamo=False,
             input_names=inputs,
             output_names=outputs,
@@ -140,7 +141,7 @@ def _camera_card(profile: dict[str, Any]) -> dict[str, Any]:
     return {
         "focal_prior_x_spec": focal_prior_of(profile),
         "focal_prior_weight": corner_net.FOCAL_PRIOR_WEIGHT,
-        "focal_bounds_x_spec": list(corner_net.FOCAL_BOUNDS),
+        "focal_bounds_x_spec": list(FOCAL_BOUNDS),
         # a fitted k1 below it shortens the focal prior (`CornerNet.prior_focal`)
         "focal_prior_barrel_limit": corner_net.BARREL_LIMIT,
         "radial_k1": corner_net.RADIAL_PRIOR,

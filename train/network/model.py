@@ -74,6 +74,9 @@ def check_size(size: tuple[int, int]) -> tuple[int, int]:
 class PoseNet(NormalisedNet):
     """SPEC network for an input `size` (W, H) of 80x60 or 160x120."""
 
+    features: nn.Sequential
+    classifier: nn.Sequential
+
     def __init__(self, size: tuple[int, int] = SIZES[1], batch_norm: bool = False) -> None:
         super().__init__()
         self.size = check_size(size)
@@ -112,8 +115,10 @@ def _bn_affine(bn: nn.Module, n: int) -> tuple[torch.Tensor, torch.Tensor]:
     """Eval-mode batch norm as y = a * x + c per channel -> (a, c), each (n,); identity if none."""
     if not isinstance(bn, nn.BatchNorm1d | nn.BatchNorm2d):
         return torch.ones(n), torch.zeros(n)
-    a = bn.weight / torch.sqrt(bn.running_var + bn.eps)
-    return a, bn.bias - a * bn.running_mean
+    mean, var = bn.running_mean, bn.running_var
+    assert mean is not None and var is not None, "the networks' norms track running statistics"
+    a = bn.weight / torch.sqrt(var + bn.eps)
+    return a, bn.bias - a * mean
 
 
 @torch.no_grad()
@@ -129,13 +134,16 @@ def fold_batch_norm(net: PoseNet) -> PoseNet:
     plain.std.copy_(net.std)
     f, c = net.features, net.classifier
     # (layer, norm of its input or None, norm of its output) in the training network.
-    layers: list[tuple[nn.Conv2d | nn.Linear, nn.Module | None, nn.Module]] = [
+    layers: list[tuple[nn.Module, nn.Module | None, nn.Module]] = [
         (f[0], None, f[1]),
         (f[5], f[4], f[6]),
         (c[1], f[9], c[2]),
     ]
     targets = [plain.features[0], plain.features[5], plain.classifier[1]]
     for (layer, before, after), target in zip(layers, targets, strict=True):
+        # the fixed indices above are biased convolutions / linears
+        assert isinstance(layer, nn.Conv2d | nn.Linear) and layer.bias is not None
+        assert isinstance(target, nn.Conv2d | nn.Linear) and target.bias is not None
         weight, bias = layer.weight.clone(), layer.bias.clone()
         if before is not None:
             a_in, c_in = _bn_affine(before, CHANNELS)

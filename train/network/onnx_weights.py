@@ -80,7 +80,9 @@ def corner_net_from_onnx(path: Path) -> tuple[NormalisedNet, dict[str, Any]]:
         read.add(f"{name}.weight")
         norm = name[:-1] + "1"  # `convnet._conv`: Conv (bias-free) + BatchNorm + ReLU
         if f"{norm}.running_var" in state:
-            eps = net.get_submodule(norm).eps
+            batch_norm = net.get_submodule(norm)
+            assert isinstance(batch_norm, nn.BatchNorm2d)
+            eps = batch_norm.eps
             ones = torch.ones(weight.shape[0])
             state |= {f"{norm}.weight": ones, f"{norm}.bias": bias}
             state |= {f"{norm}.running_mean": 0 * ones, f"{norm}.running_var": (1 - eps) * ones}
@@ -139,12 +141,14 @@ def recalibrate_batch_norm(net: NormalisedNet, x: torch.Tensor) -> None:
     for conv, norm in pairs:
         z = seen[norm]
         mean, var = z.mean((0, 2, 3)), z.var((0, 2, 3), unbiased=False)
-        a = norm.weight / (norm.running_var + norm.eps).sqrt()
-        c = norm.bias - norm.running_mean * a
-        sd = (var + norm.eps).sqrt()
+        old_mean, old_var = norm.running_mean, norm.running_var
+        assert old_mean is not None and old_var is not None  # nn.BatchNorm2d's default
+        a = norm.weight / (old_var + norm.eps).sqrt()
+        c = norm.bias - old_mean * a
+        sd = torch.sqrt(var + norm.eps)
         conv.weight.div_(sd[:, None, None, None])
         a, mean, var = a * sd, mean / sd, var / sd**2
         norm.weight.copy_(a * (var + norm.eps).sqrt())
         norm.bias.copy_(c + a * mean)
-        norm.running_mean.copy_(mean)
-        norm.running_var.copy_(var)
+        old_mean.copy_(mean)
+        old_var.copy_(var)

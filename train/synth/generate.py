@@ -23,6 +23,7 @@ from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
+from multiprocessing.context import BaseContext
 from pathlib import Path
 from typing import Any
 
@@ -267,6 +268,7 @@ def _executor(workers: int) -> ProcessPoolExecutor:
     renderers (textures, backgrounds) warm between data sets."""
     if workers not in _EXECUTORS:
         # Not "fork": a child forked after OpenCV started its thread pool can deadlock.
+        context: BaseContext
         if "forkserver" in multiprocessing.get_all_start_methods():
             context = multiprocessing.get_context("forkserver")
             context.set_forkserver_preload([__name__])
