@@ -403,6 +403,21 @@ def portrait_table(net: CornerNet) -> list[list[str]]:
     return rows
 
 
+def _corner_net(path: Path) -> CornerNet:
+    """The corner network of a training checkpoint or an exported ONNX model (eval mode), or
+    exit with the reason."""
+    try:
+        if path.suffix == ".onnx":
+            net, _ = corner_net_from_onnx(path)
+        else:
+            net, _ = load_network(path)
+    except ValueError as exc:  # TrainingError, OnnxWeightsError: a one-line reason
+        sys.exit(f"error: {exc}")
+    if not isinstance(net, CornerNet):
+        sys.exit(f"error: {path} is not a corner network")
+    return net.eval()
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument(
@@ -415,16 +430,7 @@ def main() -> None:
     for path in (args.checkpoint, *sets):
         if not path.exists():
             sys.exit(f"error: not found: {path} (run scripts/train_default.sh first)")
-    try:
-        if args.checkpoint.suffix == ".onnx":
-            net, _ = corner_net_from_onnx(args.checkpoint)
-        else:
-            net, _ = load_network(args.checkpoint)
-    except ValueError as exc:  # TrainingError, OnnxWeightsError: a one-line reason
-        sys.exit(f"error: {exc}")
-    if not isinstance(net, CornerNet):
-        sys.exit(f"error: {args.checkpoint} is not a corner network")
-    net.eval()
+    net = _corner_net(args.checkpoint)
     cache = _caches(net, args.data)
     code_range = net.align.k1_range
     net.align.k1_range = (K1_LOWER, code_range[1])
@@ -436,7 +442,7 @@ def main() -> None:
         written_by(f"python scripts/camera_model_choices.py {args.checkpoint} {args.data}")
         + " The constants are in `train/network/corners.py` (`FOCAL_PRIOR`, "
         f"`RADIAL_PRIOR` = {corner_net.RADIAL_PRIOR:g}: the prior of the k1 the corner "
-        "alignment fits per image, `train/network/align.py`) and `service/preprocess.py` "
+        "alignment fits per image, `train/network/align.py`) and `service/core/preprocess.py` "
         "(`NetworkFrame`); docs/decisions.md says why. The rows with a fixed k1 pose every "
         "image with it (the corners aligned as the code does).",
         "",
@@ -480,6 +486,15 @@ def main() -> None:
         "",
         *table(["k1 range, barrel limit", *SPLIT_HEADER], barrel_limit_table(net, cache, narrow)),
         "",
+        *_limit_sections(net, cache),
+    ]
+    args.out.write_text("\n".join(lines))
+    print(f"wrote {args.out}")
+
+
+def _limit_sections(net: CornerNet, cache: dict[tuple[str, int], Cached]) -> list[str]:
+    """The page's last sections: the principal point, what limits the answer, portraits."""
+    return [
         "## The principal point (the code's focal prior and k1): class accuracy (%) at blur "
         "0 / 1 / 2 / 3",
         "",
@@ -501,8 +516,6 @@ def main() -> None:
         *table(["input", "photos", "accuracy (%)"], portrait_table(net)),
         "",
     ]
-    args.out.write_text("\n".join(lines))
-    print(f"wrote {args.out}")
 
 
 if __name__ == "__main__":

@@ -222,8 +222,24 @@ class CornerNet(NormalisedNet):
         self.register_buffer(
             "px_to_unit", torch.tensor([2.0 / size[0], 2.0 / size[1]]), persistent=False
         )
-        # the prior camera: principal point at the image centre, focal length (px) of the SPEC
-        # camera times `focal_scale`, or (self_calibrate = 1) the estimate of `focal_length`
+        self._camera_buffers(size, focal_scale, self_calibrate)
+        self._pattern_buffers(board_cm, cells, texture)
+        # the blurs of `blurred_checker` along the input's width and height
+        self.register_buffer("blur_u", _parity_blur_matrices(size[0]), persistent=False)
+        self.register_buffer("blur_v", _parity_blur_matrices(size[1]), persistent=False)
+        # buffers, so that a checkpoint carries them: the region split (cm), the sd of cx, cy
+        # per cm of distance and of cz per cm of cz, the parity correlation -> logit gain
+        self.register_buffer("z_split", torch.tensor(float(z_split_cm)))
+        self.register_buffer("side_spread", torch.tensor(0.08))
+        self.register_buffer("depth_spread", torch.tensor(0.08))
+        self.register_buffer("parity_gain", torch.tensor(8.0))
+
+    def _camera_buffers(
+        self, size: tuple[int, int], focal_scale: float, self_calibrate: bool
+    ) -> None:
+        """The prior camera's buffers: principal point at the image centre, focal length (px)
+        of the SPEC camera times `focal_scale`, or (self_calibrate = 1) the estimate of
+        `focal_length`, its bounds, the lens's k1 prior."""
         spec_f = float(intrinsics(size)[0, 0])
         lo, hi = FOCAL_BOUNDS
         self.register_buffer("principal", torch.tensor([(size[0] - 1) / 2, (size[1] - 1) / 2]))
@@ -233,6 +249,13 @@ class CornerNet(NormalisedNet):
         )
         self.register_buffer("self_calibrate", torch.tensor(float(self_calibrate)))
         self.register_buffer("radial_prior", torch.tensor(RADIAL_PRIOR), persistent=False)
+
+    def _pattern_buffers(
+        self, board_cm: tuple[float, float] | None, cells: tuple[int, int], texture: Pattern | None
+    ) -> None:
+        """The object's buffers: object (X, Y) cm -> unit square, the `cells` (along x, y)
+        centres and their 9 shifted grids the half turn is read at, and the texture's
+        templates there (`texture`) or the checker's signs (None)."""
         if board_cm is None:
             default = load_profile(DEFAULT_PROFILE)
             board_cm = (default.width_cm, default.height_cm)
@@ -260,15 +283,6 @@ class CornerNet(NormalisedNet):
         else:
             # +1 on white squares; the square at corner 0 (-X, -Y) is black
             self.register_buffer("checker", (((i + j) % 2) * 2 - 1).reshape(-1).float())
-        # the blurs of `blurred_checker` along the input's width and height
-        self.register_buffer("blur_u", _parity_blur_matrices(size[0]), persistent=False)
-        self.register_buffer("blur_v", _parity_blur_matrices(size[1]), persistent=False)
-        # buffers, so that a checkpoint carries them: the region split (cm), the sd of cx, cy
-        # per cm of distance and of cz per cm of cz, the parity correlation -> logit gain
-        self.register_buffer("z_split", torch.tensor(float(z_split_cm)))
-        self.register_buffer("side_spread", torch.tensor(0.08))
-        self.register_buffer("depth_spread", torch.tensor(0.08))
-        self.register_buffer("parity_gain", torch.tensor(8.0))
 
     # -- network -------------------------------------------------------------------------------
     def _encode(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
