@@ -440,7 +440,9 @@ def main() -> None:
         "# The corner network's camera model, measured on the real val and train sources",
         "",
         written_by(f"python scripts/camera_model_choices.py {args.checkpoint} {args.data}")
-        + " The constants are in `train/network/corners.py` (`FOCAL_PRIOR`, "
+        + " The constants are in `service/core/pose.py` (`FOCAL_PRIOR`, `FOCAL_BOUNDS`; a "
+        "profile may state its own prior, `focal_prior`), `train/network/corners.py` "
+        "(`FOCAL_PRIOR_WEIGHT`, `BARREL_LIMIT`, "
         f"`RADIAL_PRIOR` = {corner_net.RADIAL_PRIOR:g}: the prior of the k1 the corner "
         "alignment fits per image, `train/network/align.py`) and `service/core/preprocess.py` "
         "(`NetworkFrame`); docs/decisions.md says why. The rows with a fixed k1 pose every "
@@ -482,7 +484,7 @@ def main() -> None:
         f"The code's: limit {corner_net.BARREL_LIMIT:g}, k1 range "
         f"{code_range[0]:g}..{code_range[1]:g}. A k1 fitted beyond the limit (in the prior "
         "camera's coordinates) shortens the prior focal length f0 to f0 sqrt(limit / k1): "
-        "a lens's own barrel rarely goes further (`corner_net.BARREL_LIMIT`).",
+        "a lens's own barrel rarely goes further (`BARREL_LIMIT`).",
         "",
         *table(["k1 range, barrel limit", *SPLIT_HEADER], barrel_limit_table(net, cache, narrow)),
         "",
