@@ -61,6 +61,7 @@ def train(**options: Any) -> None:
     Options come from `--config recipes/NAME.toml` and the command line (which wins).
     """
     from train.network.config import load_config
+    from train.network.export import repo_path
     from train.network.fit import fit
 
     recipe, resume = options.pop("config"), options.pop("resume")
@@ -68,7 +69,7 @@ def train(**options: Any) -> None:
     options["out"] = options.pop("out_dir")
     config = guard(lambda: load_config(recipe, options), code=2)
     if recipe is not None:
-        config.extra["recipe"] = str(recipe)
+        config.extra["recipe"] = repo_path(recipe)
     for path in config.datasets + config.select:
         if not path.is_dir():
             raise fail(f"data set not found: {path}")
@@ -255,6 +256,38 @@ def realset(
     out.print(f"[green]wrote[/] {out_dir}: {json.dumps(manifest['counts'])}")
 
 
+def card(
+    model: Annotated[
+        Path, typer.Argument(help="A model (.onnx); its card beside it (.json) is rewritten too.")
+    ],
+    recipe: Annotated[
+        Path | None, typer.Option(help="The recipe file of its last stage (recipes/NAME.toml).")
+    ] = None,
+    rebuild: Annotated[
+        list[str] | None,
+        typer.Option(help="A command that makes the model again (repeat, in order)."),
+    ] = None,
+    role: Annotated[
+        str | None,
+        typer.Option(help="pick (the model to use for its object) or ablation (kept for a page)."),
+    ] = None,
+    use: Annotated[str | None, typer.Option(help="When to pick it, in a sentence.")] = None,
+    notes: Annotated[str | None, typer.Option(help="Free text for the card.")] = None,
+) -> None:
+    """Rewrite a model's card (ONNX metadata and .json): provenance, role, notes; the graph
+    and its accuracies unchanged."""
+    from train.network.export import amend_card, repo_path
+
+    if model.suffix != ".onnx" or not model.is_file():
+        raise fail(f"not an ONNX model file: {model}")
+    if recipe is not None and not recipe.is_file():
+        raise fail(f"recipe not found: {recipe}")
+    where = repo_path(recipe) if recipe is not None else None
+    written = guard(lambda: amend_card(model, where, rebuild, role, use, notes))
+    out.print(f"[green]wrote[/] {model} and {model.with_suffix('.json').name}")
+    out.print(f"  recipe {written['training'].get('recipe')}, role {written.get('role')}")
+
+
 def catalog(
     models_dir: Annotated[Path, typer.Argument(help="Folder of models and cards.")] = Path(
         "models"
@@ -274,4 +307,5 @@ app.command()(train)
 app.command()(evaluate)
 app.command()(export)
 app.command()(realset)
+app.command()(card)
 app.command()(catalog)

@@ -195,6 +195,8 @@ def build_card(
         },
         "recipe": checkpoint["config"].get("extra", {}).get("recipe"),
     }
+    if rebuild := checkpoint["config"].get("extra", {}).get("rebuild"):
+        training["rebuild"] = rebuild  # the commands that make the model again
     parent = checkpoint.get("parent")
     if parent:
         training["fine_tuned_from"] = {
@@ -219,6 +221,60 @@ def build_card(
         "accuracy": accuracy,
         "notes": notes,
     }
+
+
+#: A card's `role`: the model to use for its object, or one kept for the measured pages.
+ROLES = ("pick", "ablation")
+#: Folders of the repository that moved since older cards were written: old -> new prefix.
+MOVED = {"train/profiles/": "train/assets/profiles/"}
+
+
+def repo_path(path: Path) -> str:
+    """`path` as a card records it: relative to the repository where it lies inside it (so
+    that a card names no folder of the machine it was made on), else as given."""
+    try:
+        return Path(path).resolve().relative_to(REPO_ROOT).as_posix()
+    except ValueError:
+        return str(path)
+
+
+def amend_card(
+    onnx_path: Path,
+    recipe: str | None = None,
+    rebuild: list[str] | None = None,
+    role: str | None = None,
+    use: str | None = None,
+    notes: str | None = None,
+) -> dict[str, Any]:
+    """Rewrite a model's card in its ONNX metadata and in its `.json` beside it, the graph
+    unchanged: the training's `recipe` (a file in recipes/) and `rebuild` (the commands that
+    make the model again), its `role` (`ROLES`) and `use` (when to pick it), its notes; the
+    `architecture` text is this version's for the card's network and a texture path in a
+    folder that moved is the new one (`MOVED`) -> the card."""
+    import onnx
+
+    model = onnx.load(str(onnx_path))
+    cards = [p.value for p in model.metadata_props if p.key == CARD_KEY]
+    if not cards:
+        raise ValueError(f"{onnx_path} has no model card in its metadata")
+    card = json.loads(cards[0])
+    if role is not None and role not in ROLES:
+        raise ValueError(f"role must be one of {', '.join(ROLES)}, got {role!r}")
+    training = card.setdefault("training", {})
+    if recipe is not None:
+        training["recipe"] = recipe
+    if rebuild is not None:
+        training["rebuild"] = rebuild
+    card |= {k: v for k, v in (("role", role), ("use", use), ("notes", notes)) if v is not None}
+    texture = card.get("profile", {}).get("texture", "")
+    for old, new in MOVED.items():
+        if texture.startswith(old):
+            card["profile"]["texture"] = new + texture[len(old) :]
+    arch = canonical_arch(card.get("architecture", "spec").split(":")[0])  # cards before 2.0: spec
+    card["architecture"] = ARCHITECTURES[arch]
+    onnx_path.write_bytes(with_card(onnx_path.read_bytes(), card))
+    onnx_path.with_suffix(".json").write_text(json.dumps(card, indent=1) + "\n")
+    return card
 
 
 def with_card(model_bytes: bytes, card: dict[str, Any]) -> bytes:
