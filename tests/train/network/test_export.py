@@ -148,7 +148,8 @@ def test_catalog_lists_every_card_with_its_measured_accuracy(tmp_path):
     page = write_catalog(models).read_text()
     assert "Real val sources (the model was selected on them), `real-s1-b3`:" in page
     assert "| `cam-v` | 6 | 50.0 % | 100.0 % | 100.0 % | 50.0 % | 0.61 |" in page
-    assert "| `tiny` | spec | 80x60 |" in page and "| 25.0 % |" in page
+    assert "| `tiny` |  | spec | 80x60 |" in page and "| 25.0 % |" in page
+    assert "| test |  | no model of this object is marked pick | `tiny` |" in page
     assert "| `cam-a` | 6 | 33.3 % | 100.0 % | 66.7 % | 50.0 % | 1.73 |" in page
     assert "| `negatives` | 4 | 0.0 % | - | - | - | - |" in page
     assert "how it was made" in page and "planar-pose catalog" in page
@@ -156,6 +157,37 @@ def test_catalog_lists_every_card_with_its_measured_accuracy(tmp_path):
     empty.mkdir()
     with pytest.raises(ValueError, match="no model card"):
         write_catalog(empty)
+
+
+def test_a_card_gets_its_recipe_rebuild_commands_and_role_in_both_copies(tmp_path):
+    """`planar-pose card`: the .json and the graph's copy rewritten alike, the graph kept;
+    the recipe recorded relative to the repository; the catalog's pick table says it."""
+    from typer.testing import CliRunner
+
+    from train.cli import app
+    from train.network.catalog import write_catalog
+
+    ckpt, _ = _checkpoint(tmp_path, (80, 60))
+    models = tmp_path / "models"
+    path, card = export(ckpt, "tiny", models)
+    graph = onnx.load(str(path)).graph
+    recipe = REPO_ROOT / "recipes" / "chessboard-spec-80x60.toml"
+    args = ["card", str(path), "--recipe", str(recipe), "--rebuild", "step one"]
+    args += ["--rebuild", "step two", "--role", "pick", "--use", "for the test object"]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 0, result.output
+    new = json.loads((models / "tiny.json").read_text())
+    meta = {p.key: p.value for p in onnx.load(str(path)).metadata_props}
+    assert json.loads(meta["model_card"]) == new and onnx.load(str(path)).graph == graph
+    assert new["training"]["recipe"] == "recipes/chessboard-spec-80x60.toml"
+    assert new["training"]["rebuild"] == ["step one", "step two"]
+    assert (new["role"], new["use"]) == ("pick", "for the test object")
+    assert new["accuracy"] == card["accuracy"] and new["architecture"].startswith("spec: ")
+    assert "| test | `tiny` | for the test object |  |" in write_catalog(models).read_text()
+    result = CliRunner().invoke(app, ["card", str(path), "--role", "best"])
+    assert result.exit_code == 1 and "role must be one of pick, ablation" in result.output
+    result = CliRunner().invoke(app, ["card", str(path), "--recipe", str(tmp_path / "no.toml")])
+    assert result.exit_code == 1 and "recipe not found" in result.output
 
 
 def test_a_corner_graph_is_regraphed_with_the_zoom_inputs(tmp_path):
