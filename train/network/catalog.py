@@ -31,7 +31,8 @@ take `pixel_aspect`, `view` and `focal` (each with a default) and give `corners`
 
 Accuracy columns are test splits: real = the corpus's test sources (cameras never used for
 training or model selection), free / noC = renders of corpus-like cameras, spec = renders of
-the SPEC's own camera (profile `chessboard-spec`; see docs/data.md), at blur level b. Under
+the SPEC's own camera (profile `chessboard-spec`), at blur level b (every name:
+[docs/data.md](../docs/data.md#names)). Under
 the default model (every model, in a folder without one), its real test figures by source at
 the blur levels of the table, and, where its card has them (`export --eval-val`), those of
 the real val sources it was selected on; the other models' are in their cards.
