@@ -19,7 +19,7 @@ from train.commands.common import fail, guard, out, size_or_exit, split_or_exit
 from train.markdown import written_by
 
 
-def _default(f: dataclasses.Field) -> Any:
+def _default(f: dataclasses.Field[Any]) -> Any:
     return f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
 
 
@@ -127,7 +127,7 @@ def evaluate(
     def body() -> Path:
         loaded = {p: load_predictor(p) for p in models}
         names = {p: _model_name(p, info) for p, (_, _, info) in loaded.items()}
-        results: dict[str, dict[str, dict]] = {names[p]: {} for p in models}
+        results: dict[str, dict[str, dict[str, Any]]] = {names[p]: {} for p in models}
         for ds in datasets:
             data = load_dataset(ds, split=chosen)
             if len(data.labels) == 0:
@@ -148,7 +148,7 @@ def evaluate(
     out.print(f"[green]done[/]: {out_dir / 'metrics.json'}, {report}")
 
 
-def _model_name(path: Path, info: dict) -> str:
+def _model_name(path: Path, info: dict[str, Any]) -> str:
     """Display name of a model: its card name, else the run folder / file stem."""
     if isinstance(info.get("name"), str):
         return info["name"]

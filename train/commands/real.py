@@ -8,7 +8,7 @@ from __future__ import annotations
 import json
 from collections.abc import Iterable
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 from rich.table import Table
@@ -107,7 +107,7 @@ def baseline(
 
     def body() -> Path:
         name = f"baseline-{features}"
-        results: dict[str, dict[str, dict]] = {name: {}}
+        results: dict[str, dict[str, dict[str, Any]]] = {name: {}}
         notes = [
             f"Split `{split}`. Written by `planar-pose baseline`; features {features}, "
             "ratio test, RANSAC homography, IPPE PnP; no homography = class 0."

@@ -101,7 +101,7 @@ def evaluate_peer(
     cameras: Sequence[Camera],
     progress: Callable[[int], Any] | None = None,
     margin_cm: np.ndarray | None = None,
-) -> tuple[dict, dict[str, int]]:
+) -> tuple[dict[str, Any], dict[str, int]]:
     """SPEC 10 metrics (`train.network.evaluate.compute_metrics`, by the cameras' margins
     [N] cm when given) and the failure reasons."""
     preds, ms = run_baseline(peer, images, cameras, progress)

@@ -22,6 +22,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -76,7 +77,7 @@ def default_camera(size: tuple[int, int]) -> Camera:
     return Camera(A, np.zeros(5), (int(size[0]), int(size[1])))
 
 
-def _camera(entry: dict, where: str) -> Camera:
+def _camera(entry: dict[str, Any], where: str) -> Camera:
     try:
         K = np.asarray(entry["K"], dtype=np.float64)
     except (KeyError, TypeError, ValueError) as exc:

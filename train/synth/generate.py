@@ -158,7 +158,7 @@ def image_name(index: int, width: int) -> str:
     return f"images/{index:0{width}d}.png"
 
 
-_RENDERERS: dict[tuple, Renderer] = {}
+_RENDERERS: dict[tuple[Any, ...], Renderer] = {}
 MAX_RENDERERS = 32
 _BACKGROUNDS: dict[tuple[int, int], BackgroundPool] = {}
 
