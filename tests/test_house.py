@@ -10,6 +10,7 @@ import ast
 import json
 import re
 from collections import Counter
+from fnmatch import fnmatch
 from pathlib import Path
 from typing import Any
 
@@ -48,25 +49,22 @@ def _strings(value: Any) -> list[str]:
     return []
 
 
-def _missing_paths(text: str, base: Path = REPO_ROOT) -> list[str]:
+def _missing_paths(text: str) -> list[str]:
     """The repository paths named in `text` (`REPO_PATH`, placeholders left out) that do
-    not exist, nor any folder git ignores because a command writes it (.gitignore's `/...`
-    lines)."""
-    ignored = [
-        line.strip().strip("/").replace("*", "")
+    not exist, but for those in a folder git ignores because a command writes it
+    (.gitignore's `/...` lines, e.g. docs/results/details/)."""
+    written = [
+        line.strip().strip("/") + "*"
         for line in (REPO_ROOT / ".gitignore").read_text().splitlines()
         if line.startswith("/")
     ]
-    missing = []
-    for match in REPO_PATH.finditer(text):
-        path = match.group(1).rstrip(".,")
-        if PLACEHOLDER.search(path) or any(path.startswith(i.split("*")[0]) for i in ignored):
-            continue
-        if not (base / path).exists() and not any(
-            re.fullmatch(i.replace("comparison", r"comparison\w*") + ".*", path) for i in ignored
-        ):
-            missing.append(path)
-    return missing
+    return [
+        path
+        for path in (m.group(1).rstrip(".,") for m in REPO_PATH.finditer(text))
+        if not PLACEHOLDER.search(path)
+        and not any(fnmatch(path, pattern) for pattern in written)
+        and not (REPO_ROOT / path).exists()
+    ]
 
 
 @pytest.mark.parametrize("model", MODELS, ids=lambda p: p.stem)
