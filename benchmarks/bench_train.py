@@ -171,6 +171,89 @@ def recipe_rows(
     return rows, total
 
 
+SPEC_HEADER = [
+    "size", "plain loop", "fit eager", "fit compiled", "+ batch norm", "+ augment",
+    "convnet + augment", "compiled / plain", "thesis", "thesis / ours (+ augment)",
+]  # fmt: skip
+
+
+def spec_rows(images: int) -> list[list[str]]:
+    """The SPEC network and the convnet at each thesis size: ms per training image of a plain
+    loop and of `fit` (eager, compiled, + batch norm, + augmentation), against the thesis's."""
+    rows = []
+    for size in THESIS_MS:
+        plain_loop_ms(size, BATCH)  # warm-up
+        plain = plain_loop_ms(size, images)
+        eager = project_epoch_ms(size, images, augment=False, compiled=False)
+        ours = project_epoch_ms(size, images, augment=False, compiled=True)
+        bn = project_epoch_ms(size, images, augment=False, compiled=True, batch_norm=True)
+        aug = project_epoch_ms(size, images, augment=True, compiled=True, batch_norm=True)
+        conv = project_epoch_ms(size, images, augment=True, compiled=True, arch="convnet")
+        thesis = THESIS_MS[size]
+        rows.append(
+            [f"{size[0]}x{size[1]}"]
+            + [f"{v:.2f}" for v in (plain, eager, ours, bn, aug, conv)]
+            + [f"{ours / plain:.2f}x", f"{thesis:.0f}", f"{thesis / aug:.1f}x"]
+        )
+        print(" | ".join(rows[-1]))
+    return rows
+
+
+def corner_rows(
+    first: dict[str, FitConfig], images: int
+) -> tuple[list[list[str]], dict[tuple[str, bool], float]]:
+    """Each corner network's first recipe stage at 160x120, float32 / bfloat16, eager /
+    compiled -> (table rows, {(arch, bf16): eager ms per image})."""
+    measured = {  # (arch, bf16, compiled) -> ms per image
+        (arch, bf16, compiled): project_epoch_ms(
+            (160, 120),
+            images,
+            augment=True,
+            compiled=compiled,
+            arch=arch,
+            recipe=replace(config, bf16=bf16),
+        )
+        for arch, config in first.items()
+        for bf16 in (False, True)
+        for compiled in (False, True)
+    }
+    corner_ms = {(a, bf16): ms for (a, bf16, compiled), ms in measured.items() if not compiled}
+    rows = []
+    for arch, config in first.items():
+        fp32, bf16 = corner_ms[arch, False], corner_ms[arch, True]
+        recipe_ms = corner_ms[arch, config.bf16]
+        compiled_ms = [measured[arch, b, True] for b in (False, True)]
+        rows.append(
+            [arch, f"{fp32:.2f}", f"{bf16:.2f}", f"{fp32 / bf16:.2f}x"]
+            + [f"{ms:.2f}" for ms in compiled_ms]
+            + [f"{THESIS_MS[160, 120] / recipe_ms:.1f}x"]
+        )
+        print(" | ".join(rows[-1]))
+    return rows, corner_ms
+
+
+def recipe_lines(
+    stages: list[tuple[str, str, FitConfig]], corner_ms: dict[tuple[str, bool], float]
+) -> list[str]:
+    """The default's recipe added up at the measured rates (hours), or why not."""
+    rows, total = recipe_rows(stages, corner_ms)
+    _, all_bf16 = recipe_rows([(n, a, replace(c, bf16=True)) for n, a, c in stages], corner_ms)
+    if total is None:
+        return [
+            "The default's recipe was not added up: its data sets are not on this machine "
+            "(runs/default/data; scripts/train_default.sh makes them)."
+        ]
+    return [
+        "The default's recipe (scripts/train_default.sh, stage 2) at these rates: training "
+        "steps only (no validation, data generation, export or evaluation):",
+        "",
+        *table(["recipe", "network", "precision", "epochs", "images / epoch", "hours"], rows),
+        "",
+        f"In all {total:.1f} hours of training steps on this machine; with `bf16` in "
+        f"every stage {all_bf16:.1f} hours.",
+    ]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--images", type=int, default=512, help="images per measurement")
@@ -188,63 +271,18 @@ def main() -> None:
         f"{os.getloadavg()[0]:.2f} at start. ms per training image."
     )
     print(header)
-    spec_header = [
-        "size", "plain loop", "fit eager", "fit compiled", "+ batch norm", "+ augment",
-        "convnet + augment", "compiled / plain", "thesis", "thesis / ours (+ augment)",
-    ]  # fmt: skip
-    spec_rows = []
-    for size in THESIS_MS:
-        plain_loop_ms(size, BATCH)  # warm-up
-        plain = plain_loop_ms(size, args.images)
-        eager = project_epoch_ms(size, args.images, augment=False, compiled=False)
-        ours = project_epoch_ms(size, args.images, augment=False, compiled=True)
-        bn = project_epoch_ms(size, args.images, augment=False, compiled=True, batch_norm=True)
-        aug = project_epoch_ms(size, args.images, augment=True, compiled=True, batch_norm=True)
-        conv = project_epoch_ms(size, args.images, augment=True, compiled=True, arch="convnet")
-        thesis = THESIS_MS[size]
-        spec_rows.append(
-            [f"{size[0]}x{size[1]}"]
-            + [f"{v:.2f}" for v in (plain, eager, ours, bn, aug, conv)]
-            + [f"{ours / plain:.2f}x", f"{thesis:.0f}", f"{thesis / aug:.1f}x"]
-        )
-        print(" | ".join(spec_rows[-1]))
+    spec = spec_rows(args.images)
     stages = default_stages()
     first: dict[str, FitConfig] = {}  # each network's first stage
     for _, arch, config in stages:
         first.setdefault(arch, config)
-    measured = {  # (arch, bf16, compiled) -> ms per image
-        (arch, bf16, compiled): project_epoch_ms(
-            (160, 120),
-            args.images,
-            augment=True,
-            compiled=compiled,
-            arch=arch,
-            recipe=replace(config, bf16=bf16),
-        )
-        for arch, config in first.items()
-        for bf16 in (False, True)
-        for compiled in (False, True)
-    }
-    keypoint_ms = {(a, bf16): ms for (a, bf16, compiled), ms in measured.items() if not compiled}
-    key_rows = []
-    for arch, config in first.items():
-        fp32, bf16 = keypoint_ms[arch, False], keypoint_ms[arch, True]
-        recipe_ms = keypoint_ms[arch, config.bf16]
-        compiled_ms = [measured[arch, b, True] for b in (False, True)]
-        key_rows.append(
-            [arch, f"{fp32:.2f}", f"{bf16:.2f}", f"{fp32 / bf16:.2f}x"]
-            + [f"{ms:.2f}" for ms in compiled_ms]
-            + [f"{THESIS_MS[160, 120] / recipe_ms:.1f}x"]
-        )
-        print(" | ".join(key_rows[-1]))
-    rows, total = recipe_rows(stages, keypoint_ms)
-    _, all_bf16 = recipe_rows([(n, a, replace(c, bf16=True)) for n, a, c in stages], keypoint_ms)
+    key_rows, corner_ms = corner_rows(first, args.images)
     lines = [
         header,
         "",
         "The SPEC network (batch norm folded away on export) and the convnet:",
         "",
-        *table(spec_header, spec_rows),
+        *table(SPEC_HEADER, spec),
         "",
         "The default's networks at 160x120, with the optimiser, corner loss and "
         "augmentation of the first recipe stage that trains each, in float32 and with "
@@ -258,22 +296,8 @@ def main() -> None:
             key_rows,
         ),
         "",
+        *recipe_lines(stages, corner_ms),
     ]
-    if total is None:
-        lines.append(
-            "The default's recipe was not added up: its data sets are not on this machine "
-            "(runs/default/data; scripts/train_default.sh makes them)."
-        )
-    else:
-        lines += [
-            "The default's recipe (scripts/train_default.sh, stage 2) at these rates: training "
-            "steps only (no validation, data generation, export or evaluation):",
-            "",
-            *table(["recipe", "network", "precision", "epochs", "images / epoch", "hours"], rows),
-            "",
-            f"In all {total:.1f} hours of training steps on this machine; with `bf16` in "
-            f"every stage {all_bf16:.1f} hours.",
-        ]
     print("\n".join(lines[-3:]))
     if args.write_docs:
         write_section(DOCS, "bench_train", "Training", lines)

@@ -1,4 +1,4 @@
-"""Measure the keypoint network's camera-model constants on the corpus's val (and train)
+"""Measure the corner network's camera-model constants on the corpus's val (and train)
 sources and on renders of the SPEC's own camera, and write docs/camera_model.md.
 
 The geometry after the corners has no weights: the focal-length prior, the radial-distortion
@@ -18,7 +18,7 @@ per variant:
 * the val board photos turned to portrait, squashed to 160x120 or turned back first
   (`service.core.preprocess.NetworkFrame`);
 * the focal-length prior and its weight; the bounds of the estimate; the principal point;
-* the focal-length prior shortened by a strong barrel distortion (`keypoint.BARREL_LIMIT`),
+* the focal-length prior shortened by a strong barrel distortion (`corner_net.BARREL_LIMIT`),
   with the alignment's k1 range as the code has it and as it was before (down to -0.6);
 * what limits the answer: the network's corners, the labelled ones or the chessboard
   detector's (the comparison's peer), each with the self-calibrated camera or with the
@@ -48,26 +48,27 @@ from service.core.dataset import LoadedDataset, load_dataset, read_splits
 from service.core.geometry import intrinsics
 from service.core.inputs import SIZES
 from service.core.paths import REPO_ROOT
+from service.core.pose import FOCAL_BOUNDS
 from service.core.preprocess import NetworkFrame, to_network_input
 from service.core.profile import load_profile
 from service.core.regions import Z_SPLIT_CM, pose_class
 from train.compare.chessboard_peer import ENLARGE, enlarged_grey
 from train.markdown import table, written_by
-from train.network import keypoint
+from train.network import corners as corner_net
 from train.network.align import square_homography
+from train.network.corners import CornerNet
 from train.network.fit import load_network, to_input
-from train.network.keypoint import KeypointNet
-from train.network.onnx_weights import keypoint_from_onnx
+from train.network.onnx_weights import corner_net_from_onnx
 from train.real.corners import detect_chessboard
 from train.real.label import ObjectFinder
 from train.real.realset import read_rgb
 
 RADIAL = (0.0, -0.1, -0.2, -0.25, -0.3, -0.4)
-DEFAULT_PRIOR_WEIGHT, RADIAL_PRIOR = keypoint.FOCAL_PRIOR_WEIGHT, keypoint.RADIAL_PRIOR
+DEFAULT_PRIOR_WEIGHT, RADIAL_PRIOR = corner_net.FOCAL_PRIOR_WEIGHT, corner_net.RADIAL_PRIOR
 FOCAL_PRIORS = (0.6, 0.7, 0.8, 0.85, 0.9, 0.95, 1.0, 1.1)  # x the SPEC camera's focal length
 PRIOR_WEIGHTS = (0.001, 0.003, 0.01, 0.1)
 FOCAL_UPPER = (1.2, 1.5, 2.0)  # upper bounds of the estimate tried, x the SPEC camera's
-BARREL_LIMITS = (-0.3, -0.35, -0.4, -0.45, -0.5, -0.6)  # `keypoint.BARREL_LIMIT` tried
+BARREL_LIMITS = (-0.3, -0.35, -0.4, -0.45, -0.5, -0.6)  # `corner_net.BARREL_LIMIT` tried
 K1_LOWER = -0.6  # the lower end of the alignment's k1 range before 3.8.0
 # `limits_table`: where the corners come from
 CORNER_SOURCES = {
@@ -87,12 +88,12 @@ SPLIT_HEADER = [
 
 
 class Cached:
-    """The network's part of the answer on one data set split (`KeypointNet.observe`, with
+    """The network's part of the answer on one data set split (`CornerNet.observe`, with
     each image's pixel aspect): aligned corners [N, 4, 2], their parity [N], P(present) [N],
     the lens's k1 the alignment fitted [N]; pixel aspect [N], labels [N], the labelled
     corners [N, 4, 2] (nan where none) and the labels.csv rows."""
 
-    def __init__(self, net: KeypointNet, data: LoadedDataset) -> None:
+    def __init__(self, net: CornerNet, data: LoadedDataset) -> None:
         x = to_input(data.images)
         self.aspect = torch.from_numpy(data.pixel_aspect())
         with torch.no_grad():
@@ -109,7 +110,7 @@ class Cached:
         self.images = data.images
         self._detected: torch.Tensor | None = None
 
-    def accuracy(self, net: KeypointNet, use_aspect: bool, k1: float | None = None) -> float:
+    def accuracy(self, net: CornerNet, use_aspect: bool, k1: float | None = None) -> float:
         """Class accuracy (%) with the camera model (pixel aspect or square pixels; k1 fixed,
         or None: each image's fitted k1, the code's)."""
         if k1 is not None:
@@ -127,7 +128,7 @@ class Cached:
         predicted = torch.cat([1 - pr, pr * pk], 1).argmax(1).numpy()
         return 100.0 * float(np.mean(predicted == self.labels))
 
-    def detector_corners(self, net: KeypointNet) -> torch.Tensor:
+    def detector_corners(self, net: CornerNet) -> torch.Tensor:
         """The board's four corners [N, 4, 2] px in the object's order as OpenCV's chessboard
         detector sees them, NaN where it finds no board: the comparison's peer (the image
         enlarged 4x, cubic; `detect_chessboard`), the outline (`ObjectFinder.corners_xy`, the
@@ -152,7 +153,7 @@ class Cached:
             self._detected = found
         return self._detected
 
-    def accuracy_from(self, net: KeypointNet, corners: str, calibrated: bool) -> float:
+    def accuracy_from(self, net: CornerNet, corners: str, calibrated: bool) -> float:
         """Class accuracy (%) from the network's `corners`, the labelled ones or those of the
         chessboard detector (`detector_corners`; the network's where either has none), in the
         object's order, with the code's self-calibrated camera (and the k1 the alignment
@@ -187,17 +188,17 @@ class Cached:
 CAMERA_BUFFERS = ("focal", "principal", "self_calibrate", "radial_prior")
 
 
-def _camera(net: KeypointNet) -> dict[str, torch.Tensor]:
+def _camera(net: CornerNet) -> dict[str, torch.Tensor]:
     """A copy of `net`'s camera-model buffers, for `_set_camera` to put back."""
     return {name: getattr(net, name).clone() for name in CAMERA_BUFFERS}
 
 
-def _set_camera(net: KeypointNet, camera: dict[str, torch.Tensor]) -> None:
+def _set_camera(net: CornerNet, camera: dict[str, torch.Tensor]) -> None:
     for name, value in camera.items():
         getattr(net, name).copy_(value)
 
 
-def _caches(net: KeypointNet, data_dir: Path) -> dict[tuple[str, int], Cached]:
+def _caches(net: CornerNet, data_dir: Path) -> dict[tuple[str, int], Cached]:
     """The network's answers by (split, blur): the val and train splits of real-s2-b0..3 and,
     as splits "spec" and "tele", the val splits of the SPEC-camera renders spec-s2-b0..3 and
     of the long-lens renders tele-s2-b0..3."""
@@ -223,7 +224,7 @@ def _cells(cache: dict[tuple[str, int], Cached], accuracy: Callable[[Cached], fl
     return cells
 
 
-def accuracy_table(net: KeypointNet, cache: dict[tuple[str, int], Cached]) -> list[list[str]]:
+def accuracy_table(net: CornerNet, cache: dict[tuple[str, int], Cached]) -> list[list[str]]:
     rows = []
     for use_aspect in (False, True):
         for k1 in RADIAL:
@@ -234,25 +235,23 @@ def accuracy_table(net: KeypointNet, cache: dict[tuple[str, int], Cached]) -> li
     return rows
 
 
-def focal_prior_table(net: KeypointNet, cache: dict[tuple[str, int], Cached]) -> list[list[str]]:
+def focal_prior_table(net: CornerNet, cache: dict[tuple[str, int], Cached]) -> list[list[str]]:
     """Class accuracy per focal-length prior and prior weight (pixel aspect, k1 of the code)."""
     code = _camera(net)
-    spec_f = float(net.focal) / keypoint.FOCAL_PRIOR
+    spec_f = float(net.focal) / corner_net.FOCAL_PRIOR
     rows = []
     for prior in FOCAL_PRIORS:
         for weight in PRIOR_WEIGHTS:
             net.focal.fill_(spec_f * prior)
-            keypoint.FOCAL_PRIOR_WEIGHT = weight  # read by `focal_length` at each call
+            corner_net.FOCAL_PRIOR_WEIGHT = weight  # read by `focal_length` at each call
             name = f"{prior:g} x SPEC, weight {weight:g}"
             rows.append([name, *_cells(cache, lambda c: c.accuracy(net, True))])
-    keypoint.FOCAL_PRIOR_WEIGHT = DEFAULT_PRIOR_WEIGHT
+    corner_net.FOCAL_PRIOR_WEIGHT = DEFAULT_PRIOR_WEIGHT
     _set_camera(net, code)
     return rows
 
 
-def principal_point_table(
-    net: KeypointNet, cache: dict[tuple[str, int], Cached]
-) -> list[list[str]]:
+def principal_point_table(net: CornerNet, cache: dict[tuple[str, int], Cached]) -> list[list[str]]:
     """Class accuracy with the principal point at the image centre (the code's) or at the
     SPEC camera's (80.05, 49.86 at 160x120: where the renders have it)."""
     code = _camera(net)
@@ -267,41 +266,41 @@ def principal_point_table(
     return rows
 
 
-def focal_bounds_table(net: KeypointNet, cache: dict[tuple[str, int], Cached]) -> list[list[str]]:
+def focal_bounds_table(net: CornerNet, cache: dict[tuple[str, int], Cached]) -> list[list[str]]:
     """Class accuracy with the focal-length estimate's upper bound at each of `FOCAL_UPPER`
     (the code's prior, weight, lower bound and k1)."""
-    spec_f = float(net.focal) / keypoint.FOCAL_PRIOR
+    spec_f = float(net.focal) / corner_net.FOCAL_PRIOR
     code = net.focal_bounds.clone()
     rows = []
     for upper in FOCAL_UPPER:
         net.focal_bounds[1] = spec_f * upper
-        name = f"{keypoint.FOCAL_BOUNDS[0]:g}-{upper:g} x SPEC"
+        name = f"{FOCAL_BOUNDS[0]:g}-{upper:g} x SPEC"
         rows.append([name, *_cells(cache, lambda c: c.accuracy(net, True))])
     net.focal_bounds.copy_(code)
     return rows
 
 
 def barrel_limit_table(
-    net: KeypointNet, cache: dict[tuple[str, int], Cached], narrow: dict[tuple[str, int], Cached]
+    net: CornerNet, cache: dict[tuple[str, int], Cached], narrow: dict[tuple[str, int], Cached]
 ) -> list[list[str]]:
     """Class accuracy with no barrel limit and at each of `BARREL_LIMITS`, from the corners
     and k1 aligned with the code's k1 range (`cache`) and with the range down to `K1_LOWER`
     only (`narrow`)."""
-    code = keypoint.BARREL_LIMIT
+    code = corner_net.BARREL_LIMIT
     lo, hi = net.align.k1_range
     rows = []
     for caches, k1_range in ((narrow, f"{K1_LOWER:g}..{hi:g}"), (cache, f"{lo:g}..{hi:g}")):
         for limit in (float("-inf"), *BARREL_LIMITS):
-            keypoint.BARREL_LIMIT = limit  # read by `prior_focal` at each call
+            corner_net.BARREL_LIMIT = limit  # read by `prior_focal` at each call
             name = f"k1 range {k1_range}, " + (
                 "no limit" if limit == float("-inf") else f"limit {limit:g}"
             )
             rows.append([name, *_cells(caches, lambda c: c.accuracy(net, True))])
-    keypoint.BARREL_LIMIT = code
+    corner_net.BARREL_LIMIT = code
     return rows
 
 
-def limits_table(net: KeypointNet, cache: dict[tuple[str, int], Cached]) -> list[list[str]]:
+def limits_table(net: CornerNet, cache: dict[tuple[str, int], Cached]) -> list[list[str]]:
     """Class accuracy (%) per split and blur level from the network's, the labelled or the
     chessboard detector's corners, with the self-calibrated or the calibrated camera; and
     the board photos the network's presence misses."""
@@ -330,7 +329,7 @@ def limits_table(net: KeypointNet, cache: dict[tuple[str, int], Cached]) -> list
     return rows
 
 
-def labelled_corner_table(net: KeypointNet, data_dir: Path) -> list[list[str]]:
+def labelled_corner_table(net: CornerNet, data_dir: Path) -> list[list[str]]:
     """Per camera that is not 4:3 (train and val): the camera centre from the labelled
     corners, square pixels against the pixel aspect."""
     rows = []
@@ -368,7 +367,7 @@ def labelled_corner_table(net: KeypointNet, data_dir: Path) -> list[list[str]]:
     return rows
 
 
-def portrait_table(net: KeypointNet) -> list[list[str]]:
+def portrait_table(net: CornerNet) -> list[list[str]]:
     """The val 4:3 board photos turned to portrait, squashed to 160x120 or turned back."""
     splits = read_splits(CORPUS / "splits.toml")
     photos, labels = [], []
@@ -404,10 +403,25 @@ def portrait_table(net: KeypointNet) -> list[list[str]]:
     return rows
 
 
+def _corner_net(path: Path) -> CornerNet:
+    """The corner network of a training checkpoint or an exported ONNX model (eval mode), or
+    exit with the reason."""
+    try:
+        if path.suffix == ".onnx":
+            net, _ = corner_net_from_onnx(path)
+        else:
+            net, _ = load_network(path)
+    except ValueError as exc:  # TrainingError, OnnxWeightsError: a one-line reason
+        sys.exit(f"error: {exc}")
+    if not isinstance(net, CornerNet):
+        sys.exit(f"error: {path} is not a corner network")
+    return net.eval()
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument(
-        "checkpoint", type=Path, help="a keypoint training checkpoint (best.pt) or ONNX model"
+        "checkpoint", type=Path, help="a corner training checkpoint (best.pt) or ONNX model"
     )
     parser.add_argument("data", type=Path, help="the folder of the real-s2-b0..3 data sets")
     parser.add_argument("--out", type=Path, default=REPO_ROOT / "docs/camera_model.md")
@@ -416,28 +430,21 @@ def main() -> None:
     for path in (args.checkpoint, *sets):
         if not path.exists():
             sys.exit(f"error: not found: {path} (run scripts/train_default.sh first)")
-    try:
-        if args.checkpoint.suffix == ".onnx":
-            net, _ = keypoint_from_onnx(args.checkpoint)
-        else:
-            net, _ = load_network(args.checkpoint)
-    except ValueError as exc:  # TrainingError, OnnxWeightsError: a one-line reason
-        sys.exit(f"error: {exc}")
-    if not isinstance(net, KeypointNet):
-        sys.exit(f"error: {args.checkpoint} is not a keypoint network")
-    net.eval()
+    net = _corner_net(args.checkpoint)
     cache = _caches(net, args.data)
     code_range = net.align.k1_range
     net.align.k1_range = (K1_LOWER, code_range[1])
     narrow = _caches(net, args.data)
     net.align.k1_range = code_range
     lines = [
-        "# The keypoint network's camera model, measured on the real val and train sources",
+        "# The corner network's camera model, measured on the real val and train sources",
         "",
         written_by(f"python scripts/camera_model_choices.py {args.checkpoint} {args.data}")
-        + " The constants are in `train/network/keypoint.py` (`FOCAL_PRIOR`, "
-        f"`RADIAL_PRIOR` = {keypoint.RADIAL_PRIOR:g}: the prior of the k1 the corner "
-        "alignment fits per image, `train/network/align.py`) and `service/preprocess.py` "
+        + " The constants are in `service/core/pose.py` (`FOCAL_PRIOR`, `FOCAL_BOUNDS`; a "
+        "profile may state its own prior, `focal_prior`), `train/network/corners.py` "
+        "(`FOCAL_PRIOR_WEIGHT`, `BARREL_LIMIT`, "
+        f"`RADIAL_PRIOR` = {corner_net.RADIAL_PRIOR:g}: the prior of the k1 the corner "
+        "alignment fits per image, `train/network/align.py`) and `service/core/preprocess.py` "
         "(`NetworkFrame`); docs/decisions.md says why. The rows with a fixed k1 pose every "
         "image with it (the corners aligned as the code does).",
         "",
@@ -457,7 +464,7 @@ def main() -> None:
         "## The focal-length prior (pixel aspect, the code's k1): class accuracy (%) at blur "
         "0 / 1 / 2 / 3",
         "",
-        f"The code's: {keypoint.FOCAL_PRIOR:g} x SPEC, weight {DEFAULT_PRIOR_WEIGHT:g}.",
+        f"The code's: {corner_net.FOCAL_PRIOR:g} x SPEC, weight {DEFAULT_PRIOR_WEIGHT:g}.",
         "",
         "The renders of the SPEC's own camera (`chessboard-spec`, focal length 1 x) want a "
         "longer prior than the real cameras: docs/decisions.md says what was chosen and why.",
@@ -467,20 +474,29 @@ def main() -> None:
         "## The bounds of the focal-length estimate (the code's prior and weight): class "
         "accuracy (%) at blur 0 / 1 / 2 / 3",
         "",
-        f"The code's: {keypoint.FOCAL_BOUNDS[0]:g}-{keypoint.FOCAL_BOUNDS[1]:g} x SPEC.",
+        f"The code's: {FOCAL_BOUNDS[0]:g}-{FOCAL_BOUNDS[1]:g} x SPEC.",
         "",
         *table(["focal-length bounds", *SPLIT_HEADER], focal_bounds_table(net, cache)),
         "",
         "## The focal-length prior shortened by a strong barrel distortion: class accuracy "
         "(%) at blur 0 / 1 / 2 / 3",
         "",
-        f"The code's: limit {keypoint.BARREL_LIMIT:g}, k1 range "
+        f"The code's: limit {corner_net.BARREL_LIMIT:g}, k1 range "
         f"{code_range[0]:g}..{code_range[1]:g}. A k1 fitted beyond the limit (in the prior "
         "camera's coordinates) shortens the prior focal length f0 to f0 sqrt(limit / k1): "
-        "a lens's own barrel rarely goes further (`keypoint.BARREL_LIMIT`).",
+        "a lens's own barrel rarely goes further (`BARREL_LIMIT`).",
         "",
         *table(["k1 range, barrel limit", *SPLIT_HEADER], barrel_limit_table(net, cache, narrow)),
         "",
+        *_limit_sections(net, cache),
+    ]
+    args.out.write_text("\n".join(lines))
+    print(f"wrote {args.out}")
+
+
+def _limit_sections(net: CornerNet, cache: dict[tuple[str, int], Cached]) -> list[str]:
+    """The page's last sections: the principal point, what limits the answer, portraits."""
+    return [
         "## The principal point (the code's focal prior and k1): class accuracy (%) at blur "
         "0 / 1 / 2 / 3",
         "",
@@ -502,8 +518,6 @@ def main() -> None:
         *table(["input", "photos", "accuracy (%)"], portrait_table(net)),
         "",
     ]
-    args.out.write_text("\n".join(lines))
-    print(f"wrote {args.out}")
 
 
 if __name__ == "__main__":

@@ -54,7 +54,7 @@ def accuracies(predictor: Predictor, folder: Path, split: str) -> tuple[float, f
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("model", type=Path, help="an exported keypoint model (.onnx)")
+    parser.add_argument("model", type=Path, help="an exported corner model (.onnx)")
     parser.add_argument("data", type=Path, help="the folder of the real-s2-b0..3 data sets")
     parser.add_argument("--out", type=Path, default=REPO_ROOT / "docs/known_focal.md")
     args = parser.parse_args()

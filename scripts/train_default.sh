@@ -63,6 +63,14 @@ export_model() {  # RUN NAME SIZE NOTES [OPTIONS]: OPTIONS go to planar-pose exp
         $(card_evals "$3") --notes "$4" "${@:5}"
 }
 
+card_model() {  # NAME ROLE USE: the card's role, when to pick it, the command that rebuilds it
+    $PP card "models/$1.onnx" --role "$2" --use "$3" \
+        --rebuild "$([ "$1" = chessboard-corners-160x120 ] || echo 'SPEC=1 ')scripts/train_default.sh"
+}
+DEFAULT_USE="Pick it for the chessboard: the default, with the board's corners and the camera's pose."
+SPEC_USE="Ablation: the thesis's network, the method's reference on docs/results.md and \
+docs/comparison.md; it answers far fewer real photos than chessboard-corners-160x120: not for use."
+
 remeasure() {  # NAME SIZE NOTES: a shipped model measured again on this run's data sets
     $PP export "models/$1.onnx" --name "$1" --out-dir models $(card_evals "$2") --notes "$3"
 }
@@ -93,13 +101,14 @@ export_model chessboard-corners-160x120 chessboard-corners-160x120 2 "The defaul
 Since 3.5.0 its graph serves the zoom pass (service/zoom.py), with which its accuracies are measured; \
 since 3.6.0 it also takes the camera's focal length where the caller knows it (input focal; /v1/predict?fx=); \
 since 3.7.0 its corner alignment fits the lens's radial distortion per image (train/network/align.py); \
-since 3.8.0 a fitted barrel stronger than a lens's own (BARREL_LIMIT, train/network/keypoint.py) \
+since 3.8.0 a fitted barrel stronger than a lens's own (BARREL_LIMIT, train/network/corners.py) \
 shortens its focal-length prior; \
 since 3.9.0 each heat-map cell also gives each corner's offset from the cell, so that a corner the \
-frame cuts off lies beyond the frame (train/network/keypoint.py); \
+frame cuts off lies beyond the frame (train/network/corners.py); \
 since 3.10.0 the half turn is also read against the checker blurred as the SPEC's heaviest blur \
-level blurs it, which inverts the pattern of squares under about 5 px (KeypointNet.parity)." \
+level blurs it, which inverts the pattern of squares under about 5 px (CornerNet.parity)." \
     $(printf -- "--eval-val %s " "$D"/real-s2-b{0,1,2,3})  # the val sources it was selected on
+card_model chessboard-corners-160x120 pick "$DEFAULT_USE"
 
 if [ "${SPEC:-0}" = 1 ]; then
     make_set "$D/level-noC-s1" noC 1 0 40000 101 chessboard-level
@@ -112,6 +121,7 @@ if [ "${SPEC:-0}" = 1 ]; then
         size=$([ "$wh" = 80x60 ] && echo 1 || echo 2)
         export_model "chessboard-spec-$wh" "chessboard-spec-$wh" "$size" \
             "SPEC network, level camera. Made by scripts/train_default.sh (recipes/)."
+        card_model "chessboard-spec-$wh" ablation "$SPEC_USE"
     done
 else  # the shipped SPEC models, measured again on this run's data sets
     for wh in 80x60 160x120; do

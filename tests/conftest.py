@@ -1,5 +1,6 @@
 """What every test shares: onnxruntime logs errors only; the service's camera store in a
-temporary folder, never the user's.
+temporary folder, never the user's; under pytest-xdist (scripts/test.sh) the cores shared out
+between the workers, and the longest test files first.
 
 The corner graphs' optional inputs are overridable initializers (`service.core.onnx_contract`),
 about which onnxruntime warns at every load; the service sets the same level per session.
@@ -10,6 +11,37 @@ import tempfile
 from pathlib import Path
 
 import onnxruntime as ort
+import pytest
 
 ort.set_default_logger_severity(3)
 os.environ["POSE_CAMERA_DB"] = str(Path(tempfile.mkdtemp(prefix="pose-cameras-")) / "cameras.db")
+
+# Each xdist worker's torch and OpenCV thread pools get the worker's share of the cores (read
+# when torch is first imported, after this file), not every core each.
+WORKERS = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+if WORKERS > 1:
+    for variable in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+        os.environ.setdefault(variable, str(max(1, (os.cpu_count() or 1) // WORKERS)))
+
+#: The test files that take longest (`--durations`, a minute and more on 2 cores), run first
+#: so that no worker starts one of them when the others have nothing left to do.
+LONG_FIRST = (
+    "test_service_shutdown.py",
+    "test_service_live.py",
+    "test_object_path.py",
+    "test_service_cameras.py",
+    "test_corners.py",
+    "test_fit.py",
+    "test_client_cli.py",
+    "test_docker_recipe.py",
+    "test_container.py",
+    "test_generate.py",
+    "test_compare.py",
+)
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """`LONG_FIRST`'s files first, in its order; every other test after them, in the order
+    collected (a file's tests stay together: `--dist loadfile`)."""
+    rank = {name: i for i, name in enumerate(LONG_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))

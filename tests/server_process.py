@@ -25,8 +25,10 @@ def free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def wait_until_up(url: str, proc: subprocess.Popen[bytes], log: Path, timeout: float = 90) -> None:
-    """Poll `url` until it answers 200; fail with the server log if the process dies."""
+def wait_until_up(url: str, proc: subprocess.Popen[bytes], log: Path, timeout: float = 180) -> None:
+    """Poll `url` until it answers 200; fail with the server log if the process dies (or
+    after `timeout` s: a 2-core machine running two test workers, scripts/test.sh, may take
+    a minute and more to start a server)."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         if proc.poll() is not None:

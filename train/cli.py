@@ -28,3 +28,6 @@ app.add_typer(real_commands.app)  # label, baseline, compare
 app.add_typer(data_commands.app)  # data make | grid | sheet | roll
 app.add_typer(corpus_commands.app)  # corpus add | frames | charuco | check | sets | report
 app.add_typer(object_commands.app)  # object new | train
+
+if __name__ == "__main__":  # python -m train.cli: the command from a source tree
+    app()

@@ -31,7 +31,7 @@ from service.core.inputs import spec_fx
 
 #: The corner network's focal-length prior and bounds, x the SPEC camera's fx at the image's
 #: width: where the view says little, the estimate is drawn to the prior (the graph's
-#: `train.network.keypoint.KeypointNet.focal_length` and the service's `estimate_focal`).
+#: `train.network.corners.CornerNet.focal_length` and the service's `estimate_focal`).
 FOCAL_PRIOR, FOCAL_BOUNDS = 0.8, (0.4, 1.2)
 #: The focal lengths a camera learned from several views may have, x the same: a fisheye-like
 #: webcam to a short telephoto.

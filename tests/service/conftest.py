@@ -24,7 +24,7 @@ def running_app(
     answers 200 (the model loads in the background)."""
     app = create_app(Settings(**settings))
     with TestClient(app, raise_server_exceptions=raise_server_exceptions) as client:
-        deadline = time.monotonic() + 60
+        deadline = time.monotonic() + 120  # two test workers on two cores: slow loads
         while client.get(ready).status_code != 200:
             if time.monotonic() > deadline:
                 pytest.fail(f"{ready} did not answer 200: {client.get(ready).text}")

@@ -5,6 +5,7 @@ No torch here: labelling is OpenCV.
 
 from __future__ import annotations
 
+from functools import partial
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -51,7 +52,7 @@ def add(
     for src in staged:
         dest = corpus / kind / src.name
         step = import_negatives if negatives else label_source
-        m = guard(lambda src=src, dest=dest, step=step: step(src, dest, prof, _progress(src.name)))
+        m = guard(partial(step, src, dest, prof, _progress(src.name)))
         cal = "; ".join(
             f"{c['method']}, RMS {c['rms_px']:.2f} px" for c in m.get("calibration", [])
         )
@@ -234,7 +235,7 @@ def sets(
     for s in size:
         for b in blur:
             dest = out_dir / f"real-s{s}-b{b}"
-            m = guard(lambda s=s, b=b, dest=dest: build_corpus_dataset(corpus, dest, s, b, profile))
+            m = guard(partial(build_corpus_dataset, corpus, dest, s, b, profile))
             out.print(f"[green]wrote[/] {dest}: {m['counts']}, classes {m['class_counts']}")
 
 

@@ -7,6 +7,7 @@ always with a one-line message and no stack trace.
 from __future__ import annotations
 
 import time
+from functools import partial
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -147,7 +148,7 @@ def roll(
     for path in labels_csv:
         if not path.is_file():
             raise fail(f"file not found: {path}", code=2)
-    rolls = np.concatenate([guard(lambda p=p: measure_rolls(p)) for p in labels_csv])
+    rolls = np.concatenate([guard(partial(measure_rolls, p)) for p in labels_csv])
     q = np.percentile(rolls, [0, 5, 50, 95, 100])
     out.print(
         f"{len(rolls)} photos: roll min {q[0]:.1f}, 5 % {q[1]:.1f}, median {q[2]:.1f}, "

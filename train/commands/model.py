@@ -19,7 +19,7 @@ from train.commands.common import fail, guard, out, size_or_exit, split_or_exit
 from train.markdown import written_by
 
 
-def _default(f: dataclasses.Field) -> Any:
+def _default(f: dataclasses.Field[Any]) -> Any:
     return f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
 
 
@@ -61,6 +61,7 @@ def train(**options: Any) -> None:
     Options come from `--config recipes/NAME.toml` and the command line (which wins).
     """
     from train.network.config import load_config
+    from train.network.export import repo_path
     from train.network.fit import fit
 
     recipe, resume = options.pop("config"), options.pop("resume")
@@ -68,7 +69,7 @@ def train(**options: Any) -> None:
     options["out"] = options.pop("out_dir")
     config = guard(lambda: load_config(recipe, options), code=2)
     if recipe is not None:
-        config.extra["recipe"] = str(recipe)
+        config.extra["recipe"] = repo_path(recipe)
     for path in config.datasets + config.select:
         if not path.is_dir():
             raise fail(f"data set not found: {path}")
@@ -126,7 +127,7 @@ def evaluate(
     def body() -> Path:
         loaded = {p: load_predictor(p) for p in models}
         names = {p: _model_name(p, info) for p, (_, _, info) in loaded.items()}
-        results: dict[str, dict[str, dict]] = {names[p]: {} for p in models}
+        results: dict[str, dict[str, dict[str, Any]]] = {names[p]: {} for p in models}
         for ds in datasets:
             data = load_dataset(ds, split=chosen)
             if len(data.labels) == 0:
@@ -147,7 +148,7 @@ def evaluate(
     out.print(f"[green]done[/]: {out_dir / 'metrics.json'}, {report}")
 
 
-def _model_name(path: Path, info: dict) -> str:
+def _model_name(path: Path, info: dict[str, Any]) -> str:
     """Display name of a model: its card name, else the run folder / file stem."""
     if isinstance(info.get("name"), str):
         return info["name"]
@@ -181,7 +182,7 @@ def export(
     regraph: Annotated[
         bool,
         typer.Option(
-            help="With a keypoint .onnx: export its weights again in this version's graph "
+            help="With a corner .onnx: export its weights again in this version's graph "
             "form (the zoom pass's view input and pattern output), as --version."
         ),
     ] = False,
@@ -200,7 +201,7 @@ def export(
     if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.-]*", name):
         raise fail(f"--name {name!r}: use letters, digits, '.', '_' or '-'", code=2)
     if regraph and checkpoint.suffix != ".onnx":
-        raise fail("--regraph takes a keypoint .onnx model", code=2)
+        raise fail("--regraph takes a corner .onnx model", code=2)
     if not checkpoint.is_file():
         raise fail(f"checkpoint not found: {checkpoint}")
     for path in [*(eval_data or []), *(eval_val or [])]:
@@ -212,7 +213,14 @@ def export(
         new_version = version if regraph else None
         path, card = guard(
             lambda: recard(
-                checkpoint, name, out_dir, eval_data, split, notes or None, new_version, eval_val
+                checkpoint,
+                name,
+                out_dir,
+                eval_data or [],
+                split,
+                notes or None,
+                new_version,
+                eval_val,
             )
         )
     else:
@@ -248,6 +256,38 @@ def realset(
     out.print(f"[green]wrote[/] {out_dir}: {json.dumps(manifest['counts'])}")
 
 
+def card(
+    model: Annotated[
+        Path, typer.Argument(help="A model (.onnx); its card beside it (.json) is rewritten too.")
+    ],
+    recipe: Annotated[
+        Path | None, typer.Option(help="The recipe file of its last stage (recipes/NAME.toml).")
+    ] = None,
+    rebuild: Annotated[
+        list[str] | None,
+        typer.Option(help="A command that makes the model again (repeat, in order)."),
+    ] = None,
+    role: Annotated[
+        str | None,
+        typer.Option(help="pick (the model to use for its object) or ablation (kept for a page)."),
+    ] = None,
+    use: Annotated[str | None, typer.Option(help="When to pick it, in a sentence.")] = None,
+    notes: Annotated[str | None, typer.Option(help="Free text for the card.")] = None,
+) -> None:
+    """Rewrite a model's card (ONNX metadata and .json): provenance, role, notes; the graph
+    and its accuracies unchanged."""
+    from train.network.export import amend_card, repo_path
+
+    if model.suffix != ".onnx" or not model.is_file():
+        raise fail(f"not an ONNX model file: {model}")
+    if recipe is not None and not recipe.is_file():
+        raise fail(f"recipe not found: {recipe}")
+    where = repo_path(recipe) if recipe is not None else None
+    written = guard(lambda: amend_card(model, where, rebuild, role, use, notes))
+    out.print(f"[green]wrote[/] {model} and {model.with_suffix('.json').name}")
+    out.print(f"  recipe {written['training'].get('recipe')}, role {written.get('role')}")
+
+
 def catalog(
     models_dir: Annotated[Path, typer.Argument(help="Folder of models and cards.")] = Path(
         "models"
@@ -267,4 +307,5 @@ app.command()(train)
 app.command()(evaluate)
 app.command()(export)
 app.command()(realset)
+app.command()(card)
 app.command()(catalog)

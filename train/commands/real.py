@@ -6,6 +6,7 @@ No torch here: the baseline is OpenCV and the comparison runs the CNN through on
 from __future__ import annotations
 
 import json
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -49,7 +50,7 @@ def label(
     if truth is not None and not truth.is_file():
         raise fail(f"ground truth not found: {truth}")
 
-    def progress(paths: list[Path]) -> Any:
+    def progress(paths: Iterable[Path]) -> Iterable[Path]:
         return tqdm(paths, desc="labelling", unit="image")
 
     manifest = guard(lambda: label_folder(images_dir, out_dir, prof, cal, clicked, seed, progress))
@@ -106,7 +107,7 @@ def baseline(
 
     def body() -> Path:
         name = f"baseline-{features}"
-        results: dict[str, dict[str, dict]] = {name: {}}
+        results: dict[str, dict[str, dict[str, Any]]] = {name: {}}
         notes = [
             f"Split `{split}`. Written by `planar-pose baseline`; features {features}, "
             "ratio test, RANSAC homography, IPPE PnP; no homography = class 0."
@@ -189,26 +190,10 @@ def compare(
     ] = True,
 ) -> None:
     """CNN (onnxruntime) vs the classical peers, per data set, in one run: Markdown + plots."""
-    from train.compare.baseline import FEATURE_CHOICES
-    from train.compare.peers import PEER_CHOICES
     from train.compare.run import CompareConfig, run_comparison
 
-    if features is not None and features not in FEATURE_CHOICES:
-        raise fail(f"--features must be one of {', '.join(FEATURE_CHOICES)}", code=2)
-    if features is not None and peer:
-        raise fail("give either --peer or --features (the default peers' features)", code=2)
-    for kind in peer or []:
-        if kind not in PEER_CHOICES:
-            raise fail(f"--peer must be one of {', '.join(PEER_CHOICES)}, got {kind!r}", code=2)
-    split_or_exit(split)
-    for path in models:
-        if path.suffix != ".onnx" or not path.is_file():
-            raise fail(f"not an ONNX model file: {path}")
-    for path in [*datasets, *(detection_dataset or [])]:
-        if not (path / "labels.csv").is_file():
-            raise fail(f"not a data set (no labels.csv): {path}")
-    if photos is not None and not (photos / "labels.csv").is_file():
-        raise fail(f"no labels.csv in the photo folder {photos}")
+    _check_compare_options(features, peer or [], split)
+    _check_compare_files(models, [*datasets, *(detection_dataset or [])], photos)
     config = CompareConfig(
         models=models,
         datasets=datasets,
@@ -231,6 +216,33 @@ def compare(
         table.add_row(*row)
     out.print(table)
     out.print(f"[green]wrote[/] {markdown} and {json.dumps(summary['files'])}")
+
+
+def _check_compare_options(features: str | None, peers: list[str], split: str) -> None:
+    """`compare`'s --features, --peer and --split, or a usage error (exit 2)."""
+    from train.compare.baseline import FEATURE_CHOICES
+    from train.compare.peers import PEER_CHOICES
+
+    if features is not None and features not in FEATURE_CHOICES:
+        raise fail(f"--features must be one of {', '.join(FEATURE_CHOICES)}", code=2)
+    if features is not None and peers:
+        raise fail("give either --peer or --features (the default peers' features)", code=2)
+    for kind in peers:
+        if kind not in PEER_CHOICES:
+            raise fail(f"--peer must be one of {', '.join(PEER_CHOICES)}, got {kind!r}", code=2)
+    split_or_exit(split)
+
+
+def _check_compare_files(models: list[Path], datasets: list[Path], photos: Path | None) -> None:
+    """`compare`'s ONNX models, data sets and photo folder exist, or an error (exit 1)."""
+    for path in models:
+        if path.suffix != ".onnx" or not path.is_file():
+            raise fail(f"not an ONNX model file: {path}")
+    for path in datasets:
+        if not (path / "labels.csv").is_file():
+            raise fail(f"not a data set (no labels.csv): {path}")
+    if photos is not None and not (photos / "labels.csv").is_file():
+        raise fail(f"no labels.csv in the photo folder {photos}")
 
 
 #: The real-photo commands; `train.cli` merges them into the `planar-pose` app.

@@ -242,7 +242,7 @@ def evaluate_baseline(
     labels: np.ndarray,
     cameras: Sequence[Camera],
     progress: Callable[[int], Any] | None = None,
-) -> tuple[dict, dict[str, int]]:
+) -> tuple[dict[str, Any], dict[str, int]]:
     """SPEC 10 metrics (`train.network.evaluate.compute_metrics`) and the failure reasons."""
     preds, ms = run_baseline(baseline, images, cameras, progress)
     metrics = compute_metrics(labels, np.array([p.label for p in preds]), ms)

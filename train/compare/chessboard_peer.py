@@ -25,7 +25,7 @@ import numpy as np
 
 from service.core.geometry import camera_centre
 from service.core.regions import pose_class
-from train.compare.baseline import BaselinePrediction, failure_summary, run_baseline
+from train.compare.baseline import BaselinePrediction, Peer, failure_summary, run_baseline
 from train.network.evaluate import compute_metrics
 from train.real.calibration import Camera
 from train.real.corners import ChessboardPattern, find_grid, orient_grid, to_grey
@@ -95,13 +95,13 @@ class ChessboardPeer:
 
 
 def evaluate_peer(
-    peer: ChessboardPeer,
+    peer: Peer,
     images: np.ndarray | Sequence[np.ndarray],
     labels: np.ndarray,
     cameras: Sequence[Camera],
     progress: Callable[[int], Any] | None = None,
     margin_cm: np.ndarray | None = None,
-) -> tuple[dict, dict[str, int]]:
+) -> tuple[dict[str, Any], dict[str, int]]:
     """SPEC 10 metrics (`train.network.evaluate.compute_metrics`, by the cameras' margins
     [N] cm when given) and the failure reasons."""
     preds, ms = run_baseline(peer, images, cameras, progress)

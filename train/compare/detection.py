@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -25,7 +25,7 @@ def detection_variants(
     labels: np.ndarray,
     subsets: dict[str, np.ndarray] | None = None,
     chunk: int = 16,
-) -> dict[str, dict[str, dict]]:
+) -> dict[str, dict[str, dict[str, Any]]]:
     """Metrics of whole / sliding / proposals modes through `service.predictor.Predictor`.
 
     Returns {subset name: {variant: metrics}}; `subsets` maps names to boolean masks [N]
@@ -52,7 +52,7 @@ def detection_variants(
         predictor = Predictor(model, Settings(sliding_resolution=res), boxes=proposals)
         variants[f"proposals@{res:g}x"] = (predictor, "sliding")
     subsets = subsets or {"all": np.ones(len(labels), bool)}
-    results: dict[str, dict[str, dict]] = {name: {} for name in subsets}
+    results: dict[str, dict[str, dict[str, Any]]] = {name: {} for name in subsets}
     for variant, (predictor, mode) in variants.items():
         predicted = []
         start = time.perf_counter()

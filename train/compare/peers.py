@@ -79,7 +79,7 @@ def _bar(total: int, desc: str, verbose: bool) -> tqdm:
     return tqdm(total=total, desc=desc, disable=not verbose)
 
 
-def _cameras(data: LoadedDataset) -> list:
+def _cameras(data: LoadedDataset) -> list[Any]:
     return dataset_cameras(data.path, data.column("file"), data.size)
 
 
@@ -91,7 +91,7 @@ def run_baseline_on(
     profile: str | None = None,
     limit: int = 0,
     verbose: bool = False,
-) -> tuple[dict, dict[str, Any]]:
+) -> tuple[dict[str, Any], dict[str, Any]]:
     """Feature baseline metrics on one split of a data set, thresholds tuned on its val split
     first (when `tune` and the set has a val split). Returns (metrics, {failures, tuning})."""
     baseline = make_baseline(folder, config, profile)
@@ -115,7 +115,7 @@ def run_baseline_on(
 
 def run_detector_on(
     data: LoadedDataset, kind: str = "chessboard", profile: str | None = None, verbose: bool = False
-) -> tuple[dict, dict[str, Any]] | None:
+) -> tuple[dict[str, Any], dict[str, Any]] | None:
     """The detector peer `kind` on loaded images (enlarged 4x with their intrinsics), or None
     when the data set's profile is not its kind of board."""
     peer = make_detector_peer(kind, data.path, profile, enlarge=4)
@@ -130,7 +130,7 @@ def run_detector_on(
 
 def run_reference(
     data: LoadedDataset, photos: StoredPhotos, profile: str | None = None, verbose: bool = False
-) -> tuple[dict, dict[str, Any]] | None:
+) -> tuple[dict[str, Any], dict[str, Any]] | None:
     """The chessboard peer on the stored photographs of `data`'s images, as stored (no
     enlargement, no blur), with their own intrinsics; None when the profile is no chessboard."""
     peer = make_detector_peer("chessboard", data.path, profile, enlarge=1)
@@ -149,7 +149,7 @@ def run_peer_on(
     tune: bool,
     limit: int = 0,
     verbose: bool = False,
-) -> tuple[dict, dict[str, Any]] | None:
+) -> tuple[dict[str, Any], dict[str, Any]] | None:
     """Peer `kind` (one of PEER_CHOICES) on the loaded split `data` of a data set; None when
     it does not apply to the set's object (the chessboard detector on another object)."""
     if kind not in PEER_CHOICES:

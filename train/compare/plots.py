@@ -7,9 +7,10 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 
-def plot_accuracy(rows: list[dict], names: list[str], path: Path) -> None:
+def plot_accuracy(rows: list[dict[str, Any]], names: list[str], path: Path) -> None:
     """Accuracy vs blur level, one panel per (kind, size), one line per model / baseline."""
     import matplotlib
 
@@ -48,7 +49,7 @@ def plot_accuracy(rows: list[dict], names: list[str], path: Path) -> None:
     plt.close(fig)
 
 
-def plot_times(rows: list[dict], names: list[str], path: Path) -> None:
+def plot_times(rows: list[dict[str, Any]], names: list[str], path: Path) -> None:
     """ms per image of each model and the baseline, per data set (log scale)."""
     import matplotlib
 

@@ -36,7 +36,7 @@ class ReportContext:
 
     split: str
     limit: int
-    models: dict[str, tuple[Path, tuple[int, int], dict]]
+    models: dict[str, tuple[Path, tuple[int, int], dict[str, Any]]]
     peers: list[str]
     base: Path
     out_dir: Path
@@ -48,19 +48,19 @@ def _ms(value: float | None, digits: int = 2) -> str:
     return "-" if value is None else f"{value:.{digits}f}"
 
 
-def cnn_ms(row: dict, models: Sequence[str]) -> float | None:
+def cnn_ms(row: dict[str, Any], models: Sequence[str]) -> float | None:
     """The fastest model's ms per image on a row (None when no model ran on it)."""
     times = [row["ms"][m] for m in models if m in row["ms"]]
     return min(times) if times else None
 
 
-def time_ratio(row: dict, peer: str, models: Sequence[str]) -> float | None:
+def time_ratio(row: dict[str, Any], peer: str, models: Sequence[str]) -> float | None:
     """Peer's ms per image over the fastest model's on a row (None if either is missing)."""
     cnn = cnn_ms(row, models)
     return None if cnn is None or peer not in row["ms"] else row["ms"][peer] / cnn
 
 
-def time_ratios(rows: list[dict], peer: str, models: Sequence[str]) -> list[float]:
+def time_ratios(rows: list[dict[str, Any]], peer: str, models: Sequence[str]) -> list[float]:
     """`time_ratio` of every row where both the peer and a model ran."""
     ratios = (time_ratio(r, peer, models) for r in rows)
     return [x for x in ratios if x is not None]
@@ -99,7 +99,7 @@ def header_section(ctx: ReportContext) -> list[str]:
     return lines + [""]
 
 
-def accuracy_section(ctx: ReportContext, rows: list[dict]) -> list[str]:
+def accuracy_section(ctx: ReportContext, rows: list[dict[str, Any]]) -> list[str]:
     """Accuracy and ms per image of every method per data set, the plots, the time ratios."""
     models, peers = list(ctx.models), ctx.peers
     header = ["data set", "object", "kind", "size", "blur", "n"]
@@ -153,7 +153,7 @@ def accuracy_section(ctx: ReportContext, rows: list[dict]) -> list[str]:
     return lines
 
 
-def _best_model(group: list[dict], models: Sequence[str]) -> str | None:
+def _best_model(group: list[dict[str, Any]], models: Sequence[str]) -> str | None:
     """The model of best mean accuracy over the rows of a group (None: no model ran there)."""
     scores = {
         m: np.mean([r["acc"][m] for r in group if m in r["acc"]])
@@ -167,7 +167,7 @@ def _blur_list(items: list[tuple[Any, float, float]]) -> str:
     return ", ".join(f"{b} ({pct(a, unit=False)} vs {pct(c, unit=False)} %)" for b, a, c in items)
 
 
-def verdict(group: list[dict], model: str, peer: str, models: Sequence[str]) -> str:
+def verdict(group: list[dict[str, Any]], model: str, peer: str, models: Sequence[str]) -> str:
     """One plain sentence: at which blur levels the network is ahead of the peer and at which
     the peer is, and their time ratio, over the rows of one (kind, size) group."""
     r0 = group[0]
@@ -203,7 +203,7 @@ def verdict(group: list[dict], model: str, peer: str, models: Sequence[str]) -> 
     return f"{where}: " + "; ".join(parts) + "." + timing
 
 
-def _reference_rows(group: list[dict], peer: str, width: int) -> list[list[str]]:
+def _reference_rows(group: list[dict[str, Any]], peer: str, width: int) -> list[list[str]]:
     """Table rows of the peer on the stored photos behind a group's images (once each)."""
     seen, out = set(), []
     for r in group:
@@ -218,7 +218,7 @@ def _reference_rows(group: list[dict], peer: str, width: int) -> list[list[str]]
     return out
 
 
-def chessboard_section(ctx: ReportContext, rows: list[dict]) -> list[str]:
+def chessboard_section(ctx: ReportContext, rows: list[dict[str, Any]]) -> list[str]:
     """The network vs OpenCV's chessboard detector per input size and blur level, with the
     time ratio, the detector on the stored photos for reference, and a verdict per size."""
     lines = ["## The network vs the chessboard detector, per input size and blur level", ""]
@@ -237,7 +237,7 @@ def chessboard_section(ctx: ReportContext, rows: list[dict]) -> list[str]:
         "them as stored (not enlarged, no blur) for reference.",
         "",
     ]
-    groups: dict[tuple, list[dict]] = {}
+    groups: dict[tuple[Any, ...], list[dict[str, Any]]] = {}
     for r in sorted(mine, key=lambda r: (not r["real"], r["kind"], r["size"], str(r["blur"]))):
         groups.setdefault((r["kind"], r["size"]), []).append(r)
     for (kind, size), group in groups.items():
@@ -270,7 +270,7 @@ def chessboard_section(ctx: ReportContext, rows: list[dict]) -> list[str]:
     return lines
 
 
-def peers_section(ctx: ReportContext, rows: list[dict]) -> list[str]:
+def peers_section(ctx: ReportContext, rows: list[dict[str, Any]]) -> list[str]:
     """Per peer and object: mean accuracy, share of no pose and its main reason; per data set
     the thresholds the feature baseline chose on val and why images got no pose."""
     lines = [
@@ -315,7 +315,7 @@ def peers_section(ctx: ReportContext, rows: list[dict]) -> list[str]:
     return lines + [""]
 
 
-def real_blur_section(ctx: ReportContext, rows: list[dict]) -> list[str]:
+def real_blur_section(ctx: ReportContext, rows: list[dict[str, Any]]) -> list[str]:
     """The real data sets per size and blur level, every method; whether fine-tuning shows."""
     lines = ["## Real photographs per blur level", ""]
     real_rows = [r for r in rows if r["real"]]
@@ -342,7 +342,7 @@ def real_blur_section(ctx: ReportContext, rows: list[dict]) -> list[str]:
     return lines + [""]
 
 
-def margin_section(ctx: ReportContext, rows: list[dict]) -> list[str]:
+def margin_section(ctx: ReportContext, rows: list[dict[str, Any]]) -> list[str]:
     """Real photographs at blur 0 and 3: accuracy of every method by the camera centre's
     distance from the nearest region boundary."""
     real_rows = [r for r in rows if r["real"] and str(r["blur"]) in ("0", "3") and r["margin"]]
@@ -366,7 +366,7 @@ def margin_section(ctx: ReportContext, rows: list[dict]) -> list[str]:
     return lines + table(["size", "blur", "method", *labels], body) + [""]
 
 
-def detection_section(detections: dict[str, dict[str, dict[str, dict]]]) -> list[str]:
+def detection_section(detections: dict[str, dict[str, dict[str, dict[str, Any]]]]) -> list[str]:
     """Whole image vs sliding windows vs object proposals, per model and image set."""
     lines = ["## Detection variants: whole image, sliding windows, object proposals", ""]
     if not detections:
@@ -413,8 +413,8 @@ def links_section(ctx: ReportContext, details: Path) -> list[str]:
 
 def comparison_markdown(
     ctx: ReportContext,
-    rows: list[dict],
-    detections: dict[str, dict[str, dict[str, dict]]],
+    rows: list[dict[str, Any]],
+    detections: dict[str, dict[str, dict[str, dict[str, Any]]]],
     details: Path,
 ) -> str:
     """The whole report, section by section."""

@@ -62,14 +62,14 @@ class ModelEntry(NamedTuple):
     path: Path
     predict: Callable[..., Any]
     size: tuple[int, int]
-    card: dict
+    card: dict[str, Any]
     given_fx: bool = False
 
 
 #: {method name: entry}.
 Models = dict[str, ModelEntry]
 #: {method name: {data set name: metrics}}: the `train.network.report` results layout.
-Results = dict[str, dict[str, dict]]
+Results = dict[str, dict[str, dict[str, Any]]]
 
 
 @dataclass
@@ -130,8 +130,11 @@ def camera_focal(data: LoadedDataset, width: int) -> np.ndarray:
 
 
 def _reference(
-    data: LoadedDataset, key: str, cache: dict[tuple, tuple[str, dict]], results: Results
-) -> dict[str, tuple[str, dict]] | None:
+    data: LoadedDataset,
+    key: str,
+    cache: dict[tuple[Any, ...], tuple[str, dict[str, Any]]],
+    results: Results,
+) -> dict[str, tuple[str, dict[str, Any]]] | None:
     """The chessboard detector on the stored photos behind `data` (computed once per photo
     list), recorded in `results`; None when the photos are not here or it does not apply."""
     photos = stored_photos(data)
@@ -153,7 +156,7 @@ def measure_dataset(
     config: CompareConfig,
     models: Models,
     results: Results,
-    cache: dict[tuple, tuple[str, dict]],
+    cache: dict[tuple[Any, ...], tuple[str, dict[str, Any]]],
 ) -> dict[str, Any]:
     """Every model and peer on one data set's split: its report row (see train.compare.report);
     the metrics go into `results`."""
@@ -164,7 +167,7 @@ def measure_dataset(
     key = f"{desc['object']}/{folder.name}"
     row = {"name": key, **desc, "n": len(data.labels), "acc": {}, "ms": {}, "info": {}}
     row["margin"] = {}
-    measured: dict[str, dict] = {}
+    measured: dict[str, dict[str, Any]] = {}
     for name, entry in models.items():
         if (entry.size != desc["size"] and not config.resize) or not same_object(
             entry.card, folder
@@ -191,7 +194,9 @@ def measure_dataset(
     return row
 
 
-def measure_detections(config: CompareConfig, models: Models) -> dict[str, dict[str, dict]]:
+def measure_detections(
+    config: CompareConfig, models: Models
+) -> dict[str, dict[str, dict[str, Any]]]:
     """Whole / sliding / proposals of every model on --photos and the detection data sets:
     {model: {image subset: {variant: metrics}}} ({} when neither was given)."""
     if config.photos is None and not config.detection_datasets:
@@ -216,7 +221,7 @@ def measure_detections(config: CompareConfig, models: Models) -> dict[str, dict[
                 {folder.name: np.ones(len(d.labels), bool)},
             )
         )
-    detections: dict[str, dict[str, dict]] = {}
+    detections: dict[str, dict[str, dict[str, Any]]] = {}
     for name, entry in models.items():
         if entry.given_fx:  # the detection variants take no focal length
             continue
@@ -230,9 +235,9 @@ def measure_detections(config: CompareConfig, models: Models) -> dict[str, dict[
 def write_outputs(
     config: CompareConfig,
     models: Models,
-    rows: list[dict],
+    rows: list[dict[str, Any]],
     results: Results,
-    detections: dict[str, dict[str, dict]],
+    detections: dict[str, dict[str, dict[str, Any]]],
 ) -> list[str]:
     """metrics.json, the per-cell details (`write_details`, in out_dir/details),
     detection_metrics.json, the summary plots and the Markdown report; returns the main files
@@ -284,8 +289,8 @@ def run_comparison(config: CompareConfig) -> dict[str, Any]:
     config.peer_kinds()  # unknown peers fail before anything is measured
     models = load_models(config.models, config.given_fx)
     results: Results = {name: {} for name in models}
-    rows: list[dict] = []
-    cache: dict[tuple, tuple[str, dict]] = {}
+    rows: list[dict[str, Any]] = []
+    cache: dict[tuple[Any, ...], tuple[str, dict[str, Any]]] = {}
     for folder in config.datasets:
         row = measure_dataset(folder, config, models, results, cache)
         if any(r["name"] == row["name"] for r in rows):

@@ -78,7 +78,7 @@ def profile_of(folder: Path, override: str | None) -> Any:
         return load_profile((path if path.is_absolute() else REPO_ROOT / path).parent)
 
 
-def same_object(card: dict, folder: Path) -> bool:
+def same_object(card: dict[str, Any], folder: Path) -> bool:
     """False when the model card and the data set name different objects: profiles of other
     names, unless they share the texture and the size (the same object seen by another
     camera, as `chessboard-spec` or `book-spec`)."""
@@ -95,7 +95,7 @@ def same_object(card: dict, folder: Path) -> bool:
     )
 
 
-def finetuned_on_real(card: dict) -> bool | None:
+def finetuned_on_real(card: dict[str, Any]) -> bool | None:
     """Whether a model card lists real photographs among its training data (None: unknown)."""
     data = card.get("training", {}).get("data")
     if not isinstance(data, list):

@@ -1,13 +1,14 @@
-"""Sub-pixel board corners: Gauss-Newton alignment of the checker pattern to the image.
+"""Sub-pixel object corners: Gauss-Newton alignment of the object's texture to the image
+(the chessboard's checker pattern, or any profile's texture through `train.network.pattern`).
 
-The heat-map corners of `train.network.keypoint` are a few pixels off (median 2.3-3 px on
+The heat-map corners of `train.network.corners` are a few pixels off (median 2.3-3 px on
 real photos at 160x120), and a camera near a region boundary needs better. Starting from
-them, `CheckerAlign` moves the four corners until the image, sampled through the corners'
+them, `TextureAlign` moves the four corners until the image, sampled through the corners'
 homography at P points of the board, matches the blurred checker pattern up to a gain and an
 offset (variable projection: both are solved in closed form at every step). The gain's sign
 is free, so the half turn (which inverts the pattern of a 10 x 7 board) aligns as well as the
 true order; the parity is read afterwards. A texture's half turn is no inversion: it is
-aligned in both orders and the better kept (`CheckerAlign.forward`). Every step is plain
+aligned in both orders and the better kept (`TextureAlign.forward`). Every step is plain
 tensor algebra (the 8x8 normal equations are solved by 8 steps of conjugate gradients,
 `solve_spd`), so it exports to ONNX.
 
@@ -96,7 +97,7 @@ class Lens(NamedTuple):
     """One radial coefficient k1 about a principal point, in an image's pixels. Point (u, v)
     px has normalised coordinates x = ((u, v) - centre) * scale (square pixels over the focal
     length); an image point x_d is undistorted to x_u = x_d / (1 + k1 |x_d|^2) (the map the
-    pose uses, `KeypointNet.undistorted`), and `distort` is its exact inverse. Tensors are
+    pose uses, `CornerNet.undistorted`), and `distort` is its exact inverse. Tensors are
     per image [N, ...]; coordinates u, v [N, ...] and k1 broadcastable to them. The maps work
     on u and v apart: onnxruntime is slow on broadcasts over a last axis of 2."""
 
@@ -155,13 +156,21 @@ def _gaussian_kernel(sigma: float) -> torch.Tensor:
     return k / k.sum()
 
 
-class CheckerAlign(nn.Module):
+class TextureAlign(nn.Module):
     """The alignment above for images of `size` (W, H) px and a board of `squares` (along x,
     y), `per_square` points per square and axis; `steps` Gauss-Newton steps (0: corners
     returned unchanged). With a `Lens`, k1 is fitted too (prior sd `radial_sd`, within
     `k1_range`, at most `max_k1_step` per step). With a `pattern` that is not the checker
     (`train.network.pattern`), its cells take the squares' place and the template is its
     texture blurred by `sigma_sq` cells."""
+
+    # buffers
+    st: torch.Tensor  # [P, 2] the points in the unit square
+    template: torch.Tensor  # [P] the blurred texture there
+    blur: torch.Tensor  # the Gaussian kernel of `blur_px`
+    px_to_unit: torch.Tensor  # [2]
+    basis: torch.Tensor  # [8, 4, 2]
+    k1_axis: torch.Tensor  # [9]
 
     def __init__(
         self,
@@ -185,17 +194,18 @@ class CheckerAlign(nn.Module):
         self.steps, self.max_step, self.max_move, self.damping = steps, max_step, max_move, damping
         self.radial_sd, self.k1_range, self.max_k1_step = radial_sd, k1_range, max_k1_step
         self.k1_min_corr = k1_min_corr
-        self.textured = textured = pattern is not None and not pattern.checker
-        if textured:
-            squares = pattern.cells
+        texture = pattern if pattern is not None and not pattern.checker else None
+        self.textured = texture is not None
+        if texture is not None:
+            squares = texture.cells
         axes = []
         for n in squares:
             k = round((n - 2 * inset) * per_square)
             axes.append(inset + (np.arange(k) + 0.5) * (n - 2 * inset) / k)  # squares
         u, v = np.meshgrid(*axes, indexing="xy")
         st = np.stack([u.ravel() / squares[0], v.ravel() / squares[1]], 1)
-        if textured:
-            template = pattern.sample(st, blur_cells=sigma_sq)
+        if texture is not None:
+            template = texture.sample(st, blur_cells=sigma_sq)
         else:
             template = -_blurred_wave(u.ravel(), sigma_sq) * _blurred_wave(v.ravel(), sigma_sq)
         self.register_buffer("st", torch.tensor(st, dtype=torch.float32), persistent=False)

@@ -2,7 +2,7 @@
 
 Input of every network: float32 [N, 3, H, W], RGB in [0, 1] (what
 `service.core.preprocess.to_network_input` makes). `train.network.model` builds the networks
-by architecture name; `ConvNet`, `KeypointNet` (the corner networks) and the SPEC `PoseNet`
+by architecture name; `ConvNet`, `CornerNet` (the corner networks) and the SPEC `PoseNet`
 derive from `NormalisedNet`.
 """
 
@@ -25,6 +25,10 @@ class NormalisedNet(nn.Module):
     batch_norm: bool
     features: nn.Module
     classifier: nn.Module
+    #: where a network has a corner head, the order `fit._corner_loss` matches it in
+    corner_order: str
+    mean: torch.Tensor  # buffer [1, 3, 1, 1]
+    std: torch.Tensor  # buffer [1, 3, 1, 1]
 
     def __init__(self) -> None:
         super().__init__()
@@ -42,8 +46,9 @@ class NormalisedNet(nn.Module):
         """RGB [N, 3, H, W] in [0, 1] -> unnormalised scores [N, 9]."""
         return self.classifier(self.features((x - self.mean) / self.std))
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """RGB [N, 3, H, W] in [0, 1] -> log-probabilities [N, 9]."""
+    def forward(self, x: torch.Tensor) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
+        """RGB [N, 3, H, W] in [0, 1] -> log-probabilities [N, 9] (a network with a corner head
+        adds its corners in training mode)."""
         return F.log_softmax(self.logits(x), dim=1)
 
 

@@ -1,7 +1,9 @@
-"""models/README.md: what each shipped model is, its recipe and its measured accuracy.
+"""models/README.md: which model to pick per object, what each shipped model is, its recipe,
+the commands that rebuild it and its measured accuracy.
 
 Written from the model cards (`<name>.json` beside each `<name>.onnx`, made by
-`planar-pose export`), so the page always says what the files say.
+`planar-pose export`; `role`, `use`, `training.recipe` and `training.rebuild` set by
+`planar-pose card`), so the page always says what the files say.
 """
 
 from __future__ import annotations
@@ -29,12 +31,18 @@ take `pixel_aspect`, `view` and `focal` (each with a default) and give `corners`
 
 Accuracy columns are test splits: real = the corpus's test sources (cameras never used for
 training or model selection), free / noC = renders of corpus-like cameras, spec = renders of
-the SPEC's own camera (profile `chessboard-spec`; see docs/data.md), at blur level b. Under
+the SPEC's own camera (profile `chessboard-spec`), at blur level b (every name:
+[docs/data.md](../docs/data.md#names)). Under
 the default model (every model, in a folder without one), its real test figures by source at
 the blur levels of the table, and, where its card has them (`export --eval-val`), those of
 the real val sources it was selected on; the other models' are in their cards.
 
 This page is written by `planar-pose catalog`; do not edit it by hand.
+
+## Which model to pick
+
+One model per object is its pick (`role` in its card); the others are ablations, kept because
+a measured page compares them (docs/results.md, docs/comparison*.md), not for use.
 """
 
 
@@ -47,24 +55,54 @@ def _cell(card: dict[str, Any], key: str) -> str:
     return pct(entry["accuracy"]) if entry else ""
 
 
+def _recipe(card: dict[str, Any], repo: Path) -> str:
+    """The card's recipe, linked where `repo` (the models folder's parent) has the file; a
+    card older than `training.rebuild` may name a command there instead."""
+    recipe = card.get("training", {}).get("recipe") or ""
+    if recipe and (repo / recipe).is_file():
+        return f"[{Path(recipe).name}](../{recipe})"
+    return f"`{recipe}`" if recipe else ""
+
+
 def _row(card: dict[str, Any], repo: Path) -> list[Any]:
-    """The table row of a card: name, network (its current name, `canonical_arch`), input,
-    profile, recipe (linked where `repo`, the models folder's parent, still has it) and the
-    `COLUMNS` accuracies."""
+    """The table row of a card: name, role, network (its current name, `canonical_arch`),
+    input, profile, recipe (`_recipe`) and the `COLUMNS` accuracies."""
     w, h = card["input"]
     s = 1 if (w, h) == (80, 60) else 2
-    recipe = card.get("training", {}).get("recipe") or ""
-    linked = (repo / recipe).is_file()
     return [
         f"`{card['name']}`",
+        card.get("role", ""),
         canonical_arch(card.get("architecture", "spec").split(":")[0]),
         f"{w}x{h}",
         card.get("profile", {}).get("name", ""),
-        f"[{Path(recipe).name}](../{recipe})"
-        if recipe and linked
-        else f"`{recipe}`" * bool(recipe),
+        _recipe(card, repo),
         *(_cell(card, f"{d}-s{s}-b{b}") for d, b in COLUMNS),
     ]
+
+
+def pick_table(cards: list[dict[str, Any]]) -> list[str]:
+    """Per object (the profile's `object`, else its name): the model to pick and why (its
+    card's `use`), and the ablations beside it."""
+    objects: dict[str, list[dict[str, Any]]] = {}
+    for card in cards:
+        profile = card.get("profile", {})
+        objects.setdefault(profile.get("object") or profile.get("name", ""), []).append(card)
+    rows = []
+    for name, group in objects.items():
+        picks = [c for c in group if c.get("role") == "pick"]
+        others = [f"`{c['name']}`" for c in group if c not in picks]
+        for card in picks or [{"name": "", "use": "no model of this object is marked pick"}]:
+            rows.append([name, f"`{card['name']}`" * bool(card["name"]), card.get("use", "")])
+            rows[-1].append(", ".join(others))
+    return table(["object", "pick", "why", "ablations"], rows)
+
+
+def _rebuild_lines(card: dict[str, Any]) -> list[str]:
+    """The commands that make the model again (`training.rebuild`), as a shell block."""
+    commands = card.get("training", {}).get("rebuild") or []
+    if not commands:
+        return []
+    return ["Rebuilt by:", "", "```bash", *commands, "```", ""]
 
 
 def source_sections(card: dict[str, Any]) -> list[str]:
@@ -88,8 +126,8 @@ def source_sections(card: dict[str, Any]) -> list[str]:
     return lines
 
 
-def write_catalog(models_dir: Path) -> Path:
-    """Write models_dir/README.md from the cards there; return its path.
+def catalog_lines(models_dir: Path) -> list[str]:
+    """The lines of models_dir/README.md from the cards there, but the "Written" stamp.
 
     Per-source tables (`source_sections`) only for the service's default model
     (`service.settings.DEFAULT_MODEL_NAME`), or for every model when the folder has none;
@@ -104,17 +142,27 @@ def write_catalog(models_dir: Path) -> Path:
         raise ValueError(f"no model card (*.json) in {models_dir}")
     names = [c["name"] for c in cards]
     detailed = [DEFAULT_MODEL_NAME] if DEFAULT_MODEL_NAME in names else names
-    header = ["model", "network", "input", "profile", "recipe", *(f"{d} b{b}" for d, b in COLUMNS)]
-    lines = [INTRO, *table(header, [_row(c, models_dir.parent) for c in cards]), ""]
+    header = ["model", "role", "network", "input", "profile", "recipe"]
+    header += [f"{d} b{b}" for d, b in COLUMNS]
+    lines = [INTRO, *pick_table(cards), "", "## The models", ""]
+    lines += [*table(header, [_row(c, models_dir.parent) for c in cards]), ""]
     for card in cards:
         version = f" ({card['version']})" if card.get("version") else ""
         lines += [f"## `{card['name']}`{version}", "", card.get("notes", ""), ""]
+        lines += _rebuild_lines(card)
         if card["name"] in detailed:
             lines += source_sections(card)
         elif any("by_source" in e for e in card.get("accuracy", {}).values()):
             lines += [f"Its real figures by source: `{card['name']}.json` (`by_source`).", ""]
+    return lines
+
+
+def write_catalog(models_dir: Path) -> Path:
+    """Write models_dir/README.md (`catalog_lines` and when and where it was written); return
+    its path."""
     stamp = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
-    lines.append(f"Written {stamp} on {machine()} by `planar-pose catalog`.")
+    written = f"Written {stamp} on {machine()} by `planar-pose catalog`."
+    lines = [*catalog_lines(models_dir), written]
     out = models_dir / "README.md"
     out.write_text("\n".join(lines) + "\n")
     return out

@@ -22,7 +22,7 @@ Optimizer = Literal["sgd", "adam"]
 Schedule = Literal["cosine", "step", "constant"]
 Arch = Literal["spec", "convnet", "corners-coarse", "corners"]
 Device = Literal["auto", "cpu", "cuda"]
-#: The corner networks (`train.network.keypoint`): heat maps at stride 4 (coarse) or 2.
+#: The corner networks (`train.network.corners`): heat maps at stride 4 (coarse) or 2.
 CORNER_ARCHS = ("corners-coarse", "corners")
 #: Names the corner networks had before 2026-12-05, still read in recipes and checkpoints.
 LEGACY_ARCHS = {"keypoint": "corners-coarse", "keypoint-s2": "corners"}
@@ -51,7 +51,7 @@ class FitConfig:
     arch: Arch = _opt(
         "spec",
         "Network: spec (SPEC section 8), convnet (train.network.convnet), corners-coarse "
-        "(train.network.keypoint, corner heat maps at stride 4) or corners (heat maps at "
+        "(train.network.corners, corner heat maps at stride 4) or corners (heat maps at "
         "stride 2; with `init` a corners-coarse checkpoint, it starts from its weights).",
     )
     optimizer: Optimizer = _opt("sgd", "sgd (with momentum) or adam.")
@@ -70,7 +70,7 @@ class FitConfig:
         max=1.0,
     )
     init: Path | None = _opt(
-        None, "Checkpoint to start from (fine-tuning), or a shipped keypoint model's .onnx."
+        None, "Checkpoint to start from (fine-tuning), or a shipped corner model's .onnx."
     )
     batch_norm: bool = _opt(True, "spec: train with batch norm, folded away on export.")
     threads: int = _opt(0, "Torch intra-op threads; 0 = torch default.", min=0)
@@ -80,11 +80,11 @@ class FitConfig:
         False,
         "Forward and backward passes in bfloat16 (torch.autocast; weights, optimiser, loss and "
         "evaluation stay float32): on CPUs with AMX (Sapphire Rapids and later) the "
-        "keypoint networks train 1.4-1.6x faster (docs/benchmarks.md); slower on CPUs "
+        "corner networks train 1.4-1.6x faster (docs/benchmarks.md); slower on CPUs "
         "without bfloat16 units.",
     )
     corner_weight: float = _opt(
-        0.5, "convnet, keypoint: weight of the loss on the object's four image corners.", min=0.0
+        0.5, "convnet, corners: weight of the loss on the object's four image corners.", min=0.0
     )
     corner_beta: float = _opt(
         0.1, "Corner loss: smooth-L1 beta in [-1, 1] image units (quadratic below it).", min=1e-4

@@ -51,6 +51,9 @@ class GridPool(nn.Module):
     products, so that it exports to ONNX whatever the sizes (ONNX has no adaptive pooling
     when h, w do not divide H, W). Same values as `nn.AdaptiveAvgPool2d((h, w))`."""
 
+    rows: torch.Tensor  # buffer [h, H]
+    cols: torch.Tensor  # buffer [w, W]
+
     def __init__(self, in_hw: tuple[int, int], out_hw: tuple[int, int]) -> None:
         super().__init__()
         self.register_buffer("rows", _pool_matrix(in_hw[0], out_hw[0]), persistent=False)

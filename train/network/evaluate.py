@@ -57,7 +57,7 @@ def compute_metrics(
     ms_per_image: float,
     margin_cm: np.ndarray | None = None,
     cut: np.ndarray | None = None,
-) -> dict:
+) -> dict[str, Any]:
     """SPEC 10 metrics of predicted classes `y_pred` against `y_true` (both int [N], 0..8).
 
     Returns a JSON-ready dict: `count`, `accuracy` (global, in [0, 1]), `per_class_accuracy`,
@@ -191,7 +191,7 @@ def network_batch(images: np.ndarray, size: tuple[int, int]) -> np.ndarray:
 
 def onnx_predictor(
     path: Path, threads: int = 0, zoom: bool = True
-) -> tuple[Predictor, tuple[int, int], dict]:
+) -> tuple[Predictor, tuple[int, int], dict[str, Any]]:
     """Load an exported model as the service does (`service.model.PoseModel`, onnxruntime)
     -> (predictor, input size (W, H), model card). `threads` 0 lets onnxruntime choose;
     `zoom`: with the service's zoom pass (`service.zoom`) where the graph serves it."""
@@ -223,7 +223,7 @@ def model_predictor(model: PoseModel, zoom: bool = True, search: bool = True) ->
     return predict
 
 
-def checkpoint_predictor(path: Path) -> tuple[Predictor, tuple[int, int], dict]:
+def checkpoint_predictor(path: Path) -> tuple[Predictor, tuple[int, int], dict[str, Any]]:
     """Load a training checkpoint with PyTorch -> (predictor, input size (W, H), its config)."""
     import torch
 
@@ -242,7 +242,7 @@ def checkpoint_predictor(path: Path) -> tuple[Predictor, tuple[int, int], dict]:
     return predict, net.size, checkpoint.get("config", {})
 
 
-def load_predictor(path: Path) -> tuple[Predictor, tuple[int, int], dict]:
+def load_predictor(path: Path) -> tuple[Predictor, tuple[int, int], dict[str, Any]]:
     """A model file (.onnx, or a .pt training checkpoint) -> (predictor, size (W, H), info)."""
     if not path.is_file():
         raise FileNotFoundError(f"model not found: {path}")
@@ -258,7 +258,7 @@ def predict_all(
     images: np.ndarray,
     pixel_aspect: np.ndarray | None = None,
     batch: int = 64,
-    progress: Callable | None = None,
+    progress: Callable[..., Any] | None = None,
     focal: np.ndarray | None = None,
 ) -> tuple[np.ndarray, float]:
     """Run `predict` over images [N, H, W, 3] and their pixel aspect [N] (None: all 1) in
@@ -283,9 +283,9 @@ def predict_all(
 def evaluate_predictor(
     predict: Predictor,
     data: LoadedDataset,
-    progress: Callable | None = None,
+    progress: Callable[..., Any] | None = None,
     focal: np.ndarray | None = None,
-) -> dict:
+) -> dict[str, Any]:
     """Metrics (see `compute_metrics`) of a predictor on a loaded data set (or split): its
     images, labels, pixel aspect and the camera centres' margins; `focal` as `predict_all`.
     A real set (photos with a `source`) also gets `by_source` (`source_breakdown`)."""

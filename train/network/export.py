@@ -1,10 +1,10 @@
 """Export a training checkpoint to ONNX with its model card (SPEC section 8; docs/architecture.md).
 
 The graph takes `image` float32 [N, 3, H, W], RGB in [0, 1] (dynamic N; the normalisation is
-inside) and returns `probabilities` float32 [N, 9] (softmax); the keypoint networks also take
+inside) and returns `probabilities` float32 [N, 9] (softmax); the corner networks also take
 `pixel_aspect` float32 [N] (an input with the default [1], an overridable initializer: a
 caller that feeds only `image` gets square pixels), `view` float32 [N, 3] (default
-[[0, 0, 1]]: the input is the camera's whole frame; `train.network.keypoint.KeypointNet.answer`
+[[0, 0, 1]]: the input is the camera's whole frame; `train.network.corners.CornerNet.answer`
 says what a crop's view is) and `focal` float32 [N] (default [0]: unknown, self-calibrated;
 else the camera's focal length in frame pixels of the input's width), and return `corners`
 float32 [N, 4, 2], the object's image corners in frame pixels in
@@ -41,6 +41,7 @@ from service.core.onnx_contract import (
     io_description,
 )
 from service.core.paths import REPO_ROOT
+from service.core.pose import FOCAL_BOUNDS
 from service.core.profile import focal_prior_of, load_profile
 from service.core.regions import NUM_CLASSES, Z_SPLIT_CM, class_descriptions, region_of_class
 from train.network.config import CORNER_ARCHS, canonical_arch
@@ -50,17 +51,17 @@ OPSET = 17
 ARCHITECTURES = {
     "spec": "spec: the SPEC section 8 network (tanh, L2 pooling), batch norm folded away",
     "convnet": "convnet: train/network/convnet.py (ReLU, batch norm, max pooling, 3x4 head)",
-    "corners-coarse": "corners-coarse: train/network/keypoint.py (U-Net corner heat maps, "
-    "corners aligned to the checker pattern, class from the corners' pose with a prior camera "
-    "and the squares' colour parity)",
-    "corners": "corners: train/network/keypoint.py with corner heat maps at 80x60 "
-    "(stride 2), corners aligned to the checker pattern (train/network/align.py)",
+    "corners-coarse": "corners-coarse: train/network/corners.py (U-Net corner heat maps, "
+    "corners aligned to the object's texture, class from the corners' pose with a prior camera "
+    "and the texture's half turn)",
+    "corners": "corners: train/network/corners.py with corner heat maps at 80x60 "
+    "(stride 2), corners aligned to the object's texture (train/network/align.py)",
 }
 
 
 def onnx_bytes(net: Any) -> bytes:
     """Serialise a pose network (eval mode) to ONNX bytes, dynamic batch: output
-    `probabilities` (softmax); the keypoint networks also take `pixel_aspect` (default 1),
+    `probabilities` (softmax); the corner networks also take `pixel_aspect` (default 1),
     `view` (default (0, 0, 1)) and `focal` (default 0) and output `corners`, `pattern` and
     `undistorted`."""
     import onnx
@@ -70,9 +71,9 @@ def onnx_bytes(net: Any) -> bytes:
 
     w, h = net.size
     wrapper = Probabilities(net).eval()
-    keypoint = takes_pixel_aspect(net)
+    corner = takes_pixel_aspect(net)
     image = torch.rand(2, 3, h, w)
-    if keypoint:
+    if corner:
         inputs = [IMAGE, PIXEL_ASPECT, VIEW, FOCAL]
         outputs = [PROBABILITIES, CORNERS, PATTERN, UNDISTORTED]
         defaults = DEFAULTS
@@ -85,7 +86,7 @@ def onnx_bytes(net: Any) -> bytes:
         torch.onnx.export(
             wrapper,
             example,
-            buf,
+            buf,  # type: ignore[arg-type]  # a file object is accepted (torch.onnx.export doc)
             dynamo=False,
             input_names=inputs,
             output_names=outputs,
@@ -133,20 +134,20 @@ def _data_summary(data: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 
 def _camera_card(profile: dict[str, Any]) -> dict[str, Any]:
-    """The keypoint graph's camera model (`train.network.keypoint`): constants of the geometry
+    """The corner graph's camera model (`train.network.corners`): constants of the geometry
     after the corners, baked into the graph when it is exported (docs/camera_model.md); the
     focal-length prior is the object's (its card's `profile`, `service.core.profile`)."""
-    from train.network import keypoint
-    from train.network.align import CheckerAlign
+    from train.network import corners as corner_net
+    from train.network.align import TextureAlign
 
-    align = CheckerAlign(keypoint.SIZE)
+    align = TextureAlign(corner_net.SIZE)
     return {
         "focal_prior_x_spec": focal_prior_of(profile),
-        "focal_prior_weight": keypoint.FOCAL_PRIOR_WEIGHT,
-        "focal_bounds_x_spec": list(keypoint.FOCAL_BOUNDS),
-        # a fitted k1 below it shortens the focal prior (`KeypointNet.prior_focal`)
-        "focal_prior_barrel_limit": keypoint.BARREL_LIMIT,
-        "radial_k1": keypoint.RADIAL_PRIOR,
+        "focal_prior_weight": corner_net.FOCAL_PRIOR_WEIGHT,
+        "focal_bounds_x_spec": list(FOCAL_BOUNDS),
+        # a fitted k1 below it shortens the focal prior (`CornerNet.prior_focal`)
+        "focal_prior_barrel_limit": corner_net.BARREL_LIMIT,
+        "radial_k1": corner_net.RADIAL_PRIOR,
         # k1 fitted per image by the corner alignment around that prior (train/network/align.py)
         "radial_fit": {
             "prior_sd": align.radial_sd,
@@ -154,14 +155,15 @@ def _camera_card(profile: dict[str, Any]) -> dict[str, Any]:
             "min_pattern_corr": align.k1_min_corr,
         },
         "principal_point": "image centre",
+        "radial_model": RADIAL_MODEL,
     }
 
 
-def _io_card(keypoint: bool, profile: dict[str, Any]) -> dict[str, Any]:
+def _io_card(corner: bool, profile: dict[str, Any]) -> dict[str, Any]:
     """The card's `input_format` and `output`: the graph's inputs and outputs (module doc),
-    and for a keypoint graph its `camera_model` (of the card's `profile`)."""
-    camera = {"camera_model": _camera_card(profile)} if keypoint else {}
-    return camera | io_description(keypoint)
+    and for a corner graph its `camera_model` (of the card's `profile`)."""
+    camera = {"camera_model": _camera_card(profile)} if corner else {}
+    return camera | io_description(corner)
 
 
 def build_card(
@@ -176,7 +178,7 @@ def build_card(
     z_split = float(profile.get("z_split_cm", Z_SPLIT_CM))
     descriptions = class_descriptions(z_split)
     arch = canonical_arch(checkpoint.get("arch", "spec"))
-    keypoint = arch in CORNER_ARCHS
+    corner = arch in CORNER_ARCHS
     training: dict[str, Any] = {
         "data": _data_summary(checkpoint.get("data", [])),
         "seed": checkpoint["config"].get("seed"),
@@ -197,6 +199,8 @@ def build_card(
         },
         "recipe": checkpoint["config"].get("extra", {}).get("recipe"),
     }
+    if rebuild := checkpoint["config"].get("extra", {}).get("rebuild"):
+        training["rebuild"] = rebuild  # the commands that make the model again
     parent = checkpoint.get("parent")
     if parent:
         training["fine_tuned_from"] = {
@@ -211,7 +215,7 @@ def build_card(
         "date": datetime.now(UTC).isoformat(timespec="seconds"),
         "architecture": ARCHITECTURES[arch],
         "input": list(checkpoint["size"]),
-        **_io_card(keypoint, profile),
+        **_io_card(corner, profile),
         "classes": [
             {"id": k, "label": region_of_class(k)["label"], "description": descriptions[k]}
             for k in range(NUM_CLASSES)
@@ -240,6 +244,68 @@ def texture_png(card: dict[str, Any]) -> bytes | None:
         bgr = cv2.resize(bgr, None, fx=f, fy=f, interpolation=cv2.INTER_AREA)
     ok, png = cv2.imencode(".png", bgr)
     return png.tobytes() if ok else None
+
+
+#: The lens convention of the card's `radial_k1` and the graph's fitted k1 (not OpenCV's).
+RADIAL_MODEL = (
+    "division: x_u = x_d / (1 + k1 |x_d|^2), x in normalised coordinates of the prior focal "
+    "length about the image centre (not OpenCV's polynomial; the service's refinement fits "
+    "its own, service/core/refine.py RadialLens)"
+)
+#: A card's `role`: the model to use for its object, or one kept for the measured pages.
+ROLES = ("pick", "ablation")
+#: Folders of the repository that moved since older cards were written: old -> new prefix.
+MOVED = {"train/profiles/": "train/assets/profiles/"}
+
+
+def repo_path(path: Path) -> str:
+    """`path` as a card records it: relative to the repository where it lies inside it (so
+    that a card names no folder of the machine it was made on), else as given."""
+    try:
+        return Path(path).resolve().relative_to(REPO_ROOT).as_posix()
+    except ValueError:
+        return str(path)
+
+
+def amend_card(
+    onnx_path: Path,
+    recipe: str | None = None,
+    rebuild: list[str] | None = None,
+    role: str | None = None,
+    use: str | None = None,
+    notes: str | None = None,
+) -> dict[str, Any]:
+    """Rewrite a model's card in its ONNX metadata and in its `.json` beside it, the graph
+    unchanged: the training's `recipe` (a file in recipes/) and `rebuild` (the commands that
+    make the model again), its `role` (`ROLES`) and `use` (when to pick it), its notes; the
+    `architecture` text is this version's for the card's network and a texture path in a
+    folder that moved is the new one (`MOVED`) -> the card."""
+    import onnx
+
+    model = onnx.load(str(onnx_path))
+    cards = [p.value for p in model.metadata_props if p.key == CARD_KEY]
+    if not cards:
+        raise ValueError(f"{onnx_path} has no model card in its metadata")
+    card = json.loads(cards[0])
+    if role is not None and role not in ROLES:
+        raise ValueError(f"role must be one of {', '.join(ROLES)}, got {role!r}")
+    training = card.setdefault("training", {})
+    if recipe is not None:
+        training["recipe"] = recipe
+    if rebuild is not None:
+        training["rebuild"] = rebuild
+    card |= {k: v for k, v in (("role", role), ("use", use), ("notes", notes)) if v is not None}
+    texture = card.get("profile", {}).get("texture", "")
+    for old, new in MOVED.items():
+        if texture.startswith(old):
+            card["profile"]["texture"] = new + texture[len(old) :]
+    arch = canonical_arch(card.get("architecture", "spec").split(":")[0])  # cards before 2.0: spec
+    card["architecture"] = ARCHITECTURES[arch]
+    if isinstance(card.get("camera_model"), dict):  # the convention of its k1, stated
+        card["camera_model"]["radial_model"] = RADIAL_MODEL
+    onnx_path.write_bytes(with_card(onnx_path.read_bytes(), card))
+    onnx_path.with_suffix(".json").write_text(json.dumps(card, indent=1) + "\n")
+    return card
 
 
 def with_card(model_bytes: bytes, card: dict[str, Any]) -> bytes:
@@ -302,13 +368,13 @@ def _graph_predictor(raw: bytes, card: dict[str, Any]) -> Any:
 
 
 def regraph(onnx_path: Path) -> bytes:
-    """A shipped keypoint graph exported again from its own weights
+    """A shipped corner graph exported again from its own weights
     (`train.network.onnx_weights`) in this version's form (`onnx_bytes`: the inputs and
     outputs of the zoom pass)."""
     from train.network.model import export_form
-    from train.network.onnx_weights import keypoint_from_onnx
+    from train.network.onnx_weights import corner_net_from_onnx
 
-    net, _ = keypoint_from_onnx(onnx_path)
+    net, _ = corner_net_from_onnx(onnx_path)
     return onnx_bytes(export_form(net))
 
 
@@ -359,7 +425,7 @@ def recard(
     """Measure a shipped ONNX model again on `eval_datasets` (and the val split of
     `val_datasets`, `export`) and write it with its card's accuracies replaced (training
     provenance unchanged; val figures it is not measured on again are dropped) as
-    out_dir/<name>.onnx + .json. With a `version`, a keypoint graph is first exported again
+    out_dir/<name>.onnx + .json. With a `version`, a corner graph is first exported again
     from its weights in this version's form (`regraph`) and its card says so. Without
     `eval_datasets` (and no `version`) the model is only renamed: graph, accuracies and
     dates unchanged, `renamed_from` in the card."""

@@ -10,7 +10,7 @@ sets), stops early when it stops improving and writes into `config.out`:
 * `log.jsonl` one JSON line per epoch (loss, accuracy, learning rate, time).
 
 With `init`, the weights (and the input normalisation) come from a checkpoint, or from a
-shipped keypoint model's ONNX graph: fine-tuning, e.g. on a real data set. A run is
+shipped corner model's ONNX graph: fine-tuning, e.g. on a real data set. A run is
 deterministic on CPU for a seed: batches and augmentation draw from generators seeded by
 (seed, epoch), so a resumed run ends where an uninterrupted one does.
 """
@@ -20,6 +20,7 @@ from __future__ import annotations
 import json
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -31,15 +32,14 @@ from tqdm import tqdm
 
 from service.core.blur import blur_image
 from service.core.dataset import load_dataset
+from train.network.base import NormalisedNet
 from train.network.config import FitConfig, canonical_arch
-from train.network.model import (
-    NormalisedNet,
-    arch_of,
-    build_network,
-    channel_stats,
-    log_probabilities,
+from train.network.model import arch_of, build_network, channel_stats, log_probabilities
+from train.network.onnx_weights import (
+    OnnxWeightsError,
+    corner_net_from_onnx,
+    recalibrate_batch_norm,
 )
-from train.network.onnx_weights import OnnxWeightsError, keypoint_from_onnx, recalibrate_batch_norm
 
 CHECKPOINT_FORMAT = "planar-pose-checkpoint/1"
 
@@ -317,7 +317,7 @@ def fit(config: FitConfig, resume: bool = False) -> dict[str, Any]:
     torch.manual_seed(config.seed)
     net, parent = _initial_network(config, train, size, train_info[0].get("profile"))
     device = training_device(config.device)
-    net = net.to(device, memory_format=torch.channels_last)
+    net = net.to(device).to(memory_format=torch.channels_last)
     opt = _optimiser(config, net)
     sched = _schedule(config, opt)
     augmenter = Augmenter(size, p_squash=config.squash) if config.augment else None
@@ -348,7 +348,7 @@ def fit(config: FitConfig, resume: bool = False) -> dict[str, Any]:
     for epoch in range(state["epoch"] + 1, config.epochs + 1):
         if config.patience and state["bad_epochs"] >= config.patience:
             break
-        row = _train_epoch(step_net, opt, train, pool, config, epoch, augmenter)
+        row = _train_epoch(net, step_net, opt, train, pool, config, epoch, augmenter)
         sched.step()
         row["val_loss"], row["val_accuracy"] = (
             evaluate_split(net, val)
@@ -391,7 +391,7 @@ def _initial_network(
         from_onnx = config.init.suffix == ".onnx"
         if from_onnx:
             try:
-                net, parent = keypoint_from_onnx(config.init)
+                net, parent = corner_net_from_onnx(config.init)
             except OnnxWeightsError as exc:
                 raise TrainingError(f"--init {exc}") from None
         else:
@@ -466,7 +466,8 @@ def _record(state: dict[str, Any], row: dict[str, Any], log_path: Path) -> bool:
 
 
 def _train_epoch(
-    net: torch.nn.Module,
+    net: NormalisedNet,
+    step: Callable[[torch.Tensor], torch.Tensor | tuple[torch.Tensor, torch.Tensor]],
     opt: torch.optim.Optimizer,
     train: Split,
     pool: np.ndarray,
@@ -477,8 +478,9 @@ def _train_epoch(
     """One pass over `pool` (indices into the training split) in a seeded order -> the
     epoch's log row.
 
-    Only full batches are used (the order changes every epoch), so a compiled step always
-    sees one batch shape; a split smaller than a batch is one batch.
+    `step` is `net`'s forward (compiled or not). Only full batches are used (the order
+    changes every epoch), so a compiled step always sees one batch shape; a split smaller than
+    a batch is one batch.
     """
     net.train()
     gen = torch.Generator().manual_seed(config.seed * 100_003 + epoch)
@@ -504,7 +506,7 @@ def _train_epoch(
             x = to_input(images)
         x, y = x.to(device), torch.from_numpy(train.labels[idx]).to(device)
         with torch.autocast(device.type, dtype=torch.bfloat16, enabled=config.bf16):
-            out = net(x)
+            out = step(x)
         if isinstance(out, tuple):  # (log-probabilities, corners) of a net with a corner head
             out, predicted = out[0].float(), out[1].float()
             loss = F.nll_loss(out, y) + config.corner_weight * _corner_loss(

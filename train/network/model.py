@@ -27,7 +27,7 @@ from service.core.regions import NUM_CLASSES
 from train.network.base import NormalisedNet
 from train.network.config import CORNER_ARCHS, Arch, canonical_arch
 from train.network.convnet import ConvNet
-from train.network.keypoint import KeypointNet
+from train.network.corners import CornerNet
 from train.network.pattern import pattern_of
 
 #: Supported input sizes (W, H) -> hidden width of the classifier (SPEC section 8 table).
@@ -74,6 +74,9 @@ def check_size(size: tuple[int, int]) -> tuple[int, int]:
 class PoseNet(NormalisedNet):
     """SPEC network for an input `size` (W, H) of 80x60 or 160x120."""
 
+    features: nn.Sequential
+    classifier: nn.Sequential
+
     def __init__(self, size: tuple[int, int] = SIZES[1], batch_norm: bool = False) -> None:
         super().__init__()
         self.size = check_size(size)
@@ -112,8 +115,10 @@ def _bn_affine(bn: nn.Module, n: int) -> tuple[torch.Tensor, torch.Tensor]:
     """Eval-mode batch norm as y = a * x + c per channel -> (a, c), each (n,); identity if none."""
     if not isinstance(bn, nn.BatchNorm1d | nn.BatchNorm2d):
         return torch.ones(n), torch.zeros(n)
-    a = bn.weight / torch.sqrt(bn.running_var + bn.eps)
-    return a, bn.bias - a * bn.running_mean
+    mean, var = bn.running_mean, bn.running_var
+    assert mean is not None and var is not None, "the networks' norms track running statistics"
+    a = bn.weight / torch.sqrt(var + bn.eps)
+    return a, bn.bias - a * mean
 
 
 @torch.no_grad()
@@ -129,13 +134,16 @@ def fold_batch_norm(net: PoseNet) -> PoseNet:
     plain.std.copy_(net.std)
     f, c = net.features, net.classifier
     # (layer, norm of its input or None, norm of its output) in the training network.
-    layers: list[tuple[nn.Conv2d | nn.Linear, nn.Module | None, nn.Module]] = [
+    layers: list[tuple[nn.Module, nn.Module | None, nn.Module]] = [
         (f[0], None, f[1]),
         (f[5], f[4], f[6]),
         (c[1], f[9], c[2]),
     ]
     targets = [plain.features[0], plain.features[5], plain.classifier[1]]
     for (layer, before, after), target in zip(layers, targets, strict=True):
+        # the fixed indices above are biased convolutions / linears
+        assert isinstance(layer, nn.Conv2d | nn.Linear) and layer.bias is not None
+        assert isinstance(target, nn.Conv2d | nn.Linear) and target.bias is not None
         weight, bias = layer.weight.clone(), layer.bias.clone()
         if before is not None:
             a_in, c_in = _bn_affine(before, CHANNELS)
@@ -155,7 +163,7 @@ def fold_batch_norm(net: PoseNet) -> PoseNet:
 
 
 #: Architectures: "spec" (`PoseNet`, SPEC section 8), "convnet" (`train.network.convnet`),
-#: "corners-coarse" and "corners" (`train.network.keypoint`, heat maps at stride 4 / 2).
+#: "corners-coarse" and "corners" (`train.network.corners`, heat maps at stride 4 / 2).
 ARCHS: tuple[str, ...] = get_args(Arch)
 
 
@@ -174,9 +182,9 @@ def build_network(
     if arch in CORNER_ARCHS:
         stride = 2 if arch == "corners" else 4
         if not profile:
-            return KeypointNet(size, stride=stride)
+            return CornerNet(size, stride=stride)
         w_cm, h_cm = float(profile["width_cm"]), float(profile["height_cm"])
-        return KeypointNet(
+        return CornerNet(
             size,
             board_cm=(w_cm, h_cm),
             z_split_cm=float(profile["z_split_cm"]),
@@ -203,7 +211,7 @@ def export_form(net: NormalisedNet) -> NormalisedNet:
 
 
 def takes_pixel_aspect(net: NormalisedNet) -> bool:
-    """Whether the network reads the pixel aspect of its input (the keypoint networks, whose
+    """Whether the network reads the pixel aspect of its input (the corner networks, whose
     class comes from the geometry of the board's corners)."""
     return hasattr(net, "answer")
 
@@ -222,7 +230,7 @@ def log_probabilities(
 
 class Probabilities(nn.Module):
     """Wrap a pose network so it outputs probabilities [N, 9] (softmax) and, for a network
-    with an `answer` (the keypoint network, which also takes the pixel aspect [N], the
+    with an `answer` (the corner network, which also takes the pixel aspect [N], the
     view [N, 3] and the known focal length [N]), its corners [N, 4, 2] px, pattern
     evidence [N] and corners without the lens's distortion [N, 4, 2] px: the exported
     graph."""

@@ -1,4 +1,4 @@
-"""A shipped keypoint network read back from its ONNX graph, to fine-tune it when its
+"""A shipped corner network read back from its ONNX graph, to fine-tune it when its
 training checkpoint is not at hand
 (`planar-pose train --init models/chessboard-corners-160x120.onnx`).
 
@@ -23,14 +23,14 @@ import torch
 from torch import nn
 
 from train.network.base import NormalisedNet
-from train.network.keypoint import ZERO_IF_ABSENT
+from train.network.corners import ZERO_IF_ABSENT
 from train.network.model import build_network
 
 PREFIX = "net."
 
 
 class OnnxWeightsError(ValueError):
-    """An ONNX file that is not a keypoint network exported by planar-pose."""
+    """An ONNX file that is not a corner network exported by planar-pose."""
 
 
 def _graph(path: Path) -> tuple[dict[str, torch.Tensor], dict[str, list[str]], dict[str, Any]]:
@@ -57,8 +57,8 @@ def _graph(path: Path) -> tuple[dict[str, torch.Tensor], dict[str, list[str]], d
     return inits, convs, json.loads(cards[0])
 
 
-def keypoint_from_onnx(path: Path) -> tuple[NormalisedNet, dict[str, Any]]:
-    """A planar-pose keypoint ONNX graph -> (the network with its weights, batch norms as
+def corner_net_from_onnx(path: Path) -> tuple[NormalisedNet, dict[str, Any]]:
+    """A planar-pose corner ONNX graph -> (the network with its weights, batch norms as
     the module doc says, and a parent record like a checkpoint's: data, config and best
     epoch from the model card)."""
     path = Path(path)
@@ -66,7 +66,7 @@ def keypoint_from_onnx(path: Path) -> tuple[NormalisedNet, dict[str, Any]]:
         raise OnnxWeightsError(f"ONNX model not found: {path}")
     inits, convs, card = _graph(path)
     if "heat" not in convs or "input" not in card:
-        raise OnnxWeightsError(f"{path} is not a planar-pose keypoint network")
+        raise OnnxWeightsError(f"{path} is not a planar-pose corner network")
     arch = "corners" if "up0.0" in convs else "corners-coarse"
     size = (int(card["input"][0]), int(card["input"][1]))
     net = build_network(arch, size, profile=card.get("profile"))
@@ -80,7 +80,9 @@ def keypoint_from_onnx(path: Path) -> tuple[NormalisedNet, dict[str, Any]]:
         read.add(f"{name}.weight")
         norm = name[:-1] + "1"  # `convnet._conv`: Conv (bias-free) + BatchNorm + ReLU
         if f"{norm}.running_var" in state:
-            eps = net.get_submodule(norm).eps
+            batch_norm = net.get_submodule(norm)
+            assert isinstance(batch_norm, nn.BatchNorm2d)
+            eps = batch_norm.eps
             ones = torch.ones(weight.shape[0])
             state |= {f"{norm}.weight": ones, f"{norm}.bias": bias}
             state |= {f"{norm}.running_mean": 0 * ones, f"{norm}.running_var": (1 - eps) * ones}
@@ -139,12 +141,14 @@ def recalibrate_batch_norm(net: NormalisedNet, x: torch.Tensor) -> None:
     for conv, norm in pairs:
         z = seen[norm]
         mean, var = z.mean((0, 2, 3)), z.var((0, 2, 3), unbiased=False)
-        a = norm.weight / (norm.running_var + norm.eps).sqrt()
-        c = norm.bias - norm.running_mean * a
-        sd = (var + norm.eps).sqrt()
+        old_mean, old_var = norm.running_mean, norm.running_var
+        assert old_mean is not None and old_var is not None  # nn.BatchNorm2d's default
+        a = norm.weight / (old_var + norm.eps).sqrt()
+        c = norm.bias - old_mean * a
+        sd = torch.sqrt(var + norm.eps)
         conv.weight.div_(sd[:, None, None, None])
         a, mean, var = a * sd, mean / sd, var / sd**2
         norm.weight.copy_(a * (var + norm.eps).sqrt())
         norm.bias.copy_(c + a * mean)
-        norm.running_mean.copy_(mean)
-        norm.running_var.copy_(var)
+        old_mean.copy_(mean)
+        old_var.copy_(var)

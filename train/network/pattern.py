@@ -3,9 +3,9 @@
 The corner network finds the object's four corners up to a half turn (the rectangle's shape
 alone cannot tell corner 0 from corner 2). The texture tells them apart: sampled through the
 corners' homography at the centres of a grid of cells, the image correlates with the texture's
-template in the true order and not in the half-turned one (`train.network.keypoint.parity`).
+template in the true order and not in the half-turned one (`train.network.corners.parity`).
 The same template, at more points, is what the corners are aligned to
-(`train.network.align.CheckerAlign`).
+(`train.network.align.TextureAlign`).
 
 For the 10 x 7-square chessboard the cells are its squares and the template is its checker
 (+1 white, -1 black): a half turn inverts it, so the sign of one correlation decides, and the

@@ -84,7 +84,7 @@ def train_object(
         "weight_decay": 0.0, "schedule": "cosine", "patience": 0, "threads": recipe.threads,
         "device": recipe.device,
         "bf16": recipe.bf16, "corner_weight": 5.0, "corner_beta": 0.01, "squash": 0.25,
-        "extra": {"recipe": f"planar-pose object train {profile.name}"},
+        "extra": {"rebuild": [f"planar-pose object train {profile.name}"]},
     }  # fmt: skip
     stage1 = run / "runs" / "renders"
     best = _stage(

@@ -12,6 +12,7 @@ import json
 import re
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -25,7 +26,7 @@ def _slug(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("_") or "x"
 
 
-def plot_cell(metrics: dict, title: str, path: Path) -> None:
+def plot_cell(metrics: dict[str, Any], title: str, path: Path) -> None:
     """One PNG: the confusion heat map (rows = truth) and per-class accuracy/precision/F1 bars."""
     import matplotlib
 
@@ -63,7 +64,7 @@ def plot_cell(metrics: dict, title: str, path: Path) -> None:
     plt.close(fig)
 
 
-def plot_grid(results: dict[str, dict[str, dict]], path: Path) -> None:
+def plot_grid(results: dict[str, dict[str, dict[str, Any]]], path: Path) -> None:
     """Heat map of global accuracy (%), models as rows, data sets as columns."""
     import matplotlib
 
@@ -91,13 +92,13 @@ def plot_grid(results: dict[str, dict[str, dict]], path: Path) -> None:
     plt.close(fig)
 
 
-def grid_table(results: dict[str, dict[str, dict]], key: str = "accuracy") -> list[str]:
+def grid_table(results: dict[str, dict[str, dict[str, Any]]], key: str = "accuracy") -> list[str]:
     """Markdown table of one metric, models as rows, data sets as columns.
 
     "ms_per_image" is shown in ms; "accuracy" and the `regions` keys ("side", ...) in %.
     """
 
-    def cell(metrics: dict) -> str:
+    def cell(metrics: dict[str, Any]) -> str:
         if key == "ms_per_image":
             return f"{metrics[key]:.2f}"
         return pct_cell(metrics[key] if key in metrics else metrics.get("regions", {}).get(key))
@@ -110,7 +111,7 @@ def grid_table(results: dict[str, dict[str, dict]], key: str = "accuracy") -> li
     return table(["model", *datasets], body)
 
 
-def _regions_line(metrics: dict) -> list[str]:
+def _regions_line(metrics: dict[str, Any]) -> list[str]:
     """What the predictions on images showing the object get right (empty if there are none)."""
     regions = metrics.get("regions") or {}
     if regions.get("detected") is None:
@@ -123,14 +124,14 @@ def _regions_line(metrics: dict) -> list[str]:
     ]
 
 
-def band_label(band: dict) -> str:
+def band_label(band: dict[str, Any]) -> str:
     """'2-5 cm' or '>= 10 cm' for a `by_margin` band."""
     if band["hi_cm"] is None:
         return f">= {band['lo_cm']:g} cm"
     return f"{band['lo_cm']:g}-{band['hi_cm']:g} cm"
 
 
-def margin_line(bands: list[dict] | None) -> str:
+def margin_line(bands: list[dict[str, Any]] | None) -> str:
     """`by_margin` bands as one sentence ('' without them)."""
     if not bands:
         return ""
@@ -142,7 +143,7 @@ def margin_line(bands: list[dict] | None) -> str:
     )
 
 
-def framing_line(framing: dict | None) -> str:
+def framing_line(framing: dict[str, Any] | None) -> str:
     """A `by_framing` breakdown as one sentence ('' without it or without cut boards)."""
     if not framing or not framing["cut"]["count"]:
         return ""
@@ -165,7 +166,7 @@ SOURCE_HEADER = [
 ]
 
 
-def source_table(sources: dict[str, dict]) -> list[str]:
+def source_table(sources: dict[str, dict[str, Any]]) -> list[str]:
     """Markdown rows of a `by_source` breakdown (`train.network.evaluate.source_breakdown`;
     "-" where it has no such figure: cards written before it hold the accuracy only)."""
     rows = []
@@ -183,7 +184,7 @@ def source_table(sources: dict[str, dict]) -> list[str]:
     return table(SOURCE_HEADER, rows)
 
 
-def cell_section(model: str, dataset: str, metrics: dict, image: str) -> list[str]:
+def cell_section(model: str, dataset: str, metrics: dict[str, Any], image: str) -> list[str]:
     """Markdown details of one (model, data set): summary, per-class table, plot."""
     lines = [
         f"## {model} on {dataset}",
@@ -211,7 +212,7 @@ DETAILS_DIR = "details"
 
 
 def write_metrics(
-    results: dict[str, dict[str, dict]],
+    results: dict[str, dict[str, dict[str, Any]]],
     out_dir: Path,
     title: str = "Evaluation",
     sources: dict[str, str] | None = None,
@@ -233,7 +234,7 @@ def write_metrics(
 
 
 def write_details(
-    results: dict[str, dict[str, dict]],
+    results: dict[str, dict[str, dict[str, Any]]],
     folder: Path,
     title: str = "Evaluation",
     notes: list[str] | None = None,
@@ -256,7 +257,7 @@ def write_details(
 
 
 def write_report(
-    results: dict[str, dict[str, dict]],
+    results: dict[str, dict[str, dict[str, Any]]],
     out_dir: Path,
     markdown: Path | None = None,
     title: str = "Evaluation",

@@ -22,6 +22,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -52,7 +53,7 @@ class Camera:
         # Pixel centres at integers: (u + 0.5) * s - 0.5.
         K[0, 2] += 0.5 * sx - 0.5
         K[1, 2] += 0.5 * sy - 0.5
-        return Camera(K, self.dist, tuple(size), self.images)
+        return Camera(K, self.dist, (int(size[0]), int(size[1])), self.images)
 
     def undistort(self, uv: np.ndarray) -> np.ndarray:
         """Raw pixels (N, 2) -> ideal pinhole pixels (N, 2) of the same K."""
@@ -73,10 +74,10 @@ def default_camera(size: tuple[int, int]) -> Camera:
     """
     A = intrinsics(size)
     A[0, 2], A[1, 2] = (size[0] - 1) / 2, (size[1] - 1) / 2
-    return Camera(A, np.zeros(5), tuple(size))
+    return Camera(A, np.zeros(5), (int(size[0]), int(size[1])))
 
 
-def _camera(entry: dict, where: str) -> Camera:
+def _camera(entry: dict[str, Any], where: str) -> Camera:
     try:
         K = np.asarray(entry["K"], dtype=np.float64)
     except (KeyError, TypeError, ValueError) as exc:

@@ -114,7 +114,10 @@ def charuco_spec(profile: Any) -> CharucoSpec | None:
 def board_texture(spec: CharucoSpec, px_per_cm: int = PX_PER_CM) -> np.ndarray:
     """The front-on texture RGB uint8 [H, W, 3] of the squares, as printed (inverted if so)."""
     w, h = spec.size_cm
-    grey = spec.board().generateImage((round(w * px_per_cm), round(h * px_per_cm)), 0, 1)
+    # a 1 px white margin: what the call `generateImage(size, 0, 1)` made, whose 0 was the
+    # output array, not the margin (the shipped ChArUco models were trained on it)
+    size = (round(w * px_per_cm), round(h * px_per_cm))
+    grey = spec.board().generateImage(size, marginSize=1)
     if spec.inverted:
         grey = 255 - grey
     return cv2.cvtColor(grey, cv2.COLOR_GRAY2RGB)
@@ -130,7 +133,7 @@ class CharucoFinder:
         params.detectInvertedMarker = spec.inverted
         self.detector = cv2.aruco.CharucoDetector(board, cv2.aruco.CharucoParameters(), params)
         w, h = spec.size_cm
-        xy = board.getChessboardCorners()[:, :2].astype(np.float64)
+        xy = np.asarray(board.getChessboardCorners())[:, :2].astype(np.float64)
         #: Object-frame (x, y) cm of every ChArUco corner id, (M, 2).
         self.object_xy = np.column_stack([xy[:, 0] - w / 2, h / 2 - xy[:, 1]])
 

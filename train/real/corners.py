@@ -223,9 +223,11 @@ def signed_area(quad: np.ndarray) -> float:
 def make_detector(features: str, n_features: int) -> cv2.Feature2D:
     """A SIFT or ORB detector/descriptor from OpenCV."""
     if features == "sift":
-        return cv2.SIFT_create(nfeatures=n_features)
+        return cv2.SIFT_create(nfeatures=n_features)  # type: ignore[attr-defined]
     if features == "orb":
-        return cv2.ORB_create(nfeatures=n_features, scaleFactor=1.2, nlevels=8, fastThreshold=10)
+        return cv2.ORB_create(  # type: ignore[attr-defined]
+            nfeatures=n_features, scaleFactor=1.2, nlevels=8, fastThreshold=10
+        )
     raise ValueError(f"features must be one of {', '.join(FEATURES)}, got {features!r}")
 
 

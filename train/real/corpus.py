@@ -206,7 +206,7 @@ def stored_size(size: tuple[int, int]) -> tuple[int, int]:
     """The size (W, H) a photo of `size` is stored at: longer side at most STORE_MAX_SIDE,
     sides rounded."""
     scale = min(1.0, STORE_MAX_SIDE / max(size))
-    return (round(size[0] * scale), round(size[1] * scale)) if scale < 1.0 else tuple(size)
+    return (round(size[0] * scale), round(size[1] * scale)) if scale < 1.0 else (size[0], size[1])
 
 
 def store_image(rgb: np.ndarray, path: Path) -> tuple[np.ndarray, float]:

@@ -62,7 +62,7 @@ def _source_line(folder: Path, split: str) -> list[Any]:
     ]  # fmt: skip
 
 
-def _region_table(counts: dict[str, Counter]) -> list[str]:
+def _region_table(counts: dict[str, Counter[int]]) -> list[str]:
     header = ["class", "region", *SPLITS, "all"]
     body = []
     for k in range(9):
@@ -104,7 +104,7 @@ def write_corpus_readme(corpus: Path, check: dict[str, Any] | None = None) -> Pa
     """Write corpus/README.md (and corpus/sheets/) from the labelled sources; return the path."""
     splits = read_splits(corpus / "splits.toml")
     sources = corpus_sources(corpus)
-    counts: dict[str, Counter] = {s: Counter() for s in SPLITS}
+    counts: dict[str, Counter[int]] = {s: Counter() for s in SPLITS}
     lines = [INTRO]
     for kind, title in (("boards", "Board sources"), ("negatives", "Sources without the board")):
         group = [s for s in sources if s.parent.name == kind]

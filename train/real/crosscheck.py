@@ -132,7 +132,7 @@ def _photo(
 
 def crosscheck_folder(
     folder: Path, pattern: ChessboardPattern, z_split: float, originals: Path | None = None
-) -> list[dict]:
+) -> list[dict[str, Any]]:
     """Both labellers on every photo of a labelled corpus folder: one dict per photo.
 
     Reads the stored photos, or with `originals` the full-resolution originals where found

@@ -23,6 +23,7 @@ from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
+from multiprocessing.context import BaseContext
 from pathlib import Path
 from typing import Any
 
@@ -157,7 +158,7 @@ def image_name(index: int, width: int) -> str:
     return f"images/{index:0{width}d}.png"
 
 
-_RENDERERS: dict[tuple, Renderer] = {}
+_RENDERERS: dict[tuple[Any, ...], Renderer] = {}
 MAX_RENDERERS = 32
 _BACKGROUNDS: dict[tuple[int, int], BackgroundPool] = {}
 
@@ -267,6 +268,7 @@ def _executor(workers: int) -> ProcessPoolExecutor:
     renderers (textures, backgrounds) warm between data sets."""
     if workers not in _EXECUTORS:
         # Not "fork": a child forked after OpenCV started its thread pool can deadlock.
+        context: BaseContext
         if "forkserver" in multiprocessing.get_all_start_methods():
             context = multiprocessing.get_context("forkserver")
             context.set_forkserver_preload([__name__])

@@ -259,7 +259,7 @@ class Renderer:
         backgrounds: BackgroundPool | None = None,
         seed: int = 0,
     ) -> None:
-        self.profile, self.size, self.jitter = profile, tuple(size), jitter
+        self.profile, self.size, self.jitter = profile, (int(size[0]), int(size[1])), jitter
         self.backgrounds = backgrounds if backgrounds is not None else BackgroundPool.default(size)
         texture = profile.texture_rgb()
         rng = np.random.default_rng(seed)
@@ -359,7 +359,9 @@ class Renderer:
         if rng.random() < 0.25:
             quality = int(rng.integers(35, 96))
             ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, quality])
-            image = cv2.imdecode(buf, cv2.IMREAD_COLOR)  # channel order is kept as given
+            decoded = cv2.imdecode(buf, cv2.IMREAD_COLOR)  # channel order is kept as given
+            assert ok and decoded is not None  # a JPEG OpenCV has just encoded
+            image = decoded
         return image
 
 

@@ -56,7 +56,7 @@ def contact_sheet(
             x = LABEL_WIDTH + GAP + c * (tw + GAP)
             sheet[y : y + th, x : x + tw] = 225
         index = np.flatnonzero(data.labels == k)
-        picked = rng.choice(index, size=min(cols, len(index)), replace=False) if len(index) else []
+        picked = rng.choice(index, size=min(cols, len(index)), replace=False)
         for c, i in enumerate(sorted(picked)):
             x = LABEL_WIDTH + GAP + c * (tw + GAP)
             sheet[y : y + th, x : x + tw] = cv2.resize(

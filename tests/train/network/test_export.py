@@ -148,7 +148,8 @@ def test_catalog_lists_every_card_with_its_measured_accuracy(tmp_path):
     page = write_catalog(models).read_text()
     assert "Real val sources (the model was selected on them), `real-s1-b3`:" in page
     assert "| `cam-v` | 6 | 50.0 % | 100.0 % | 100.0 % | 50.0 % | 0.61 |" in page
-    assert "| `tiny` | spec | 80x60 |" in page and "| 25.0 % |" in page
+    assert "| `tiny` |  | spec | 80x60 |" in page and "| 25.0 % |" in page
+    assert "| test |  | no model of this object is marked pick | `tiny` |" in page
     assert "| `cam-a` | 6 | 33.3 % | 100.0 % | 66.7 % | 50.0 % | 1.73 |" in page
     assert "| `negatives` | 4 | 0.0 % | - | - | - | - |" in page
     assert "how it was made" in page and "planar-pose catalog" in page
@@ -158,15 +159,46 @@ def test_catalog_lists_every_card_with_its_measured_accuracy(tmp_path):
         write_catalog(empty)
 
 
-def test_a_keypoint_graph_is_regraphed_with_the_zoom_inputs(tmp_path):
-    """`export --regraph`: a shipped keypoint graph of an older form (no `view`, no `pattern`)
+def test_a_card_gets_its_recipe_rebuild_commands_and_role_in_both_copies(tmp_path):
+    """`planar-pose card`: the .json and the graph's copy rewritten alike, the graph kept;
+    the recipe recorded relative to the repository; the catalog's pick table says it."""
+    from typer.testing import CliRunner
+
+    from train.cli import app
+    from train.network.catalog import write_catalog
+
+    ckpt, _ = _checkpoint(tmp_path, (80, 60))
+    models = tmp_path / "models"
+    path, card = export(ckpt, "tiny", models)
+    graph = onnx.load(str(path)).graph
+    recipe = REPO_ROOT / "recipes" / "chessboard-spec-80x60.toml"
+    args = ["card", str(path), "--recipe", str(recipe), "--rebuild", "step one"]
+    args += ["--rebuild", "step two", "--role", "pick", "--use", "for the test object"]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 0, result.output
+    new = json.loads((models / "tiny.json").read_text())
+    meta = {p.key: p.value for p in onnx.load(str(path)).metadata_props}
+    assert json.loads(meta["model_card"]) == new and onnx.load(str(path)).graph == graph
+    assert new["training"]["recipe"] == "recipes/chessboard-spec-80x60.toml"
+    assert new["training"]["rebuild"] == ["step one", "step two"]
+    assert (new["role"], new["use"]) == ("pick", "for the test object")
+    assert new["accuracy"] == card["accuracy"] and new["architecture"].startswith("spec: ")
+    assert "| test | `tiny` | for the test object |  |" in write_catalog(models).read_text()
+    result = CliRunner().invoke(app, ["card", str(path), "--role", "best"])
+    assert result.exit_code == 1 and "role must be one of pick, ablation" in result.output
+    result = CliRunner().invoke(app, ["card", str(path), "--recipe", str(tmp_path / "no.toml")])
+    assert result.exit_code == 1 and "recipe not found" in result.output
+
+
+def test_a_corner_graph_is_regraphed_with_the_zoom_inputs(tmp_path):
+    """`export --regraph`: a shipped corner graph of an older form (no `view`, no `pattern`)
     comes back from its own weights with both, answering as before with the default view."""
     from typer.testing import CliRunner
 
     from train.cli import app
-    from train.network import keypoint
+    from train.network import corners as corner_net
     from train.network.export import recard
-    from train.network.onnx_weights import keypoint_from_onnx
+    from train.network.onnx_weights import corner_net_from_onnx
     from train.real.realset import build_real_dataset
 
     old = REPO_ROOT / "tests" / "fixtures" / "corners-3.4.0-no-offsets.onnx"
@@ -184,14 +216,14 @@ def test_a_keypoint_graph_is_regraphed_with_the_zoom_inputs(tmp_path):
         "view",
         "focal",
     ]
-    assert card["camera_model"]["focal_prior_x_spec"] == keypoint.FOCAL_PRIOR
-    assert card["camera_model"]["focal_prior_barrel_limit"] == keypoint.BARREL_LIMIT
+    assert card["camera_model"]["focal_prior_x_spec"] == corner_net.FOCAL_PRIOR
+    assert card["camera_model"]["focal_prior_barrel_limit"] == corner_net.BARREL_LIMIT
     photos = sorted(REAL.glob("*.jpg"))[:4]
     x = np.stack([to_network_input(read_rgb(p), (160, 120)) for p in photos])
     # the weights answer as the network read back from the old graph does with this version's
     # geometry (the lens fit of the corners, the camera model): the same corners and
     # probabilities
-    net, _ = keypoint_from_onnx(old)
+    net, _ = corner_net_from_onnx(old)
     with torch.no_grad():
         want_corners = net.eval().corners(torch.from_numpy(x)).numpy()
         want = net.logits(torch.from_numpy(x)).exp().numpy()
@@ -200,9 +232,9 @@ def test_a_keypoint_graph_is_regraphed_with_the_zoom_inputs(tmp_path):
     runner = CliRunner()
     args = ["export", "--name", "x", "--out-dir", str(tmp_path / "cli"), "--regraph"]
     result = runner.invoke(app, [*args, str(tmp_path / "best.pt"), "--eval", str(real)])
-    assert result.exit_code == 2 and "--regraph takes a keypoint .onnx model" in result.output
+    assert result.exit_code == 2 and "--regraph takes a corner .onnx model" in result.output
     spec = REPO_ROOT / "models" / "chessboard-spec-160x120.onnx"
     result = runner.invoke(app, [*args, str(spec), "--eval", str(real)])
-    assert result.exit_code == 1 and "not a planar-pose keypoint network" in result.output
+    assert result.exit_code == 1 and "not a planar-pose corner network" in result.output
     result = runner.invoke(app, [*args, str(old), "--eval-val", str(tmp_path / "none")])
     assert result.exit_code == 1 and "not a data set (no labels.csv)" in result.output

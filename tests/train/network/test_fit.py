@@ -74,10 +74,10 @@ def test_resume_after_an_interruption_ends_like_an_uninterrupted_run(
     fit(_config(tiny_set, tmp_path / "full", epochs=3))
     real_epoch = fit_module._train_epoch
 
-    def interrupted(net, opt, train, pool, config, epoch, augmenter):
+    def interrupted(net, step, opt, train, pool, config, epoch, augmenter):
         if epoch == 3:
             raise KeyboardInterrupt
-        return real_epoch(net, opt, train, pool, config, epoch, augmenter)
+        return real_epoch(net, step, opt, train, pool, config, epoch, augmenter)
 
     monkeypatch.setattr(fit_module, "_train_epoch", interrupted)
     with pytest.raises(KeyboardInterrupt):

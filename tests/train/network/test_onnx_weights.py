@@ -1,4 +1,4 @@
-"""A shipped keypoint model read back from its ONNX graph: fine-tuning without its
+"""A shipped corner model read back from its ONNX graph: fine-tuning without its
 checkpoint."""
 
 from __future__ import annotations
@@ -15,13 +15,17 @@ from service.core.paths import REPO_ROOT
 from service.core.profile import load_profile
 from service.settings import DEFAULT_MODEL
 from train.network.fit import FitConfig, TrainingError, fit, load_network
-from train.network.onnx_weights import OnnxWeightsError, keypoint_from_onnx, recalibrate_batch_norm
+from train.network.onnx_weights import (
+    OnnxWeightsError,
+    corner_net_from_onnx,
+    recalibrate_batch_norm,
+)
 from train.synth.generate import DatasetSpec, make_dataset
 
 DEFAULT = DEFAULT_MODEL
 
 
-# a shipped graph of 3.4.0, before the corners' offsets (`KeypointNet.offset`)
+# a shipped graph of 3.4.0, before the corners' offsets (`CornerNet.offset`)
 WITHOUT_OFFSETS = REPO_ROOT / "tests" / "fixtures" / "corners-3.4.0-no-offsets.onnx"
 
 
@@ -33,7 +37,7 @@ def _graph_probabilities(x: torch.Tensor, path: Path = DEFAULT) -> np.ndarray:
 def test_the_read_back_network_answers_like_the_graph_before_and_after_recalibration():
     x = torch.rand(6, 3, 120, 160, generator=torch.Generator().manual_seed(0))
     want = _graph_probabilities(x)
-    net, parent = keypoint_from_onnx(DEFAULT)
+    net, parent = corner_net_from_onnx(DEFAULT)
     assert net.stride == 2 and parent["onnx"] == str(DEFAULT) and parent["data"]
     net.eval()
     with torch.no_grad():
@@ -50,7 +54,7 @@ def test_the_read_back_network_answers_like_the_graph_before_and_after_recalibra
 
 def test_a_graph_without_the_offsets_reads_back_with_zero_offsets():
     x = torch.rand(4, 3, 120, 160, generator=torch.Generator().manual_seed(2))
-    net, _ = keypoint_from_onnx(WITHOUT_OFFSETS)
+    net, _ = corner_net_from_onnx(WITHOUT_OFFSETS)
     assert not net.offset.weight.any() and not net.offset.bias.any()
     with torch.no_grad():
         got = net.eval().logits(x).exp().numpy()
@@ -73,15 +77,15 @@ def test_fine_tuning_from_the_graph_at_learning_rate_0_keeps_its_answers(tmp_pat
         assert np.abs(tuned.logits(x).exp().numpy() - _graph_probabilities(x)).max() < 0.05
 
 
-def test_what_is_not_a_keypoint_graph_is_refused(tmp_path):
-    with pytest.raises(OnnxWeightsError, match="not a planar-pose keypoint network"):
-        keypoint_from_onnx(REPO_ROOT / "models" / "chessboard-spec-80x60.onnx")
+def test_what_is_not_a_corner_graph_is_refused(tmp_path):
+    with pytest.raises(OnnxWeightsError, match="not a planar-pose corner network"):
+        corner_net_from_onnx(REPO_ROOT / "models" / "chessboard-spec-80x60.onnx")
     junk = tmp_path / "junk.onnx"
     junk.write_bytes(b"not a model")
     with pytest.raises(OnnxWeightsError, match="not a readable ONNX model"):
-        keypoint_from_onnx(junk)
+        corner_net_from_onnx(junk)
     with pytest.raises(OnnxWeightsError, match="ONNX model not found"):
-        keypoint_from_onnx(tmp_path / "missing.onnx")
+        corner_net_from_onnx(tmp_path / "missing.onnx")
     small = tmp_path / "tiny80"
     make_dataset(small, DatasetSpec("noC", 1, 0, 18, 4, load_profile("chessboard")))
     for init, message in ((junk, "not a readable ONNX model"), (DEFAULT, "takes 160x120 images")):

@@ -1,4 +1,4 @@
-"""The keypoint network: corners -> homography -> camera centre, parity, class probabilities,
+"""The corner network: corners -> homography -> camera centre, parity, class probabilities,
 training-mode outputs and the ONNX export of the whole decode."""
 
 from __future__ import annotations
@@ -17,11 +17,11 @@ from service.core.geometry import intrinsics, look_at, project_points, translati
 from service.core.pose import FOCAL_PRIOR
 from service.core.profile import load_profile
 from service.core.regions import pose_class
-from train.network import keypoint
-from train.network.align import CheckerAlign, solve_spd, square_homography
+from train.network import corners as corner_net
+from train.network.align import TextureAlign, solve_spd, square_homography
+from train.network.corners import CornerNet
 from train.network.export import onnx_bytes
 from train.network.fit import FitConfig, _grown, fit, load_network
-from train.network.keypoint import KeypointNet
 from train.network.model import arch_of, build_network
 from train.synth.generate import DatasetSpec, make_dataset
 
@@ -31,7 +31,7 @@ OBJECT_CORNERS = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]]) * [*
 
 
 def _view(
-    net: KeypointNet, centre: tuple[float, float, float], roll_deg: float, focal: float = 0.0
+    net: CornerNet, centre: tuple[float, float, float], roll_deg: float, focal: float = 0.0
 ) -> np.ndarray:
     """Corners (4, 2) px of the board seen from `centre` (cm) by a camera of focal length
     `focal` px (default: 0.6 x the SPEC camera's) with the principal point at the image
@@ -61,7 +61,7 @@ def _input(image: np.ndarray) -> torch.Tensor:
     ("centre", "roll"), [((10.0, -15.0, 50.0), 30.0), ((-20.0, 12.0, 80.0), -150.0)]
 )
 def test_camera_centre_from_the_corners(centre, roll):
-    net = KeypointNet()
+    net = CornerNet()
     net.self_calibrate.fill_(0.0)  # the prior camera, which the view is taken with
     q = torch.from_numpy(_view(net, centre, roll, float(net.focal))).float()[None]
     H = square_homography(q)
@@ -80,7 +80,7 @@ def test_camera_centre_from_the_corners(centre, roll):
 @pytest.mark.parametrize(("photo", "aspect"), [((1280, 720), 4 / 3), ((640, 640), 0.75)])
 def test_camera_centre_of_a_photo_squashed_to_the_input_size(photo, aspect):
     """A 16:9 and a square photo resized to 160x120: the pixel aspect undoes the squash."""
-    net = KeypointNet()
+    net = CornerNet()
     net.self_calibrate.fill_(0.0)
     centre = (12.0, -9.0, 55.0)
     w, h = photo
@@ -97,12 +97,12 @@ def test_camera_centre_of_a_photo_squashed_to_the_input_size(photo, aspect):
     assert np.abs(squashed - centre).max() > 3.0
 
 
-def _focal_estimate(net: KeypointNet, q: torch.Tensor) -> float:
+def _focal_estimate(net: CornerNet, q: torch.Tensor) -> float:
     return float(net.focal_length(net.centred_homography(square_homography(q), torch.ones(1)))[0])
 
 
 def test_self_calibration_moves_the_focal_length_to_what_a_tilted_view_shows():
-    net = KeypointNet(focal_scale=0.6)
+    net = CornerNet(focal_scale=0.6)
     f0 = float(net.focal)
     f_true = 0.72 * f0 / 0.6
     q = torch.from_numpy(_view(net, (30.0, -25.0, 40.0), 40.0, f_true)).float()[None]
@@ -112,7 +112,7 @@ def test_self_calibration_moves_the_focal_length_to_what_a_tilted_view_shows():
 
 
 def test_a_known_focal_length_replaces_the_estimate_where_it_is_given():
-    net = KeypointNet(focal_scale=0.6)
+    net = CornerNet(focal_scale=0.6)
     f0 = float(net.focal)
     q = torch.from_numpy(_view(net, (30.0, -25.0, 40.0), 40.0, 1.2 * f0)).float()
     Hc = net.centred_homography(square_homography(torch.stack([q, q])), torch.ones(2))
@@ -129,7 +129,7 @@ def test_a_known_focal_length_replaces_the_estimate_where_it_is_given():
 
 
 def test_a_near_frontal_view_keeps_the_prior_focal_length():
-    net = KeypointNet(focal_scale=0.6)
+    net = CornerNet(focal_scale=0.6)
     f0 = float(net.focal)
     for f_true in (0.5 * f0 / 0.6, 0.9 * f0 / 0.6):  # the view says little about either
         q = torch.from_numpy(_view(net, (1.0, -0.5, 50.0), 30.0, f_true)).float()[None]
@@ -137,11 +137,11 @@ def test_a_near_frontal_view_keeps_the_prior_focal_length():
 
 
 def test_a_strong_barrel_shortens_the_prior_focal_length():
-    net = KeypointNet()
+    net = CornerNet()
     f0 = float(net.focal)
     q = torch.from_numpy(_view(net, (1.0, -0.5, 50.0), 30.0, f0)).float()[None].expand(3, 4, 2)
     Hc = net.centred_homography(square_homography(q), torch.ones(3))
-    limit = keypoint.BARREL_LIMIT
+    limit = corner_net.BARREL_LIMIT
     # a lens's own barrel at the prior focal length, then twice and three times as strong
     k1 = torch.tensor([0.5 * limit, 2 * limit, 3 * limit])
     f = net.focal_length(Hc, None, k1)  # a near-frontal view: the prior decides
@@ -156,7 +156,7 @@ def test_a_strong_barrel_shortens_the_prior_focal_length():
 
 
 def test_parity_tells_the_half_turn():
-    net = KeypointNet()
+    net = CornerNet()
     corners = _view(net, (12.0, 8.0, 45.0), 100.0)
     x = _input(_board_image(corners))
     q = torch.from_numpy(corners).float()[None]
@@ -169,7 +169,7 @@ def test_parity_tells_the_half_turn():
 def test_parity_blur_is_the_data_sets_level_3():
     """`blurred_checker`'s blur along each axis (its first kernel) is SPEC blur level 3 at
     160x120 as `blur_image` applies it: same taps, anchor and replicated borders."""
-    net = KeypointNet()
+    net = CornerNet()
     rgb = np.random.default_rng(0).random((120, 160, 3)).astype(np.float32)
     want = blur_image(rgb, 3, 2)[..., 0]
     got = net.blur_v[0] @ torch.from_numpy(rgb[..., 0]) @ net.blur_u[0].T
@@ -181,7 +181,7 @@ def test_parity_under_the_heaviest_blur(distance):
     """SPEC blur 3 (a nearly box-shaped 10 px kernel) inverts the checker of this board's
     3.8-4.4 px squares: the square centres alone, and the plain template the training step
     logs with (`blurred=False`), read the half turn; the blurred template reads it right."""
-    net = KeypointNet()
+    net = CornerNet()
     corners = _view(net, (8.0, 6.0, distance), 170.0)
     x = _input(blur_image(_board_image(corners), 3, 2))
     q = torch.from_numpy(corners).float()[None]
@@ -200,7 +200,7 @@ def test_parity_under_the_heaviest_blur(distance):
 
 
 def test_class_probabilities_follow_the_centre_and_the_parity():
-    net = KeypointNet()
+    net = CornerNet()
     c = torch.tensor([[15.0, 10.0, 40.0], [-15.0, -10.0, 85.0], [0.0, 0.0, 60.0]])
     sure = net.class_probabilities(c, torch.ones(3))
     assert torch.allclose(sure.sum(1), torch.ones(3), atol=1e-6)
@@ -228,7 +228,7 @@ class _FixedHeat(nn.Module):
 @pytest.mark.parametrize("stride", [4, 2])
 def test_the_exported_graph_decodes_like_torch(stride):
     torch.manual_seed(0)
-    net = KeypointNet(stride=stride)
+    net = CornerNet(stride=stride)
     corners = _view(net, (14.0, -9.0, 42.0), 25.0)
     net.heat = _FixedHeat(corners, stride)
     net.eval()
@@ -295,9 +295,9 @@ def test_training_mode_outputs_and_build():
     assert net.presence[-1].weight.grad is not None and net.heat.weight.grad is not None
     assert net.offset.weight.grad.abs().max() > 0  # the corners' offsets learn from zero
     with pytest.raises(ValueError, match="unsupported input size 80x60"):
-        KeypointNet((80, 60))
+        CornerNet((80, 60))
     with pytest.raises(ValueError, match="unsupported heat-map stride 3"):
-        KeypointNet(stride=3)
+        CornerNet(stride=3)
     with pytest.raises(ValueError, match="cannot read the profile's texture"):
         build_network("corners", (160, 120), profile=profile | {"texture": "none.png"})
     # the focal-length prior is the profile's (x the SPEC camera's), the project's without one
@@ -309,7 +309,7 @@ def test_training_mode_outputs_and_build():
 
 def test_stride_2_heat_maps_and_growing_from_a_stride_4_network():
     torch.manual_seed(0)
-    parent = KeypointNet()
+    parent = CornerNet()
     net = build_network("corners", (160, 120))
     assert arch_of(net) == "corners" and arch_of(parent) == "corners-coarse"
     x = torch.rand(2, 3, 120, 160)
@@ -322,7 +322,7 @@ def test_stride_2_heat_maps_and_growing_from_a_stride_4_network():
     assert "up0.0.weight" in ours and "up0.0.weight" not in theirs
 
 
-def test_fit_grows_a_stride_2_network_from_a_keypoint_checkpoint(tmp_path):
+def test_fit_grows_a_stride_2_network_from_a_coarse_checkpoint(tmp_path):
     data = tmp_path / "tiny160"
     make_dataset(data, DatasetSpec("noC", 2, 0, 27, 4, PROFILE))
     base = {"epochs": 1, "batch_size": 8, "progress": False, "threads": 1, "optimizer": "adam"}
@@ -358,7 +358,7 @@ def test_solve_spd_matches_a_linear_solver():
 
 @pytest.mark.parametrize("blur", [0.0, 1.5])
 def test_alignment_moves_the_corners_onto_the_board(blur):
-    net = KeypointNet()
+    net = CornerNet()
     corners = _view(net, (12.0, -8.0, 45.0), 35.0)
     image = _board_image(corners)
     if blur:
@@ -366,7 +366,7 @@ def test_alignment_moves_the_corners_onto_the_board(blur):
     x = _input(image)
     off = torch.tensor([[1.8, -1.2], [-1.5, -1.6], [-1.0, 1.9], [1.7, 1.1]])
     q = torch.from_numpy(corners).float()[None] + off
-    align = CheckerAlign((160, 120))
+    align = TextureAlign((160, 120))
     got, corr, _ = align(x, q)
     assert (got[0] - torch.from_numpy(corners).float()).norm(dim=1).max() < 0.4
     assert float(corr) > 0.7
@@ -380,7 +380,7 @@ def test_alignment_moves_the_corners_onto_the_board(blur):
 def test_alignment_fits_the_lens_distortion(k1):
     """A board seen through a lens of radial distortion k1: the fit (started at the prior
     -0.2) finds k1, and its corners are where the image shows them."""
-    net = KeypointNet()
+    net = CornerNet()
     corners = _view(net, (14.0, -10.0, 38.0), 20.0)
     lens = net.lens(torch.ones(1))
     # the image: every pixel shows the undistorted board where `Lens.undistort` sends it
@@ -397,12 +397,12 @@ def test_alignment_fits_the_lens_distortion(k1):
 
 def test_alignment_gives_back_the_corners_without_a_board():
     q = torch.tensor([[[40.0, 30.0], [120.0, 32.0], [118.0, 90.0], [42.0, 88.0]]])
-    got, corr, k1 = CheckerAlign((160, 120))(torch.full((1, 3, 120, 160), 0.5), q)
+    got, corr, k1 = TextureAlign((160, 120))(torch.full((1, 3, 120, 160), 0.5), q)
     assert torch.equal(got, q) and abs(float(corr)) < 1e-3 and float(k1) == 0.0
 
 
 def test_the_corners_come_in_the_object_order_whatever_the_heat_maps_say():
-    net = KeypointNet()
+    net = CornerNet()
     corners = _view(net, (8.0, 11.0, 55.0), 150.0)
     net.heat = _FixedHeat(np.roll(corners, 2, 0))  # the heat maps' half turn
     net.eval()
@@ -412,7 +412,7 @@ def test_the_corners_come_in_the_object_order_whatever_the_heat_maps_say():
 
 
 def test_the_aligned_checker_pattern_is_evidence_of_the_board():
-    net = KeypointNet()
+    net = CornerNet()
     corners = _view(net, (-10.0, 6.0, 50.0), -60.0)
     net.heat = _FixedHeat(corners)
     with torch.no_grad():  # a presence head that always says "not in view"
@@ -426,15 +426,15 @@ def test_the_aligned_checker_pattern_is_evidence_of_the_board():
 
 
 def test_checkpoints_with_the_old_focal_bounds_still_load():
-    net = KeypointNet()
+    net = CornerNet()
     state = net.state_dict()
     assert "focal_bounds" not in state  # derived from FOCAL_BOUNDS, not stored
     state["focal_bounds"] = torch.tensor([1.0, 2.0])  # as checkpoints before 3.3.0 have it
-    KeypointNet().load_state_dict(state)
+    CornerNet().load_state_dict(state)
 
 
 def test_the_offsets_carry_a_corner_beyond_the_frame():
-    net = KeypointNet(stride=2)
+    net = CornerNet(stride=2)
     assert not net.offset.weight.any() and not net.offset.bias.any()  # zero to start with
     heat = torch.full((1, 4, 60, 80), -50.0)
     heat[0, :, 0, 0] = heat[0, :, 59, 79] = 50.0  # two cells, each half the mass
@@ -448,8 +448,8 @@ def test_the_offsets_carry_a_corner_beyond_the_frame():
 
 
 def test_checkpoints_without_the_offsets_load_with_zero_offsets():
-    state = {k: v for k, v in KeypointNet().state_dict().items() if not k.startswith("offset.")}
-    older = KeypointNet()
+    state = {k: v for k, v in CornerNet().state_dict().items() if not k.startswith("offset.")}
+    older = CornerNet()
     nn.init.ones_(older.offset.weight)
     older.load_state_dict(state)  # as the checkpoints before 3.9.0
     assert not older.offset.weight.any() and not older.offset.bias.any()
@@ -487,7 +487,7 @@ def test_a_textured_object_reads_its_half_turn_from_its_texture() -> None:
 def test_a_texture_aligns_from_either_half_turn_order() -> None:
     """A texture's half turn is no inversion the alignment's gain absorbs: corners given in
     the half-turned order align to the texture as well (returned in that order, with a
-    negative correlation), not drift (`CheckerAlign.forward`)."""
+    negative correlation), not drift (`TextureAlign.forward`)."""
     charuco = load_profile("charuco")
     net = build_network("corners", (160, 120), profile=charuco.manifest_entry()).eval()
     q = np.array([[50, 105], [112, 100], [108, 15], [55, 20]], np.float32)

@@ -1,4 +1,5 @@
-"""A corner-keypoint pose network: the class comes from geometry, not from a classifier.
+"""The corner network (architectures `corners`, `corners-coarse`): the class comes from geometry,
+not from a classifier.
 
 The x/y side of the camera is a small perspective effect (a camera 5 cm off the board's axis
 at 60 cm makes the near edge of the board about 1 px longer than the far one at 160x120), and
@@ -64,12 +65,12 @@ from service.core.inputs import SIZES
 from service.core.pose import FOCAL_BOUNDS, FOCAL_PRIOR
 from service.core.profile import DEFAULT_PROFILE, load_profile
 from service.core.regions import QUADRANT_SIGNS, Z_SPLIT_CM
-from train.network.align import CheckerAlign, Lens, square_homography
+from train.network.align import Lens, TextureAlign, square_homography
 from train.network.base import NormalisedNet, conv_block
 from train.network.pattern import CHECKER_SQUARES, Pattern
 
 SIZE = SIZES[2]
-# The focal length (`KeypointNet.focal_length`): Zhang's constraints with a prior. The prior
+# The focal length (`CornerNet.focal_length`): Zhang's constraints with a prior. The prior
 # and the bounds (`service.core.pose`, which the service's pose shares) are x the SPEC
 # camera's focal length, the weight in the units of the normalised constraints; chosen on the
 # corpus's val and train sources with the SPEC-camera and long-lens renders as second checks
@@ -101,7 +102,7 @@ SQUARES = CHECKER_SQUARES  # squares of the board along its width (x) and height
 # corpus's train and val sources), with one mostly over 0.6
 PATTERN_CORR, PATTERN_SLOPE = 0.4, 20.0
 # what the networks before 3.9.0 lack, the corner offsets: zero where a checkpoint or a graph
-# has none (`KeypointNet._load_from_state_dict`, `onnx_weights.keypoint_from_onnx`)
+# has none (`CornerNet._load_from_state_dict`, `onnx_weights.corner_net_from_onnx`)
 ZERO_IF_ABSENT = ("offset.weight", "offset.bias")
 
 
@@ -129,7 +130,7 @@ def _parity_blur_matrices(n: int) -> torch.Tensor:
 
 
 class Observation(NamedTuple):
-    """What one image [N, 3, H, W] says before the camera model (`KeypointNet.observe`)."""
+    """What one image [N, 3, H, W] says before the camera model (`CornerNet.observe`)."""
 
     corners: torch.Tensor  # [N, 4, 2] input px, aligned, in the heat maps' order
     parity: torch.Tensor  # [N] in [-1, 1], > 0 when that order is the object's
@@ -142,13 +143,33 @@ def _block(cin: int, cout: int) -> nn.Sequential:
     return nn.Sequential(conv_block(cin, cout), conv_block(cout, cout))
 
 
-class KeypointNet(NormalisedNet):
+class CornerNet(NormalisedNet):
     """The network above for input `size` (W, H) = 160x120 and a board of `board_cm`
     (width, height; default: the default profile's) with the region split `z_split_cm`; the
     camera prior is the SPEC camera with its focal length times `focal_scale` and the principal
     point at the image centre; heat maps at `stride` 4 or 2 input pixels."""
 
     corner_order = "upper"  # `fit._corner_loss`: corner 0 is the upper end of the 0-2 diagonal
+    # buffers (`__init__` says what each holds)
+    grid_u: torch.Tensor  # [W / stride] px
+    grid_v: torch.Tensor  # [H / stride] px
+    px_to_unit: torch.Tensor  # [2]
+    principal: torch.Tensor  # [2] px
+    focal: torch.Tensor  # [] px
+    focal_bounds: torch.Tensor  # [2] px
+    self_calibrate: torch.Tensor  # [] 0 or 1
+    radial_prior: torch.Tensor  # [] k1
+    to_unit: torch.Tensor  # [3, 3]
+    square_st: torch.Tensor  # [cells, 2]
+    parity_shifts: torch.Tensor  # [9, 2]
+    templates: torch.Tensor  # [2, 9, cells] (a texture)
+    checker: torch.Tensor  # [cells] +-1 (the checker)
+    blur_u: torch.Tensor
+    blur_v: torch.Tensor
+    z_split: torch.Tensor  # [] cm
+    side_spread: torch.Tensor  # []
+    depth_spread: torch.Tensor  # []
+    parity_gain: torch.Tensor  # []
 
     def __init__(
         self,
@@ -182,25 +203,43 @@ class KeypointNet(NormalisedNet):
         self.up0 = conv_block(32 + 16, 16) if stride == 2 else None
         self.heat = nn.Conv2d(16 if stride == 2 else 32, 4, 1)
         # the object's texture as the half turn and the alignment read it (default: the checker)
-        self.textured = pattern is not None and not pattern.checker
-        cells = pattern.cells if self.textured else SQUARES
-        self.align = CheckerAlign(size, SQUARES, pattern)  # no weights: geometry only
+        texture = pattern if pattern is not None and not pattern.checker else None
+        self.textured = texture is not None
+        cells = texture.cells if texture is not None else SQUARES
+        self.align = TextureAlign(size, SQUARES, pattern)  # no weights: geometry only
         self.presence = nn.Sequential(
             nn.Flatten(), nn.Linear(2 * 128, 64), nn.ReLU(), nn.Linear(64, 1)
         )
         # the corners' offsets from the cells (`_soft_argmax`): zero to start with, as in the
         # networks before them (`_load_from_state_dict`)
-        self.offset = nn.Conv2d(self.heat.in_channels, 8, 1)
-        nn.init.zeros_(self.offset.weight)
-        nn.init.zeros_(self.offset.bias)
+        self.offset = offset = nn.Conv2d(self.heat.in_channels, 8, 1)
+        assert offset.bias is not None  # nn.Conv2d's default bias=True
+        nn.init.zeros_(offset.weight)
+        nn.init.zeros_(offset.bias)
         w, h = size[0] // stride, size[1] // stride
         self.register_buffer("grid_u", (torch.arange(w) * stride + (stride - 1) / 2).float())
         self.register_buffer("grid_v", (torch.arange(h) * stride + (stride - 1) / 2).float())
         self.register_buffer(
             "px_to_unit", torch.tensor([2.0 / size[0], 2.0 / size[1]]), persistent=False
         )
-        # the prior camera: principal point at the image centre, focal length (px) of the SPEC
-        # camera times `focal_scale`, or (self_calibrate = 1) the estimate of `focal_length`
+        self._camera_buffers(size, focal_scale, self_calibrate)
+        self._pattern_buffers(board_cm, cells, texture)
+        # the blurs of `blurred_checker` along the input's width and height
+        self.register_buffer("blur_u", _parity_blur_matrices(size[0]), persistent=False)
+        self.register_buffer("blur_v", _parity_blur_matrices(size[1]), persistent=False)
+        # buffers, so that a checkpoint carries them: the region split (cm), the sd of cx, cy
+        # per cm of distance and of cz per cm of cz, the parity correlation -> logit gain
+        self.register_buffer("z_split", torch.tensor(float(z_split_cm)))
+        self.register_buffer("side_spread", torch.tensor(0.08))
+        self.register_buffer("depth_spread", torch.tensor(0.08))
+        self.register_buffer("parity_gain", torch.tensor(8.0))
+
+    def _camera_buffers(
+        self, size: tuple[int, int], focal_scale: float, self_calibrate: bool
+    ) -> None:
+        """The prior camera's buffers: principal point at the image centre, focal length (px)
+        of the SPEC camera times `focal_scale`, or (self_calibrate = 1) the estimate of
+        `focal_length`, its bounds, the lens's k1 prior."""
         spec_f = float(intrinsics(size)[0, 0])
         lo, hi = FOCAL_BOUNDS
         self.register_buffer("principal", torch.tensor([(size[0] - 1) / 2, (size[1] - 1) / 2]))
@@ -210,6 +249,13 @@ class KeypointNet(NormalisedNet):
         )
         self.register_buffer("self_calibrate", torch.tensor(float(self_calibrate)))
         self.register_buffer("radial_prior", torch.tensor(RADIAL_PRIOR), persistent=False)
+
+    def _pattern_buffers(
+        self, board_cm: tuple[float, float] | None, cells: tuple[int, int], texture: Pattern | None
+    ) -> None:
+        """The object's buffers: object (X, Y) cm -> unit square, the `cells` (along x, y)
+        centres and their 9 shifted grids the half turn is read at, and the texture's
+        templates there (`texture`) or the checker's signs (None)."""
         if board_cm is None:
             default = load_profile(DEFAULT_PROFILE)
             board_cm = (default.width_cm, default.height_cm)
@@ -227,25 +273,16 @@ class KeypointNet(NormalisedNet):
         third = torch.tensor([-1.0, 0.0, 1.0]) / 3
         shifts = torch.stack(torch.meshgrid(third / cells[0], third / cells[1], indexing="xy"), -1)
         self.register_buffer("parity_shifts", shifts.reshape(-1, 2), persistent=False)
-        if self.textured:
+        if texture is not None:
             # the texture at the 9 shifted grids of cell centres, in the order read and half
             # turned ((s, t) -> (1 - s, 1 - t)): [2, 9, cells]
             st = (self.square_st[None] + self.parity_shifts[:, None]).reshape(-1, 2).numpy()
-            both = [pattern.sample(st), pattern.sample(1.0 - st)]
+            both = [texture.sample(st), texture.sample(1.0 - st)]
             templates = torch.tensor(np.stack(both), dtype=torch.float32)
             self.register_buffer("templates", templates.reshape(2, 9, -1), persistent=False)
         else:
             # +1 on white squares; the square at corner 0 (-X, -Y) is black
             self.register_buffer("checker", (((i + j) % 2) * 2 - 1).reshape(-1).float())
-        # the blurs of `blurred_checker` along the input's width and height
-        self.register_buffer("blur_u", _parity_blur_matrices(size[0]), persistent=False)
-        self.register_buffer("blur_v", _parity_blur_matrices(size[1]), persistent=False)
-        # buffers, so that a checkpoint carries them: the region split (cm), the sd of cx, cy
-        # per cm of distance and of cz per cm of cz, the parity correlation -> logit gain
-        self.register_buffer("z_split", torch.tensor(float(z_split_cm)))
-        self.register_buffer("side_spread", torch.tensor(0.08))
-        self.register_buffer("depth_spread", torch.tensor(0.08))
-        self.register_buffer("parity_gain", torch.tensor(8.0))
 
     # -- network -------------------------------------------------------------------------------
     def _encode(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
