@@ -7,6 +7,7 @@ JSON in metadata_props `model_card` (or the `<name>.json` beside the file).
 from __future__ import annotations
 
 import json
+import threading
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -26,6 +27,7 @@ from service.core.onnx_contract import (
 )
 from service.core.pose import FOCAL_PRIOR, is_focal_prior
 from service.core.regions import NUM_CLASSES
+from service.onnx_file import OnnxFileError, read_metadata
 
 #: Runs of more inputs than this give the memory onnxruntime's arena took for them back
 #: when they end (a batch of 16 images grows it by ~70 MB, of 144 by ~640 MB, held for good
@@ -51,9 +53,16 @@ class ModelLoadError(RuntimeError):
     """The model file is missing, not ONNX, or does not follow the I/O contract."""
 
 
-def _read_card(session: ort.InferenceSession, path: Path) -> dict[str, Any]:
-    """The card from the ONNX metadata, else from the `<name>.json` next to the model."""
-    text = session.get_modelmeta().custom_metadata_map.get(CARD_KEY)
+def read_card(path: Path) -> dict[str, Any]:
+    """The card of the ONNX file `path` without loading its graph: the `model_card` of its
+    metadata (`service.onnx_file`), else the `<name>.json` next to it; ModelLoadError when
+    the file is not ONNX, is missing or has no card."""
+    try:
+        text = read_metadata(path).get(CARD_KEY)
+    except OnnxFileError as exc:
+        raise ModelLoadError(f"{path}: not a loadable ONNX model ({exc})") from None
+    except OSError:
+        raise ModelLoadError(f"model file not found: {path}") from None
     if text is None:
         sidecar = path.with_suffix(".json")
         if not sidecar.is_file():
@@ -66,6 +75,40 @@ def _read_card(session: ort.InferenceSession, path: Path) -> dict[str, Any]:
     if not isinstance(card, dict) or "name" not in card:
         raise ModelLoadError(f"{path}: model card has no name")
     return card
+
+
+_SHARED_ALLOCATOR = threading.Lock()
+_shared_allocator_registered = False
+
+
+def _share_allocator() -> None:
+    """Register one CPU arena for every session of this process (once): each session would
+    otherwise keep an arena of its own, sized by its largest run (~8 MB for a corner model
+    after a zoom pass; `benchmarks/bench_models.py`)."""
+    global _shared_allocator_registered
+    with _SHARED_ALLOCATOR:
+        if not _shared_allocator_registered:
+            memory = ort.OrtMemoryInfo(
+                "Cpu", ort.OrtAllocatorType.ORT_ARENA_ALLOCATOR, 0, ort.OrtMemType.DEFAULT
+            )
+            ort.create_and_register_allocator(memory, None)
+            _shared_allocator_registered = True
+
+
+def session_options(intra_op_threads: int = 1, inter_op_threads: int = 1) -> ort.SessionOptions:
+    """The options of every session: the threads, no spinning, errors-only logs, and the
+    process's shared CPU arena."""
+    _share_allocator()
+    options = ort.SessionOptions()
+    options.intra_op_num_threads = intra_op_threads
+    options.inter_op_num_threads = inter_op_threads
+    # Idle worker threads sleep instead of spinning: the CPU is shared with the web server.
+    options.add_session_config_entry("session.intra_op.allow_spinning", "0")
+    options.add_session_config_entry("session.use_env_allocators", "1")
+    # errors only: onnxruntime warns at load about every overridable initializer, and
+    # `pixel_aspect` is one on purpose
+    options.log_severity_level = 3
+    return options
 
 
 @dataclass(frozen=True)
@@ -122,20 +165,15 @@ class PoseModel:
         intra_op_threads: int = 1,
         inter_op_threads: int = 1,
         graph: tuple[bytes, dict[str, Any]] | None = None,
+        card: dict[str, Any] | None = None,
     ) -> PoseModel:
         """Open `path`, check the I/O contract, read the input size from the input shape.
         `graph` = (ONNX bytes, card): that graph instead of the file, `path` only naming it
-        (`train/network/export.py` measures a graph before it writes it)."""
+        (`train/network/export.py` measures a graph before it writes it); `card`: the file's
+        card as already read (`read_card`), else it is read here."""
         if graph is None and not path.is_file():
             raise ModelLoadError(f"model file not found: {path}")
-        options = ort.SessionOptions()
-        options.intra_op_num_threads = intra_op_threads
-        options.inter_op_num_threads = inter_op_threads
-        # Idle worker threads sleep instead of spinning: the CPU is shared with the web server.
-        options.add_session_config_entry("session.intra_op.allow_spinning", "0")
-        # errors only: onnxruntime warns at load about every overridable initializer, and
-        # `pixel_aspect` is one on purpose
-        options.log_severity_level = 3
+        options = session_options(intra_op_threads, inter_op_threads)
         try:
             session = ort.InferenceSession(
                 str(path) if graph is None else graph[0],
@@ -177,7 +215,10 @@ class PoseModel:
         if flat_out is not None and list(flat_out.shape[1:]) != [4, 2]:
             raise ModelLoadError(f"{path}: output {UNDISTORTED!r} must be [N, 4, 2]")
         size = (int(shape[3]), int(shape[2]))
-        card = _read_card(session, path) if graph is None else graph[1]
+        if graph is not None:
+            card = graph[1]
+        elif card is None:
+            card = read_card(path)
         if "input" in card and tuple(card["input"]) != size:
             raise ModelLoadError(f"{path}: card says input {card['input']}, graph says {size}")
         defaults = {i.name for i in session.get_overridable_initializers()}
