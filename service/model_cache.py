@@ -11,6 +11,7 @@ request using it ends.
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import os
 import threading
@@ -21,6 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import onnxruntime as ort
 from prometheus_client import Counter, Gauge, Histogram
 from prometheus_client.multiprocess import mark_process_dead
 
@@ -156,19 +158,29 @@ class _Loaded:
     size: int  # estimated bytes
 
 
+def optimized_path(folder: Path, path: Path) -> Path:
+    """Where the optimized graph (ORT format) of the ONNX file `path` is kept in `folder`:
+    named by the file's content (copies share it) and the onnxruntime version."""
+    digest = hashlib.sha256(path.read_bytes()).hexdigest()[:32]
+    return folder / f"{digest}-onnxruntime-{ort.__version__}.ort"
+
+
 class ModelCache:
     """Predictors of model files by `ModelFile.key`, least recently used unloaded beyond
     `budget` bytes (never a pinned one, nor the one just loaded); a file that failed to load
     is not tried again until it changes. Thread-safe; different models load in parallel,
-    one model once."""
+    one model once. `load(file, optimized)` makes a predictor, `optimized` the file of its
+    optimized graph in `optimized_dir` (None: no such folder)."""
 
     def __init__(
         self,
         budget: int,
-        load: Callable[[ModelFile], Predictor],
+        load: Callable[[ModelFile, Path | None], Predictor],
         metrics: ModelMetrics | None = None,
+        optimized_dir: Path | None = None,
     ) -> None:
         self.budget, self._load, self.metrics = budget, load, metrics
+        self.optimized_dir = optimized_dir
         self._loaded: OrderedDict[tuple[str, str, Signature], _Loaded] = OrderedDict()
         self._failed: dict[tuple[str, str, Signature], str] = {}
         self._locks: dict[tuple[str, str, Signature], threading.Lock] = {}
@@ -187,10 +199,11 @@ class ModelCache:
             self.metrics.hits.inc()
         return loaded.predictor
 
-    def get(self, file: ModelFile) -> Predictor:
-        """The predictor of `file`, loaded now if it is not (blocking: call it in a thread);
-        ModelLoadError when the file does not load."""
-        found = self.peek(file)
+    def get(self, file: ModelFile, count: bool = True) -> Predictor:
+        """The predictor of `file`, loaded now if it is not (blocking: call it in a thread;
+        `count`: a request's, counted as a cache hit or miss); ModelLoadError when the file
+        does not load."""
+        found = self.peek(file, count)
         if found is not None:
             return found
         with self._lock:
@@ -203,7 +216,7 @@ class ModelCache:
                 return loaded.predictor
             if failed is not None:
                 raise ModelLoadError(failed)
-            if self.metrics is not None:
+            if count and self.metrics is not None:
                 self.metrics.misses.inc()
             return self._load_now(file)
 
@@ -212,7 +225,7 @@ class ModelCache:
         try:
             size = estimated_bytes(file.path)
             self._make_room(size, file.key)
-            predictor = self._load(file)
+            predictor = self._load(file, self.optimized(file))
         except ModelLoadError as exc:
             with self._lock:
                 self._failed[file.key] = str(exc)
@@ -230,6 +243,27 @@ class ModelCache:
             time.perf_counter() - start,
         )
         return predictor
+
+    def optimized(self, file: ModelFile) -> Path | None:
+        """The file of `file`'s optimized graph (None: no folder for them, or unreadable)."""
+        if self.optimized_dir is None:
+            return None
+        try:
+            return optimized_path(self.optimized_dir, file.path)
+        except OSError:
+            return None
+
+    def prepare(self, file: ModelFile) -> bool:
+        """Write `file`'s optimized graph unless it is there (a session made and dropped,
+        not kept); True when one was written."""
+        target = self.optimized(file)
+        if target is None or target.exists() or self.failure(file) is not None:
+            return False
+        try:
+            self._load(file, target)
+        except ModelLoadError:
+            return False
+        return True
 
     def _count_load(self, result: str, start: float) -> None:
         if self.metrics is not None:

@@ -18,8 +18,12 @@ the file is read while half written, refused, and only the next look loads it.
 
 from __future__ import annotations
 
+import fcntl
 import logging
+import os
 import re
+import shutil
+import tempfile
 import threading
 import time
 from collections.abc import Mapping
@@ -39,6 +43,8 @@ log = logging.getLogger("uvicorn.error.pose")
 NAME_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
 #: A name /v1/models/{name}/... also answers to with the default model (its name until 3.10.0).
 DEFAULT_ALIAS = "default"
+#: Seconds between two tries of a worker to become the one that writes optimized graphs.
+PREPARE_RETRY_S = 5.0
 
 
 @dataclass(frozen=True)
@@ -75,11 +81,22 @@ class ModelRegistry:
         self._lock = threading.Lock()
         self._problems: dict[str, str] = {}
         self._gone: dict[str, float] = {}  # name -> time.monotonic() its file was first missed
+        self._own_folder = settings.runtime_dir is None
+        optimized = (
+            Path(tempfile.mkdtemp(prefix="planar-pose-optimized-"))
+            if settings.runtime_dir is None
+            else settings.runtime_dir / "optimized"
+        )
+        optimized.mkdir(parents=True, exist_ok=True)
         self.cache = ModelCache(
             settings.model_memory_bytes,
             self._load,
             None if metrics is None else ModelMetrics(metrics),
+            optimized,
         )
+        self._prepare = threading.Event()
+        self._closed = threading.Event()
+        self._preparer: threading.Thread | None = None
 
     def files(self) -> dict[str, Path]:
         """The model files to serve, by name (file stem; POSE_MODEL_PATH as the default)."""
@@ -148,7 +165,7 @@ class ModelRegistry:
         loaded = file.name in old and self.cache.is_loaded(old[file.name])
         if file.name != self.settings.default_model and not loaded and file.input_size:
             return file
-        model = self.cache.get(file).model
+        model = self.cache.get(file, count=False).model
         if file.input_size is None:
             return replace(file, card={**file.card, "input": list(model.input_size)})
         return file
@@ -182,10 +199,51 @@ class ModelRegistry:
             return None
         return min(self._gone.values()) + self.settings.model_grace_s
 
-    def _load(self, file: ModelFile) -> Predictor:
+    def _load(self, file: ModelFile, optimized: Path | None) -> Predictor:
         s = self.settings
-        model = PoseModel.load(file.path, s.intra_op_threads, s.inter_op_threads, card=file.card)
+        model = PoseModel.load(
+            file.path, s.intra_op_threads, s.inter_op_threads, card=file.card, optimized=optimized
+        )
         return Predictor(model, s)
+
+    def prepare_in_background(self) -> None:
+        """Write the optimized graph of every served model, one at a time, in a thread of
+        the lowest priority (after each reload again, for the new files): a model's first
+        load then takes the fast path. With several workers one does it (a file lock in the
+        runtime folder; another takes over if it dies)."""
+        self._prepare.set()
+        if self._preparer is None:
+            self._preparer = threading.Thread(target=self._prepare_all, daemon=True)
+            self._preparer.start()
+
+    def _prepare_all(self) -> None:
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 19)  # this thread only
+        folder = self.cache.optimized_dir
+        assert folder is not None
+        with (folder / "prepare.lock").open("w") as lock:
+            while True:
+                try:
+                    fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                    break
+                except OSError:
+                    if self._closed.wait(PREPARE_RETRY_S):
+                        return
+            while self._prepare.wait() and not self._closed.is_set():
+                self._prepare.clear()
+                written = sum(
+                    self.cache.prepare(f)
+                    for f in list(self._served.values())
+                    if not self._closed.is_set()
+                )
+                if written:
+                    log.info("optimized graphs written: %d", written)
+
+    def close(self) -> None:
+        """Stop preparing; remove the optimized graphs' folder if this registry made it."""
+        self._closed.set()
+        self._prepare.set()
+        if self._own_folder and self.cache.optimized_dir is not None:
+            shutil.rmtree(self.cache.optimized_dir, ignore_errors=True)
 
     @property
     def problems(self) -> dict[str, str]:

@@ -85,6 +85,7 @@ class ServiceState:
         thread)."""
         report = self.models.reload()
         self.loaded = True
+        self.models.prepare_in_background()
         if self.runtime is not None and self.predictor is not None:
             self.runtime.mark_ready()
         return report
@@ -116,5 +117,6 @@ class ServiceState:
                 last = now
 
     def close(self) -> None:
+        self.models.close()
         if self.runtime is not None:
             self.runtime.unmark()
