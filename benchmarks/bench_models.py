@@ -23,13 +23,12 @@ Targets (the issue's): ready <= 15 s with 200 models, <= 1 GB per worker after 2
 a cold model's first answer <= 1 s, 0 answers 503 and <= 8 failed requests around the kill.
 
     .venv/bin/python benchmarks/bench_models.py [--models 200] [--used 20] [--seconds 20]
-        [--clients 8] [--memory-mb MB]
+        [--clients 8] [--memory-mb MB] [--write-docs]
 """
 
 from __future__ import annotations
 
 import argparse
-import functools
 import math
 import os
 import platform
@@ -46,10 +45,12 @@ from collections import Counter
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from datetime import UTC, datetime
 from pathlib import Path
 
 import httpx
 import psutil
+from docs_section import write_section  # benchmarks/, the script's own folder
 
 from service.model import PoseModel
 
@@ -58,10 +59,19 @@ MODELS = ROOT / "models"
 PHOTO = (ROOT / "train" / "assets" / "real" / "chessboard-stereo" / "left01.jpg").read_bytes()
 JPEG = {"Content-Type": "image/jpeg"}
 DEFAULT = "chessboard-corners-160x120"
+DOCS = ROOT / "docs" / "benchmarks.md"
 TARGET_READY_S, TARGET_RSS_MB, TARGET_COLD_S, TARGET_FAILED = 15.0, 1000.0, 1.0, 8
 
 
-print = functools.partial(print, flush=True)  # noqa: A001  # lines as they come
+#: The lines printed, for `--write-docs`.
+LINES: list[str] = []
+
+
+def say(*parts: object, sep: str = " ") -> None:
+    """Print a line as it comes, and keep it."""
+    text = sep.join(str(p) for p in parts)
+    LINES.extend(text.splitlines())
+    print(text, flush=True)
 
 
 def free_port() -> int:
@@ -253,7 +263,7 @@ def load_cpu_lines() -> list[str]:
             start = time.process_time()
             PoseModel.load(path, optimized=target)
             lines.append(
-                f"  {path.stem}: {onnx_s:.2f} s from ONNX, "
+                f"{path.stem}: {onnx_s:.2f} s from ONNX, "
                 f"{time.process_time() - start:.2f} s from the optimized graph"
             )
     return lines
@@ -263,7 +273,7 @@ def cold_line(server: Server, names: list[str], when: str) -> None:
     """Use `names` (`use_models`) and print their first answers' times."""
     firsts, cpu, problems = use_models(server, names)
     slowest = names[firsts.index(max(firsts))]
-    print(
+    say(
         f"cold first answers of {len(names)} models {when}: "
         f"median {statistics.median(firsts):.2f} s, slowest {max(firsts):.2f} s ({slowest}); "
         f"workers' CPU per first answer: median {statistics.median(cpu):.2f} s, most "
@@ -283,12 +293,13 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=20.0, help="load around the kill")
     parser.add_argument("--clients", type=int, default=8, help="concurrent clients")
     parser.add_argument("--memory-mb", type=float, help="POSE_MODEL_MEMORY_MB (default: its)")
+    parser.add_argument("--write-docs", action="store_true", help="update docs/benchmarks.md")
     args = parser.parse_args()
-    print(
-        f"# bench_models: {platform.machine()}, {os.cpu_count()} CPUs, 2 workers, load "
+    say(
+        f"machine: {platform.machine()}, {os.cpu_count()} CPUs, 2 workers, load "
         f"average {os.getloadavg()[0]:.1f} at the start"
     )
-    print("CPU to load a graph (this process):", *load_cpu_lines(), sep="\n")
+    say("CPU to load a graph (this process):", *load_cpu_lines(), sep="\n  ")
     log = Path(tempfile.mkdtemp(prefix="bench-models-")) / "serve.log"
     with tempfile.TemporaryDirectory(prefix="bench-models-") as tmp:
         folder = Path(tmp)
@@ -297,7 +308,7 @@ def main() -> None:
             small_rss = small.rss_mb()
         with serve(folder, args.memory_mb, log) as large:
             large_rss = large.rss_mb()
-            print(
+            say(
                 f"ready: {len(list(MODELS.glob('*.onnx')))} models {small.ready_s:.1f} s "
                 f"(workers {small_rss[0]:.0f}/{small_rss[-1]:.0f} MB), {args.models} models "
                 f"{large.ready_s:.1f} s (workers {large_rss[0]:.0f}/{large_rss[-1]:.0f} MB); "
@@ -308,11 +319,11 @@ def main() -> None:
             cold_line(large, names, "right after ready (graphs optimized meanwhile, if at all)")
             rss = large.rss_mb()
             cold_line(large, every[-args.used :], "later (their optimized graphs written)")
-            print(
+            say(
                 f"after {len(names)} models used: workers {rss[0]:.0f}/{rss[-1]:.0f} MB; "
                 f"target <= {TARGET_RSS_MB:g} MB: {verdict(rss[-1] <= TARGET_RSS_MB)}"
             )
-            print(
+            say(
                 "metrics (both workers): "
                 f"loads {large.metric('pose_model_loads_total'):.0f}, "
                 f"hits {large.metric('pose_model_cache_hits_total'):.0f}, "
@@ -325,14 +336,20 @@ def main() -> None:
     with serve(MODELS, args.memory_mb, log) as server:
         load, spawned, ready = kill_under_load(server, args.clients, args.seconds)
     answered = sum(load.statuses.values())
-    print(
+    say(
         f"SIGKILL of a worker, {args.clients} clients for {args.seconds:g} s: {answered} answers "
         f"{dict(load.statuses)}, 503: {load.statuses[503]}, failed requests: {len(load.failed)} "
         f"{dict(Counter(load.failed))}; new worker process after {spawned:.1f} s, every "
         f"worker ready after {ready:.1f} s; target 0 x 503 and <= {TARGET_FAILED} failed: "
         f"{verdict(load.statuses[503] == 0 and len(load.failed) <= TARGET_FAILED)}"
     )
-    print(f"server log: {log}; load average at the end {os.getloadavg()[0]:.1f}")
+    say(f"load average at the end {os.getloadavg()[0]:.1f}")
+    print(f"server log: {log}")
+    if args.write_docs:
+        when = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
+        head = f"_Written by `benchmarks/bench_models.py --write-docs` on {when}._"
+        items = [f"  * {ln.strip()}" if ln.startswith(" ") else f"* {ln}" for ln in LINES]
+        write_section(DOCS, "bench_models", "Many models, a worker killed", [head, "", *items])
 
 
 if __name__ == "__main__":

@@ -117,10 +117,10 @@ def open_session(
 ) -> ort.InferenceSession:
     """A session of `source` (a file or ONNX bytes); with `optimized` (a file path): the
     graph as onnxruntime optimized it, in its ORT format, read from there when the file
-    exists (3-4x faster than optimizing the ONNX graph again: 0.3 s against 1.1 s for a
-    corner model), else written there by this load (atomically; a cached file that does not
-    load is removed and the ONNX file loaded instead). ModelLoadError naming `path` when
-    onnxruntime refuses the graph."""
+    exists (4-5x faster than optimizing the ONNX graph again: 0.25 s of CPU against 1.2 s
+    for the book's corner graph, `benchmarks/bench_models.py`), else written there by this
+    load (atomically; a cached file that does not load is removed and the ONNX file loaded
+    instead). ModelLoadError naming `path` when onnxruntime refuses the graph."""
     if optimized is not None and optimized.is_file():
         options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_DISABLE_ALL
         try:

@@ -181,6 +181,7 @@ class ModelCache:
     ) -> None:
         self.budget, self._load, self.metrics = budget, load, metrics
         self.optimized_dir = optimized_dir
+        self._optimized: dict[tuple[str, str, Signature], Path] = {}
         self._loaded: OrderedDict[tuple[str, str, Signature], _Loaded] = OrderedDict()
         self._failed: dict[tuple[str, str, Signature], str] = {}
         self._locks: dict[tuple[str, str, Signature], threading.Lock] = {}
@@ -245,13 +246,21 @@ class ModelCache:
         return predictor
 
     def optimized(self, file: ModelFile) -> Path | None:
-        """The file of `file`'s optimized graph (None: no folder for them, or unreadable)."""
+        """The file of `file`'s optimized graph (None: no folder for them, or unreadable);
+        the file's content hashed once per file state."""
         if self.optimized_dir is None:
             return None
+        with self._lock:
+            known = self._optimized.get(file.key)
+        if known is not None:
+            return known
         try:
-            return optimized_path(self.optimized_dir, file.path)
+            found = optimized_path(self.optimized_dir, file.path)
         except OSError:
             return None
+        with self._lock:
+            self._optimized[file.key] = found
+        return found
 
     def prepare(self, file: ModelFile) -> bool:
         """Write `file`'s optimized graph unless it is there (a session made and dropped,
@@ -302,6 +311,8 @@ class ModelCache:
                 del self._failed[key]
             for key in [k for k in self._locks if k not in keep]:
                 del self._locks[key]
+            for key in [k for k in self._optimized if k not in keep]:
+                del self._optimized[key]
             self.pinned &= keep
         if dropped:
             self._update_gauges()

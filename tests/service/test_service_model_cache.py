@@ -7,20 +7,23 @@ from __future__ import annotations
 
 import json
 import shutil
+import time
 from pathlib import Path
 
 import numpy as np
 import onnx
 import pytest
 from fastapi.testclient import TestClient
-from service_support import CARD, JPEG, PHOTO, AppFactory
+from service_support import CARD, JPEG, PHOTO, AppFactory, card_of
 from test_service_models import DEFAULT, SMALL, put
 
 from service.app import create_app
-from service.model import ModelLoadError, read_card
+from service.model import ModelLoadError, PoseModel, read_card
 from service.model_cache import estimated_bytes
 from service.onnx_file import OnnxFileError, read_graph_size, read_metadata
-from service.settings import DEFAULT_MODEL, Settings
+from service.settings import DEFAULT_MODEL, DEFAULT_MODEL_DIR, Settings
+
+SPEC_80x60 = DEFAULT_MODEL_DIR / "chessboard-spec-80x60.onnx"
 
 
 def metric(c: TestClient, name: str) -> float:
@@ -143,3 +146,40 @@ def test_the_app_serves_from_its_first_request_with_the_default_model_loaded() -
         assert c.get("/readyz").status_code == 200
         r = c.post("/v1/predict", content=PHOTO, headers=JPEG)
         assert r.status_code == 200 and np.isclose(sum(r.json()["results"][0]["probabilities"]), 1)
+
+
+def test_the_optimized_graph_answers_as_the_onnx_file_and_a_damaged_one_is_replaced(
+    tmp_path: Path,
+) -> None:
+    target = tmp_path / "default.ort"
+    batch = np.random.default_rng(2).random((2, 3, 120, 160), dtype=np.float32)
+    first = PoseModel.load(DEFAULT_MODEL, optimized=target)  # from ONNX, writes the graph
+    assert target.is_file() and [p.name for p in tmp_path.iterdir()] == ["default.ort"]
+    cached = PoseModel.load(DEFAULT_MODEL, optimized=target)
+    want, got = first.run(batch), cached.run(batch)
+    assert np.allclose(want.probabilities, got.probabilities, atol=1e-6)
+    assert want.corners is not None and got.corners is not None
+    assert np.allclose(want.corners, got.corners, atol=1e-4)
+    assert cached.takes_focal and cached.card == first.card
+    target.write_bytes(b"damaged")
+    again = PoseModel.load(DEFAULT_MODEL, optimized=target)  # the ONNX file again
+    assert np.allclose(again.run(batch).probabilities, want.probabilities, atol=1e-6)
+    assert target.stat().st_size > 1000
+
+
+def test_the_workers_write_one_optimized_graph_per_content(
+    app_factory: AppFactory, tmp_path: Path
+) -> None:
+    folder, runtime = tmp_path / "models", tmp_path / "runtime"
+    folder.mkdir()
+    for name, source in ((DEFAULT, SMALL), ("copy", SMALL), ("small", SPEC_80x60)):
+        put(folder, name, source)
+    with app_factory(model_dir=folder, runtime_dir=runtime, workers=1) as c:
+        optimized = runtime / "optimized"
+        deadline = time.monotonic() + 60  # written in the background, at the lowest priority
+        while len(list(optimized.glob("*.ort"))) < 2:
+            assert time.monotonic() < deadline, list(optimized.iterdir())
+            time.sleep(0.05)
+        time.sleep(0.2)
+        assert len(list(optimized.glob("*.ort"))) == 2  # the copy shares the default's
+        assert predict(c, "small")["model"] == card_of(SPEC_80x60)["name"]
