@@ -60,6 +60,7 @@ PHOTO = (ROOT / "train" / "assets" / "real" / "chessboard-stereo" / "left01.jpg"
 JPEG = {"Content-Type": "image/jpeg"}
 DEFAULT = "chessboard-corners-160x120"
 DOCS = ROOT / "docs" / "benchmarks.md"
+LOG_LEVEL = os.environ.get("BENCH_LOG_LEVEL", "warning")  # of the servers (info: each load)
 TARGET_READY_S, TARGET_RSS_MB, TARGET_COLD_S, TARGET_FAILED = 15.0, 1000.0, 1.0, 8
 
 
@@ -151,7 +152,7 @@ def serve(folder: Path, memory_mb: float | None, log: Path) -> Iterator[Server]:
     if memory_mb is not None:
         env["POSE_MODEL_MEMORY_MB"] = str(memory_mb)
     command = [sys.executable, "-m", "service.cli", "--port", str(port), "--workers", "2"]
-    command += ["--model-dir", str(folder), "--log-level", "warning"]
+    command += ["--model-dir", str(folder), "--log-level", LOG_LEVEL]
     start = time.perf_counter()
     with log.open("ab") as sink:
         proc = subprocess.Popen(command, env=env, cwd=ROOT, stdout=sink, stderr=sink)
