@@ -45,6 +45,8 @@ NAME_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
 DEFAULT_ALIAS = "default"
 #: Seconds between two tries of a worker to become the one that writes optimized graphs.
 PREPARE_RETRY_S = 5.0
+#: Seconds a closing registry waits for the graph being optimized in the background.
+PREPARE_JOIN_S = 5.0
 
 
 @dataclass(frozen=True)
@@ -239,9 +241,13 @@ class ModelRegistry:
                     log.info("optimized graphs written: %d", written)
 
     def close(self) -> None:
-        """Stop preparing; remove the optimized graphs' folder if this registry made it."""
+        """Stop preparing (the graph being written is finished: a thread inside onnxruntime
+        at the interpreter's exit aborts it); remove the optimized graphs' folder if this
+        registry made it."""
         self._closed.set()
         self._prepare.set()
+        if self._preparer is not None:
+            self._preparer.join(PREPARE_JOIN_S)
         if self._own_folder and self.cache.optimized_dir is not None:
             shutil.rmtree(self.cache.optimized_dir, ignore_errors=True)
 

@@ -85,7 +85,8 @@ class ServiceState:
         thread)."""
         report = self.models.reload()
         self.loaded = True
-        self.models.prepare_in_background()
+        if self.settings.model_prepare:
+            self.models.prepare_in_background()
         if self.runtime is not None and self.predictor is not None:
             self.runtime.mark_ready()
         return report

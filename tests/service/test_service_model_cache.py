@@ -174,7 +174,7 @@ def test_the_workers_write_one_optimized_graph_per_content(
     folder.mkdir()
     for name, source in ((DEFAULT, SMALL), ("copy", SMALL), ("small", SPEC_80x60)):
         put(folder, name, source)
-    with app_factory(model_dir=folder, runtime_dir=runtime, workers=1) as c:
+    with app_factory(model_dir=folder, runtime_dir=runtime, workers=1, model_prepare=True) as c:
         optimized = runtime / "optimized"
         deadline = time.monotonic() + 60  # written in the background, at the lowest priority
         while len(list(optimized.glob("*.ort"))) < 2:
