@@ -38,23 +38,18 @@ ROUTERS: list[APIRouter] = [
 
 @asynccontextmanager
 async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-    """Load the model in the background: /healthz answers at once, /readyz once loaded."""
+    """List the models and load the default one, then serve and follow reloads. uvicorn
+    accepts connections only once this startup is done, so a worker (re)started next to
+    others on the shared socket takes no request before its default model is loaded."""
     state: ServiceState = app.state.pose
     hold_back_sigterm(state.drain, asyncio.get_running_loop())  # POSE_DRAIN_S
-    task = asyncio.create_task(asyncio.to_thread(state.load))
-    follow = asyncio.create_task(_follow_after(task, state))
+    await asyncio.to_thread(state.load)
+    follow = asyncio.create_task(state.follow())
     try:
         yield
     finally:
         follow.cancel()
-        await task
         state.close()
-
-
-async def _follow_after(load: asyncio.Task[object], state: ServiceState) -> None:
-    """After the first load, follow reloads of the other workers and the model folder."""
-    await asyncio.wait([load])
-    await state.follow()
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:

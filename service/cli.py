@@ -147,3 +147,7 @@ serve_app.command()(serve)
 def main() -> None:
     """Entry point of the `planar-pose-serve` script."""
     serve_app()
+
+
+if __name__ == "__main__":  # `python -m service.cli`: this checkout's code, not an install's
+    main()

@@ -14,6 +14,7 @@ from service.cameras import CameraNotFound, CameraStore, CameraStoreError, Known
 from service.core.cells import RegionGrid
 from service.errors import ApiError
 from service.metrics import Metrics
+from service.model import ModelLoadError
 from service.predictor import FX_MAX_PX, FX_MIN_PX, Predictor
 from service.registry import ModelRegistry, UnknownModel
 from service.settings import Settings
@@ -53,7 +54,7 @@ async def get_predictor(
     503 `not_ready` with the reason while it is not loaded."""
     if model is not None:
         return await get_named_predictor(model, state)
-    predictor = state.predictor
+    predictor = state.models.default(count=True)
     if predictor is None:
         raise ApiError(503, "not_ready", state.problem)
     return predictor
@@ -64,9 +65,10 @@ async def get_models(state: StateDep) -> ModelRegistry:
 
 
 async def get_named_predictor(name: str, state: StateDep) -> Predictor:
-    """The predictor of the model `name` (path parameter), 404 listing the known names."""
+    """The predictor of the model `name` (path parameter), loaded first if it is not; 404
+    listing the known names, 503 `model_unavailable` when its graph does not load."""
     try:
-        return state.models.get(name)
+        return await state.predictor_of(name)
     except UnknownModel as exc:
         if not state.loaded:
             raise ApiError(503, "not_ready", state.problem) from None
@@ -74,6 +76,13 @@ async def get_named_predictor(name: str, state: StateDep) -> Predictor:
         raise ApiError(
             404, "model_not_found", f"no model named {name!r}; served: {known}"
         ) from None
+    except ModelLoadError as exc:
+        raise ApiError(503, "model_unavailable", unavailable(name, exc)) from None
+
+
+def unavailable(name: str, exc: ModelLoadError) -> str:
+    """The message of a served model whose graph does not load."""
+    return f"model {name!r} could not be loaded: {exc} (replace the file, then reload)"
 
 
 SettingsDep = Annotated[Settings, Depends(get_settings)]

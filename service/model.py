@@ -9,6 +9,8 @@ from __future__ import annotations
 import base64
 import binascii
 import json
+import os
+import threading
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -31,6 +33,7 @@ from service.core.onnx_contract import (
 from service.core.pose import FOCAL_PRIOR, is_focal_prior
 from service.core.refine import Texture
 from service.core.regions import NUM_CLASSES, Z_SPLIT_CM
+from service.onnx_file import OnnxFileError, read_metadata
 
 #: Runs of more inputs than this give the memory onnxruntime's arena took for them back
 #: when they end (a batch of 16 images grows it by ~70 MB, of 144 by ~640 MB, held for good
@@ -56,9 +59,16 @@ class ModelLoadError(RuntimeError):
     """The model file is missing, not ONNX, or does not follow the I/O contract."""
 
 
-def _read_card(session: ort.InferenceSession, path: Path) -> dict[str, Any]:
-    """The card from the ONNX metadata, else from the `<name>.json` next to the model."""
-    text = session.get_modelmeta().custom_metadata_map.get(CARD_KEY)
+def read_card(path: Path) -> dict[str, Any]:
+    """The card of the ONNX file `path` without loading its graph: the `model_card` of its
+    metadata (`service.onnx_file`), else the `<name>.json` next to it; ModelLoadError when
+    the file is not ONNX, is missing or has no card."""
+    try:
+        text = read_metadata(path).get(CARD_KEY)
+    except OnnxFileError as exc:
+        raise ModelLoadError(f"{path}: not a loadable ONNX model ({exc})") from None
+    except OSError:
+        raise ModelLoadError(f"model file not found: {path}") from None
     if text is None:
         sidecar = path.with_suffix(".json")
         if not sidecar.is_file():
@@ -73,10 +83,14 @@ def _read_card(session: ort.InferenceSession, path: Path) -> dict[str, Any]:
     return card
 
 
-def _read_texture(session: ort.InferenceSession, path: Path) -> Texture | None:
-    """The object's texture from the ONNX metadata (`TEXTURE_KEY`: a base64 PNG), or None
-    where the model carries none; ModelLoadError where it is not a readable image."""
-    text = session.get_modelmeta().custom_metadata_map.get(TEXTURE_KEY)
+def _read_texture(path: Path) -> Texture | None:
+    """The object's texture from the ONNX file's metadata (`TEXTURE_KEY`: a base64 PNG,
+    read without loading the graph), or None where the model carries none; ModelLoadError
+    where it is not a readable image."""
+    try:
+        text = read_metadata(path).get(TEXTURE_KEY)
+    except (OnnxFileError, OSError) as exc:
+        raise ModelLoadError(f"{path}: not a loadable ONNX model ({exc})") from None
     if text is None:
         return None
     try:
@@ -87,6 +101,79 @@ def _read_texture(session: ort.InferenceSession, path: Path) -> Texture | None:
     if rgb is None or min(rgb.shape[:2]) < 8:
         raise ModelLoadError(f"{path}: metadata {TEXTURE_KEY!r} is not a PNG of the texture")
     return Texture.of_rgb(rgb)
+
+
+_SHARED_ALLOCATOR = threading.Lock()
+_shared_allocator_registered = False
+
+
+def _share_allocator() -> None:
+    """Register one CPU arena for every session of this process (once): each session would
+    otherwise keep an arena of its own, sized by its largest run (~8 MB for a corner model
+    after a zoom pass; `benchmarks/bench_models.py`)."""
+    global _shared_allocator_registered
+    with _SHARED_ALLOCATOR:
+        if not _shared_allocator_registered:
+            memory = ort.OrtMemoryInfo(
+                "Cpu", ort.OrtAllocatorType.ORT_ARENA_ALLOCATOR, 0, ort.OrtMemType.DEFAULT
+            )
+            ort.create_and_register_allocator(memory, None)
+            _shared_allocator_registered = True
+
+
+def session_options(intra_op_threads: int = 1, inter_op_threads: int = 1) -> ort.SessionOptions:
+    """The options of every session: the threads, no spinning, errors-only logs, and the
+    process's shared CPU arena."""
+    _share_allocator()
+    options = ort.SessionOptions()
+    options.intra_op_num_threads = intra_op_threads
+    options.inter_op_num_threads = inter_op_threads
+    # Idle worker threads sleep instead of spinning: the CPU is shared with the web server.
+    options.add_session_config_entry("session.intra_op.allow_spinning", "0")
+    options.add_session_config_entry("session.use_env_allocators", "1")
+    # errors only: onnxruntime warns at load about every overridable initializer, and
+    # `pixel_aspect` is one on purpose
+    options.log_severity_level = 3
+    return options
+
+
+def open_session(
+    source: Path | bytes, options: ort.SessionOptions, optimized: Path | None, path: Path
+) -> ort.InferenceSession:
+    """A session of `source` (a file or ONNX bytes); with `optimized` (a file path): the
+    graph as onnxruntime optimized it, in its ORT format, read from there when the file
+    exists (4-5x faster than optimizing the ONNX graph again: 0.25 s of CPU against 1.2 s
+    for the book's corner graph, `benchmarks/bench_models.py`), else written there by this
+    load (atomically; a cached file that does not load is removed and the ONNX file loaded
+    instead). ModelLoadError naming `path` when onnxruntime refuses the graph."""
+    if optimized is not None and optimized.is_file():
+        options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_DISABLE_ALL
+        try:
+            return ort.InferenceSession(str(optimized), options, providers=["CPUExecutionProvider"])
+        except Exception:  # noqa: BLE001  # a stale or damaged cache: the ONNX file then
+            optimized.unlink(missing_ok=True)
+            options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+    part = None
+    if optimized is not None:
+        part = optimized.with_name(f".{optimized.name}.{os.getpid()}.{threading.get_ident()}")
+        options.optimized_model_filepath = str(part)
+        options.add_session_config_entry("session.save_model_format", "ORT")
+    try:
+        session = ort.InferenceSession(
+            source if isinstance(source, bytes) else str(source),
+            options,
+            providers=["CPUExecutionProvider"],
+        )
+    except Exception as exc:  # onnxruntime raises its own Fail/InvalidGraph/... types
+        if part is not None:
+            part.unlink(missing_ok=True)
+        raise ModelLoadError(f"{path}: not a loadable ONNX model ({exc})") from None
+    if part is not None and optimized is not None:
+        try:
+            part.replace(optimized)
+        except OSError:  # a cache that cannot be written: next time from the ONNX file again
+            part.unlink(missing_ok=True)
+    return session
 
 
 @dataclass(frozen=True)
@@ -153,28 +240,18 @@ class PoseModel:
         intra_op_threads: int = 1,
         inter_op_threads: int = 1,
         graph: tuple[bytes, dict[str, Any]] | None = None,
+        card: dict[str, Any] | None = None,
+        optimized: Path | None = None,
     ) -> PoseModel:
         """Open `path`, check the I/O contract, read the input size from the input shape.
         `graph` = (ONNX bytes, card): that graph instead of the file, `path` only naming it
-        (`train/network/export.py` measures a graph before it writes it)."""
+        (`train/network/export.py` measures a graph before it writes it); `card`: the file's
+        card as already read (`read_card`), else it is read here; `optimized`: the file of
+        the optimized graph (`open_session`)."""
         if graph is None and not path.is_file():
             raise ModelLoadError(f"model file not found: {path}")
-        options = ort.SessionOptions()
-        options.intra_op_num_threads = intra_op_threads
-        options.inter_op_num_threads = inter_op_threads
-        # Idle worker threads sleep instead of spinning: the CPU is shared with the web server.
-        options.add_session_config_entry("session.intra_op.allow_spinning", "0")
-        # errors only: onnxruntime warns at load about every overridable initializer, and
-        # `pixel_aspect` is one on purpose
-        options.log_severity_level = 3
-        try:
-            session = ort.InferenceSession(
-                str(path) if graph is None else graph[0],
-                options,
-                providers=["CPUExecutionProvider"],
-            )
-        except Exception as exc:  # onnxruntime raises its own Fail/InvalidGraph/... types
-            raise ModelLoadError(f"{path}: not a loadable ONNX model ({exc})") from None
+        options = session_options(intra_op_threads, inter_op_threads)
+        session = open_session(path if graph is None else graph[0], options, optimized, path)
         inputs, outputs = session.get_inputs(), session.get_outputs()
         shape = inputs[0].shape if len(inputs) == 1 else None
         if (
@@ -208,7 +285,10 @@ class PoseModel:
         if flat_out is not None and list(flat_out.shape[1:]) != [4, 2]:
             raise ModelLoadError(f"{path}: output {UNDISTORTED!r} must be [N, 4, 2]")
         size = (int(shape[3]), int(shape[2]))
-        card = _read_card(session, path) if graph is None else graph[1]
+        if graph is not None:
+            card = graph[1]
+        elif card is None:
+            card = read_card(path)
         if "input" in card and tuple(card["input"]) != size:
             raise ModelLoadError(f"{path}: card says input {card['input']}, graph says {size}")
         defaults = {i.name for i in session.get_overridable_initializers()}
@@ -225,7 +305,7 @@ class PoseModel:
             VIEW in defaults,
             FOCAL in defaults,
             None if flat_out is None else flat_out.name,
-            _read_texture(session, path) if corners_out is not None else None,
+            _read_texture(path) if corners_out is not None and graph is None else None,
         )
 
     def _feeds(

@@ -287,6 +287,10 @@ class ModelInfo(BaseModel):
 
     name: str = Field(description="Name in URLs (/v1/models/{name}/predict): the file stem.")
     default: bool = Field(description="True for the model /v1/predict answers with.")
+    loaded: bool = Field(
+        description="Its graph is loaded in the worker that answered (else it loads on its "
+        "first request, within a second for a corner model; POSE_MODEL_MEMORY_MB)."
+    )
     card_name: str
     version: str | None = None
     profile: str | None = Field(default=None, description="The object the model knows.")

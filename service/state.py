@@ -31,7 +31,7 @@ class ServiceState:
         self.metrics = Metrics()
         # CPU-bound jobs beyond one per core only thrash caches and lengthen the tail: queue them.
         self.jobs = anyio.CapacityLimiter(settings.inference_jobs)
-        self.models = ModelRegistry(settings)
+        self.models = ModelRegistry(settings, self.metrics)
         self.drain = Drain(settings.drain_s)
         self.cameras = CameraStore(settings.resolved_camera_db, settings.max_cameras)
         self.loaded = False
@@ -45,6 +45,14 @@ class ServiceState:
     def predictor(self) -> Predictor | None:
         """The default model's predictor (what /v1/predict uses), None until loaded."""
         return self.models.default()
+
+    async def predictor_of(self, name: str) -> Predictor:
+        """The predictor of the served model `name`, its graph loaded first (in a worker
+        thread) if it is not; UnknownModel, or ModelLoadError when the graph does not load."""
+        found = self.models.loaded(name)
+        if found is not None:
+            return found
+        return await anyio.to_thread.run_sync(self.models.get, name)
 
     @property
     def problem(self) -> str:
@@ -73,9 +81,12 @@ class ServiceState:
         return None
 
     def load(self) -> ReloadReport:
-        """(Re)load this worker's models (blocking: run it in a thread)."""
+        """(Re)list this worker's models and load the default one (blocking: run it in a
+        thread)."""
         report = self.models.reload()
         self.loaded = True
+        if self.settings.model_prepare:
+            self.models.prepare_in_background()
         if self.runtime is not None and self.predictor is not None:
             self.runtime.mark_ready()
         return report
@@ -107,5 +118,6 @@ class ServiceState:
                 last = now
 
     def close(self) -> None:
+        self.models.close()
         if self.runtime is not None:
             self.runtime.unmark()

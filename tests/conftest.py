@@ -1,6 +1,9 @@
 """What every test shares: onnxruntime logs errors only; the service's camera store in a
 temporary folder, never the user's; under pytest-xdist (scripts/test.sh) the cores shared out
-between the workers, and the longest test files first.
+between the workers, and the longest test files first; in-process apps write no optimized
+graphs in the background (`POSE_MODEL_PREPARE`: the many short-lived apps would each optimize
+every shipped model; `test_service_model_cache.py` turns it on, and server processes get a
+clean environment).
 
 The corner graphs' optional inputs are overridable initializers (`service.core.onnx_contract`),
 about which onnxruntime warns at every load; the service sets the same level per session.
@@ -14,6 +17,7 @@ import onnxruntime as ort
 import pytest
 
 ort.set_default_logger_severity(3)
+os.environ["POSE_MODEL_PREPARE"] = "false"
 os.environ["POSE_CAMERA_DB"] = str(Path(tempfile.mkdtemp(prefix="pose-cameras-")) / "cameras.db")
 
 # Each xdist worker's torch and OpenCV thread pools get the worker's share of the cores (read

@@ -9,22 +9,24 @@ import anyio
 from fastapi import APIRouter
 
 from service.deps import AUTHORISED, PredictorDep, SettingsDep, StateDep
-from service.predictor import Predictor
+from service.model_cache import ModelFile
 from service.schemas import ERROR_RESPONSES, ModelInfo, ModelsResponse, ReloadResponse
 
 router = APIRouter(tags=["models"], dependencies=AUTHORISED)
 
 
-def model_info(name: str, predictor: Predictor, default: bool) -> ModelInfo:
-    card = predictor.model.card
+def model_info(file: ModelFile, default: bool, loaded: bool) -> ModelInfo:
+    """A served model's summary, from its card (its graph loaded or not)."""
+    card = file.card
     profile = card.get("profile")
     return ModelInfo(
-        name=name,
+        name=file.name,
         default=default,
-        card_name=predictor.model.name,
+        loaded=loaded,
+        card_name=str(card["name"]),
         version=card.get("version"),
         profile=profile.get("name") if isinstance(profile, dict) else profile,
-        input=list(predictor.model.input_size),
+        input=list(file.input_size or ()),
         accuracy=card.get("accuracy") or {},
     )
 
@@ -37,13 +39,14 @@ async def model_card(predictor: PredictorDep) -> dict[str, Any]:
 
 @router.get("/v1/models", response_model=ModelsResponse, responses=ERROR_RESPONSES)
 async def list_models(state: StateDep, settings: SettingsDep) -> ModelsResponse:
-    """Every served model (the model folder's `<name>.onnx` files) with its card's summary."""
-    default = settings.default_model
+    """Every served model (the model folder's `<name>.onnx` files) with its card's summary
+    and whether its graph is loaded in the worker that answers."""
+    default, cache = settings.default_model, state.models.cache
     return ModelsResponse(
         default=default,
         models=[
-            model_info(name, predictor, name == default)
-            for name, predictor in state.models.predictors().items()
+            model_info(file, name == default, cache.is_loaded(file))
+            for name, file in state.models.entries().items()
         ],
         problems=state.models.problems,
     )

@@ -9,7 +9,9 @@ from fastapi import APIRouter, WebSocket
 from starlette.websockets import WebSocketDisconnect
 
 from service.cameras import CameraNotFound, CameraStoreError, KnownFocal
+from service.deps import unavailable
 from service.metrics import Metrics
+from service.model import ModelLoadError
 from service.predictor import Predictor
 from service.registry import UnknownModel
 from service.state import ServiceState
@@ -36,14 +38,20 @@ def stream_metrics(metrics: Metrics) -> StreamMetrics:
     return _metrics[metrics]
 
 
-def find_predictor(state: ServiceState, name: str | None) -> Predictor:
-    """The predictor of model `name` (None: the default one), or StreamRefused 1013/4404."""
+async def find_predictor(state: ServiceState, name: str | None) -> Predictor:
+    """The predictor of model `name` (None: the default one; loaded first if it is not), or
+    StreamRefused 1013/4404."""
     if name is None:
-        if state.predictor is None:
+        predictor = state.models.default(count=True)
+        if predictor is None:
             raise StreamRefused(CloseCode.TRY_AGAIN_LATER, "not_ready", state.problem)
-        return state.predictor
+        return predictor
     try:
-        return state.models.get(name)
+        return await state.predictor_of(name)
+    except ModelLoadError as exc:
+        raise StreamRefused(
+            CloseCode.TRY_AGAIN_LATER, "model_unavailable", unavailable(name, exc)
+        ) from None
     except UnknownModel as exc:
         if not state.loaded:
             raise StreamRefused(CloseCode.TRY_AGAIN_LATER, "not_ready", state.problem) from None
@@ -78,7 +86,7 @@ async def stream(websocket: WebSocket) -> None:
     try:
         await authorise(websocket, key)
         options = parse_options(websocket.query_params)
-        predictor = find_predictor(state, options.model)
+        predictor = await find_predictor(state, options.model)
         focal = stream_focal(state, options)
         problem = predictor.focal_problem(options.mode, focal)
         if problem is not None:

@@ -20,8 +20,8 @@ from service.settings import Settings
 def running_app(
     ready: str = "/readyz", raise_server_exceptions: bool = True, **settings: Any
 ) -> Iterator[TestClient]:
-    """A TestClient of `create_app(Settings(**settings))`, its lifespan run, once `ready`
-    answers 200 (the model loads in the background)."""
+    """A TestClient of `create_app(Settings(**settings))`, its lifespan run (the default
+    model loaded), once `ready` answers 200 (every worker's, with `workers` > 1)."""
     app = create_app(Settings(**settings))
     with TestClient(app, raise_server_exceptions=raise_server_exceptions) as client:
         deadline = time.monotonic() + 120  # two test workers on two cores: slow loads

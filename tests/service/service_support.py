@@ -53,7 +53,8 @@ AppFactory = Callable[..., AbstractContextManager[TestClient]]
 JPEG = {"content-type": "image/jpeg"}
 
 UVICORN = [sys.executable, "-m", "uvicorn", "service.app:app", "--port", "{port}"]
-SERVE = [str(Path(sys.executable).with_name("planar-pose-serve")), "--port", "{port}"]
+#: `planar-pose-serve` of this checkout (the console script would import the installed one)
+SERVE = [sys.executable, "-m", "service.cli", "--port", "{port}"]
 
 
 def encode(ext: str, image: np.ndarray) -> bytes:

@@ -63,3 +63,17 @@ def test_resources_user_and_selectors() -> None:
 @pytest.mark.parametrize("name", ["deployment.yaml", "service.yaml", "hpa.yaml"])
 def test_kustomization_lists_every_manifest(name: str) -> None:
     assert name in manifest("kustomization.yaml")["resources"]
+
+
+#: The memory limit's formula (deploy/deployment.yaml): a worker with its default model, one
+#: graph loading beyond the budget, a 50 MP decode per inference job (MiB).
+WORKER_MIB, LOADING_MIB, DECODE_MIB = 180, 40, 150
+
+
+def test_memory_limit_covers_the_models_budget_and_the_jobs() -> None:
+    values = {v["name"]: v["value"] for v in CONTAINER["env"] if "value" in v}
+    limit = CONTAINER["resources"]["limits"]["memory"]
+    assert limit.endswith("Mi"), limit
+    budget = float(values["POSE_MODEL_MEMORY_MB"])
+    jobs = int(values["POSE_INFERENCE_WORKERS"]) * int(values["POSE_WORKERS"])
+    assert int(limit[:-2]) >= WORKER_MIB + budget + LOADING_MIB + jobs * DECODE_MIB

@@ -93,6 +93,7 @@ def test_reload_needs_the_key(served: TestClient) -> None:
 
 def test_reload_adds_replaces_refuses_and_removes(served: TestClient, folder: Path) -> None:
     first = predict(served)["results"][0]["probabilities"]
+    predict(served, "/v1/models/board-large/predict")  # loaded: it outlives its file a while
     held = served.app.state.pose.predictor  # type: ignore[attr-defined]  # as a request holds it
     put(folder, "extra", SMALL)
     put(folder, DEFAULT, REPLACEMENT)

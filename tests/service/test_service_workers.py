@@ -29,15 +29,33 @@ def folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.fixture(scope="module")
-def workers(folder: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+def server(
+    folder: Path, tmp_path_factory: pytest.TempPathFactory
+) -> Iterator[tuple[str, psutil.Process]]:
+    """(base URL, supervisor process) of `planar-pose-serve --workers 2`."""
     log = tmp_path_factory.mktemp("workers") / "serve.log"
     command = [*SERVE, "--workers", "2", "--model-dir", str(folder)]
     with live_server(command, log, {"POSE_ACCESS_LOG": "false"}) as (base, proc):
-        children = psutil.Process(proc.pid).children()
-        spawned = [c for c in children if "multiprocessing" in " ".join(c.cmdline())]
-        assert len([c for c in spawned if "spawn_main" in " ".join(c.cmdline())]) == 2
-        yield base
+        assert len(worker_processes(psutil.Process(proc.pid))) == 2
+        yield base, psutil.Process(proc.pid)
     assert "Traceback" not in log.read_text(), log.read_text()
+
+
+@pytest.fixture(scope="module")
+def workers(server: tuple[str, psutil.Process]) -> str:
+    return server[0]
+
+
+def worker_processes(supervisor: psutil.Process) -> list[psutil.Process]:
+    """The live worker processes of a supervisor (not a killed one not yet reaped)."""
+    out = []
+    for child in supervisor.children():
+        try:
+            if "spawn_main" in " ".join(child.cmdline()):
+                out.append(child)
+        except psutil.Error:  # gone, or a zombie
+            continue
+    return out
 
 
 def request_count(base: str, route: str) -> float:
@@ -122,3 +140,35 @@ def test_ready_only_when_every_worker_has_its_models(
         (runtime / "ready" / str(psutil.Process().ppid())).touch()  # a live second worker
         assert c.get("/readyz").json()["status"] == "ready"
         assert c.get("/v2/health/ready").json() == {"ready": True}
+
+
+def test_a_killed_worker_is_replaced_without_a_503(server: tuple[str, psutil.Process]) -> None:
+    """SIGKILL of one of 2 workers under load: uvicorn starts another, which accepts from
+    the shared socket only once its default model is loaded (the app's lifespan), so no
+    request is answered 503; only requests in flight on the dead worker fail."""
+    base, supervisor = server
+    stop, answers, errors = threading.Event(), Counter[str](), list[str]()
+    clients = [threading.Thread(target=_load, args=(base, stop, answers, errors)) for _ in range(4)]
+    for t in clients:
+        t.start()
+    try:
+        time.sleep(0.5)
+        victim = worker_processes(supervisor)[0]
+        victim.kill()
+        deadline = time.monotonic() + 60
+        while not (
+            victim.pid not in {w.pid for w in worker_processes(supervisor)}
+            and len(worker_processes(supervisor)) == 2
+            and httpx.get(base + "/readyz", timeout=10).status_code == 200
+        ):
+            assert time.monotonic() < deadline, "no replacement worker ready within 60 s"
+            time.sleep(0.05)
+        served_before = sum(answers.values())
+        time.sleep(1.0)  # the replacement takes its share
+    finally:
+        stop.set()
+        for t in clients:
+            t.join()
+    assert not [e for e in errors if e.startswith("503")], errors
+    assert len(errors) <= 4, errors  # at most one request in flight per client
+    assert sum(answers.values()) > served_before
