@@ -576,6 +576,8 @@ class Predictor:
         result = _result(None, 1, probs, 0.0, size)
         self._add_view(result, view, size, focal, None, grid)
         result.tracked = True
+        if focal is not None:
+            result.fx, result.fx_source = focal.camera(size).fx, focal.source
         result.elapsed_ms = 1000.0 * (time.perf_counter() - t0)
         found = result.class_id != 0
         return Prediction([result], 0.0, [pinhole if found else None], [kappa if found else None])

@@ -132,8 +132,8 @@ def test_parameters() -> None:
 def test_a_crash_on_one_frame_is_an_error_message_and_the_stream_goes_on(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    app = create_app(Settings(model_path=DEFAULT_MODEL))
-    with TestClient(app) as client:
+    app = create_app(Settings(model_path=DEFAULT_MODEL, stream_track_every=0))  # every frame
+    with TestClient(app) as client:  # through the network, the crash's way
         deadline = time.monotonic() + 60
         while client.get("/readyz").status_code != 200 and time.monotonic() < deadline:
             time.sleep(0.05)
