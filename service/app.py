@@ -17,7 +17,7 @@ from fastapi.middleware.cors import CORSMiddleware
 from pydantic import ValidationError
 
 from service.drain import DrainMiddleware, hold_back_sigterm
-from service.errors import install_error_handlers
+from service.errors import CrashMiddleware, install_error_handlers
 from service.limits import BodyLimitMiddleware
 from service.metrics import MetricsMiddleware
 from service.routes import cameras, health, model, predict, stream, v2, web
@@ -42,12 +42,14 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
     state: ServiceState = app.state.pose
     hold_back_sigterm(state.drain, asyncio.get_running_loop())  # POSE_DRAIN_S
     task = asyncio.create_task(asyncio.to_thread(state.load))
+    cameras = asyncio.create_task(asyncio.to_thread(state.cameras.check_at_start))  # logged
     follow = asyncio.create_task(_follow_after(task, state))
     try:
         yield
     finally:
         follow.cancel()
         await task
+        await cameras
         state.close()
 
 
@@ -87,6 +89,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             allow_methods=["GET", "POST"],
             allow_headers=["Authorization", "X-API-Key", "Content-Type"],
         )
+    app.add_middleware(CrashMiddleware)  # a 500 that leaves the connection usable
     app.add_middleware(MetricsMiddleware, metrics=state.metrics, routes=routes)
     return app
 

@@ -62,7 +62,9 @@ class CloseCode(IntEnum):
     NORMAL = 1000
     TRY_AGAIN_LATER = 1013  # the model is not loaded (yet): HTTP 503
     UNAUTHORIZED = 4401  # API key missing or wrong: HTTP 401
-    NOT_FOUND = 4404  # no model of that name: HTTP 404
+    INTERNAL_ERROR = 1011  # a bug (logged): HTTP 500
+    NOT_FOUND = 4404  # no model or camera of that name: HTTP 404
+    CONFLICT = 4409  # the stored camera's row is corrupt (DELETE clears it): HTTP 409
     INVALID_PARAMETERS = 4422  # bad mode / smooth: HTTP 422
 
 
