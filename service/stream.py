@@ -25,6 +25,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import re
 import secrets
 from collections import deque
 from collections.abc import Mapping
@@ -95,19 +96,17 @@ def parse_options(query: Mapping[str, str]) -> StreamOptions:
     if mode not in MODES:
         raise _invalid(f"mode: must be one of {', '.join(MODES)}, got {mode!r}")
     text = query.get("smooth", "0")
-    try:
-        smooth = float(text)
-    except ValueError:
-        raise _invalid(f"smooth: must be a number in [0, 1), got {text!r}") from None
+    smooth = _number(text)
+    if smooth is None:
+        raise _invalid(f"smooth: must be a number in [0, 1), got {text!r}")
     if not (math.isfinite(smooth) and 0.0 <= smooth < 1.0):
         raise _invalid(f"smooth: must be in [0, 1) (0 = off), got {text!r}")
     model = query.get("model") or None
     fx = None
     if query.get("fx"):
-        try:
-            fx = float(query["fx"])
-        except ValueError:
-            raise _invalid(f"fx: must be a number of pixels, got {query['fx']!r}") from None
+        fx = _number(query["fx"])
+        if fx is None:
+            raise _invalid(f"fx: must be a number of pixels, got {query['fx']!r}")
     camera = query.get("camera") or None
     if fx is not None and camera is not None:
         raise _invalid("fx and camera: give one of them")
@@ -118,6 +117,15 @@ def parse_options(query: Mapping[str, str]) -> StreamOptions:
         except ValueError as exc:
             raise _invalid(str(exc)) from None
     return StreamOptions(mode, smooth, model, fx, camera, grid)  # type: ignore[arg-type]
+
+
+#: A decimal number in ASCII (Python's float() also reads other scripts' digits, `1_000`, inf).
+_NUMBER = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]{1,4})?", re.ASCII)
+
+
+def _number(text: str) -> float | None:
+    """The number `text` writes in ASCII decimal, or None."""
+    return float(text) if _NUMBER.fullmatch(text.strip(" ")) else None
 
 
 def _invalid(message: str) -> StreamRefused:

@@ -109,6 +109,28 @@ def test_cameras_survive_a_restart_and_every_process_sees_them(
         ({"fx": 900, "cx": 320}, "give the image's width and height"),
         ({"fx": 900, "dist": [0.1]}, "dist: List should have at least 4 items"),
         ({"fx": 900, "lens": "50mm"}, "lens: Extra inputs are not permitted"),
+        # strict types: no booleans or strings for numbers, no fractions for sizes
+        ({"fx": True}, "fx: Input should be a valid number"),
+        ({"fx": "900"}, "fx: Input should be a valid number"),
+        ({"fx": 900, "dist": [True, 0, 0, 0]}, "dist.0: Input should be a valid number"),
+        ({"fx": 900, "width": 640.0, "height": 480}, "width: Input should be a valid integer"),
+        ({"fx": 900, "width": True, "height": 480}, "width: Input should be a valid integer"),
+        ({"fx": 900, "name": 5}, "name: Input should be a valid string"),
+        # bounds of real cameras
+        (
+            {"fx": 900, "width": 640, "height": 480, "cx": 1e300, "cy": 240},
+            "cx: must lie within the image (0 to 640 px), got 1e+300",
+        ),
+        (
+            {"fx": 900, "width": 640, "height": 480, "cx": 320, "cy": -5},
+            "cy: must lie within the image (0 to 480 px)",
+        ),
+        ({"fx": 900, "fy": 3000}, "fy / fx: must lie within 0.5 to 2"),
+        ({"fx": 900, "dist": [1e300, 0, 0, 0]}, "dist: k1 must lie within +-10"),
+        ({"fx": 900, "dist": [0, 0, 0, 0, 0, 0, 0, 1e300]}, "dist: k6 must lie within +-100"),
+        ({"fx": 900, "dist": [0.1, 0, 0.5, 0]}, "dist: p1 must lie within +-0.1"),
+        ({"fx": 900, "dist": [0.1, 0, 0, 0, 0, 0]}, "OpenCV's 4, 5 or 8 coefficients"),
+        ({"fx": 900, "dist": [0.1] * 9}, "dist: List should have at most 8 items"),
     ],
 )
 def test_nonsense_intrinsics_are_a_422_and_store_nothing(
@@ -121,11 +143,37 @@ def test_nonsense_intrinsics_are_a_422_and_store_nothing(
 
 
 @pytest.mark.parametrize(
-    "text", [b'{"fx":', b'{"fx": NaN}', b'{"fx": Infinity}', b"[]", b"\xff\xfe"]
+    "text",
+    [
+        b'{"fx":',
+        b'{"fx": NaN}',
+        b'{"fx": Infinity}',
+        b'{"fx": 1e400}',
+        b'{"fx": 900, "dist": [NaN, 0, 0, 0]}',
+        b'{"fx": 900, "width": 640, "height": 480, "cx": -Infinity, "cy": 1}',
+        b"[]",
+        b"\xff\xfe",
+    ],
 )
 def test_a_body_that_is_not_a_camera_is_a_422(client: TestClient, text: bytes) -> None:
     r = client.post("/v1/cameras", content=text, headers={"content-type": "application/json"})
     assert r.status_code == 422 and r.json()["error"]["code"] == "invalid_camera"
+
+
+def test_a_real_calibration_is_stored_as_given(client: TestClient) -> None:
+    """OpenCV's calibration of its own sample camera (left01.jpg ...): 5 coefficients."""
+    given = {
+        "fx": 532.4,
+        "fy": 532.4,
+        "cx": 341.7,
+        "cy": 232.7,
+        "dist": [-0.3045, 0.1414, 0.000864, 0.000388, 0],
+        "width": 640,
+        "height": 480,
+    }
+    r = client.post("/v1/cameras", json=given)
+    assert r.status_code == 201, r.text
+    assert {k: r.json()[k] for k in given} == given
 
 
 def test_photos_without_the_object_or_too_few_are_a_422(client: TestClient) -> None:
