@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 import sqlite3
@@ -14,10 +15,13 @@ import cv2
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
+from planar_pose_client import models as sdk_models
+from pydantic import ValidationError
 from service_support import AppFactory
 from starlette.websockets import WebSocketDisconnect
 from test_service_pose import ROWS, photo
 
+from service import schemas
 from service.cameras import CameraStore
 from service.core.paths import ASSETS_DIR
 from service.metrics import Metrics
@@ -390,3 +394,46 @@ def test_a_store_changed_under_the_service_is_logged(
     assert changes() == before + 1
     cameras(client)
     assert caplog.text.count(f"camera store {store} was") == 1  # once, not at every read
+
+
+def test_the_sdk_takes_the_cameras_the_service_takes() -> None:
+    """The SDK's CameraIntrinsics checks what CameraIn checks: same bounds, same verdicts."""
+    for name in ("FX_BOUNDS_PX", "FY_OVER_FX", "DIST_LENGTHS", "DIST_NAMES", "TANGENTIAL_MAX"):
+        assert getattr(sdk_models, name) == getattr(schemas, name), name
+    assert (sdk_models.RADIAL_MAX, sdk_models.RATIONAL_MAX) == (
+        schemas.RADIAL_MAX,
+        schemas.RATIONAL_MAX,
+    )
+    size = {"width": 640, "height": 480}
+    bodies: list[dict] = [
+        {"fx": 900},
+        {"fx": 900.5, "fy": 901, **size, "cx": 320, "cy": 240, "dist": [-0.3, 0.1, 0, 0, 0]},
+        {"fx": 900, "dist": [20, -30, 0.01, 0, 5, 21, -29, 4]},
+        {"fx": 900, "dist": [20, 0, 0, 0]},
+        {"fx": 900, "dist": [0, 0, 0, 0, 0, 0, 0, 101]},
+        {"fx": 900, "dist": [0, 0, 0.2, 0, 0]},
+        {"fx": 900, "dist": [0, 0, 0, 0, 0, 0]},
+        {"fx": 900, **size, "cx": 641, "cy": 0},
+        {"fx": 900, **size, "cx": 0, "cy": 480},
+        {"fx": 900, "cx": 3},
+        {"fx": 900, "fy": 449},
+        {"fx": 900, "fy": 1800},
+        {"fx": True},
+        {"fx": "900"},
+        {"fx": 0.5},
+        {"fx": 900, "width": 640},
+        {"fx": 900, "width": 640.0, "height": 480},
+        {"fx": 900, "lens": 1},
+    ]
+    taken = []
+    for body in bodies:
+        verdicts = []
+        for model in (schemas.CameraIn, sdk_models.CameraIntrinsics):
+            try:
+                model.model_validate_json(json.dumps(body))
+                verdicts.append(True)
+            except ValidationError:
+                verdicts.append(False)
+        assert verdicts[0] == verdicts[1], (body, verdicts)
+        taken.append(verdicts[0])
+    assert taken == [True] * 3 + [False] * (len(bodies) - 3)

@@ -30,6 +30,7 @@ from .images import ImageInput, encode_png
 from .models import (
     Box,
     Camera,
+    CameraIntrinsics,
     CameraList,
     Cell,
     CellNeighbour,
@@ -52,6 +53,7 @@ __all__ = [
     "BadImageError",
     "Box",
     "Camera",
+    "CameraIntrinsics",
     "CameraList",
     "CameraNotFoundError",
     "Cell",

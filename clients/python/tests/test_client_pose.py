@@ -342,6 +342,20 @@ def test_bad_camera_arguments_fail_before_sending(fake):
             c.create_camera(1400, width=0)
         with pytest.raises(ValueError, match="height must be a whole number of pixels"):
             c.create_camera(1400, height=480.5)  # type: ignore[arg-type]
+        # the service's rules: real cameras only
+        for kwargs, message in [
+            ({"cx": 1e300, "cy": 1, "width": 640, "height": 480}, "cx: must lie within the image"),
+            ({"cx": 320}, "give the image's width and height"),
+            ({"width": 640}, "width and height: give both or neither"),
+            ({"fy": 9000}, "fy / fx: must lie within 0.5 to 2"),
+            ({"dist": [1e300, 0, 0, 0]}, "k1 must lie within"),
+            ({"dist": [0, 0, 0, 0, 0, 0]}, "4, 5 or 8 coefficients"),
+            ({"fy": 1e9}, "fy: Input should be less than or equal to 100000"),
+            ({"name": "x" * 101}, "name: String should have at most 100 characters"),
+        ]:
+            with pytest.raises(ValueError, match="not a camera the service takes") as refused:
+                c.create_camera(1400, **kwargs)  # type: ignore[arg-type]
+            assert message in str(refused.value)
         with pytest.raises(TypeError, match="takes a list of photos"):
             c.learn_camera(PHOTOS[0])  # type: ignore[arg-type]
         with pytest.raises(ValueError, match="needs photos"):
