@@ -414,7 +414,7 @@ def test_the_sdk_takes_the_cameras_the_service_takes() -> None:
         {"fx": 900, "dist": [0, 0, 0.2, 0, 0]},
         {"fx": 900, "dist": [0, 0, 0, 0, 0, 0]},
         {"fx": 900, **size, "cx": 641, "cy": 0},
-        {"fx": 900, **size, "cx": 0, "cy": 480},
+        {"fx": 900, **size, "cx": 0, "cy": 480.5},
         {"fx": 900, "cx": 3},
         {"fx": 900, "fy": 449},
         {"fx": 900, "fy": 1800},
