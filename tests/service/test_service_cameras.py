@@ -417,7 +417,7 @@ def test_the_sdk_takes_the_cameras_the_service_takes() -> None:
         {"fx": 900, **size, "cx": 0, "cy": 480.5},
         {"fx": 900, "cx": 3},
         {"fx": 900, "fy": 449},
-        {"fx": 900, "fy": 1800},
+        {"fx": 900, "fy": 1801},
         {"fx": True},
         {"fx": "900"},
         {"fx": 0.5},
