@@ -20,6 +20,7 @@ from service.drain import DrainMiddleware, hold_back_sigterm
 from service.errors import CrashMiddleware, install_error_handlers
 from service.limits import BodyLimitMiddleware
 from service.metrics import MetricsMiddleware
+from service.redact import install as redact_secrets_in_logs
 from service.routes import cameras, health, model, predict, stream, v2, web
 from service.settings import Settings
 from service.state import ServiceState
@@ -62,6 +63,7 @@ async def _follow_after(load: asyncio.Task[object], state: ServiceState) -> None
 def create_app(settings: Settings | None = None) -> FastAPI:
     """The FastAPI app: state, routers, error handlers and middleware (wiring only)."""
     settings = settings or Settings()
+    redact_secrets_in_logs()  # ?api_key= and the like never reach a log line
     # OpenCV would log every refused upload to stderr; the client's 400 already says it.
     cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_FATAL)
     app = FastAPI(

@@ -63,9 +63,9 @@ class CameraCorrupt(ValueError):
     damaged): its id answers this until it is deleted."""
 
     def __init__(self, camera_id: str, reason: str) -> None:
-        super().__init__(
-            f"camera {camera_id!r} is stored corrupt ({reason}); it cannot be used: "
-            f"DELETE /v1/cameras/{camera_id} clears it"
+        super().__init__(  # what to do first: a stream's close reason keeps 123 bytes
+            f"camera {camera_id!r} is stored corrupt: DELETE /v1/cameras/{camera_id} clears "
+            f"it ({reason})"
         )
         self.camera_id, self.reason = camera_id, reason
 
