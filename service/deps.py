@@ -82,6 +82,15 @@ async def get_named_predictor(name: str, state: StateDep) -> Predictor:
         ) from None
 
 
+def served_name(state: ServiceState, predictor: Predictor) -> str:
+    """The name `predictor` is served under (its file's stem: the name in URLs and in every
+    answer's `model`), not its card's name, which a copied or renamed file keeps."""
+    for name, served in state.models.predictors().items():
+        if served is predictor:
+            return name
+    return predictor.model.path.stem  # reloaded away while the request ran
+
+
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 MetricsDep = Annotated[Metrics, Depends(get_metrics)]
 LimiterDep = Annotated[anyio.CapacityLimiter, Depends(get_limiter)]

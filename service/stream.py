@@ -327,9 +327,11 @@ class StreamSession:
         metrics: StreamMetrics,
         max_frame_bytes: int,
         focal: KnownFocal | None = None,
+        name: str | None = None,
         depth: int = QUEUE_DEPTH,
     ) -> None:
         self.websocket, self.predictor, self.options = websocket, predictor, options
+        self.name = name or predictor.model.path.stem  # the served name, the answers' `model`
         self.focal = focal  # the request's (fx= or camera=): else the stream learns one
         size_cm = predictor.model.object_size_cm
         learns = focal is None and options.mode == "whole" and predictor.model.takes_focal
@@ -342,7 +344,7 @@ class StreamSession:
         """The first message: the stream is open and what it runs."""
         return {
             "event": "ready",
-            "model": self.predictor.model.name,
+            "model": self.name,
             "mode": self.options.mode,
             "smooth": self.options.smooth,
             "fx": self.options.fx,

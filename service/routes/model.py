@@ -21,7 +21,7 @@ def model_info(name: str, predictor: Predictor, default: bool) -> ModelInfo:
     return ModelInfo(
         name=name,
         default=default,
-        card_name=predictor.model.name,
+        card_name=predictor.model.name,  # the card's; a copied file keeps it
         version=card.get("version"),
         profile=profile.get("name") if isinstance(profile, dict) else profile,
         input=list(predictor.model.input_size),

@@ -11,6 +11,7 @@ from fastapi import APIRouter, WebSocket
 from starlette.websockets import WebSocketDisconnect
 
 from service.cameras import CameraCorrupt, CameraNotFound, CameraStoreError, KnownFocal
+from service.deps import served_name
 from service.metrics import Metrics
 from service.predictor import Predictor
 from service.registry import UnknownModel
@@ -107,5 +108,6 @@ async def stream(websocket: WebSocket) -> None:
         stream_metrics(state.metrics),
         settings.max_upload_bytes,
         focal,
+        served_name(state, predictor),
     )
     await session.run()
