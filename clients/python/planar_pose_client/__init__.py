@@ -16,6 +16,7 @@ from .client import AsyncPoseClient, PoseClient
 from .errors import (
     AuthError,
     BadImageError,
+    CameraCorruptError,
     CameraNotFoundError,
     InvalidRequestError,
     ModelNotFoundError,
@@ -55,6 +56,7 @@ __all__ = [
     "Camera",
     "CameraIntrinsics",
     "CameraList",
+    "CameraCorruptError",
     "CameraNotFoundError",
     "Cell",
     "CellNeighbour",
