@@ -307,3 +307,23 @@ def test_a_crash_is_a_500_that_keeps_the_connection(tmp_path: Path) -> None:
         assert again.status_code == 200 and _stream(again) is _stream(first)
     text = log.read_text()
     assert text.count("RuntimeError: a bug") == 1 and "unhandled error on GET /boom" in text
+
+
+def test_a_body_over_the_limit_keeps_the_connection_or_says_close(
+    client: httpx.Client, server: Server
+) -> None:
+    """413 before the body is read (its Content-Length), or while it streams in (chunked): the
+    next request on the connection is answered, or the 413 said `Connection: close`."""
+    big = b"\xff" * (20 * 1024 * 1024 + 1)
+
+    def chunks() -> Iterator[bytes]:
+        for at in range(0, len(big), 1 << 20):
+            yield big[at : at + (1 << 20)]
+
+    headers = {"x-api-key": KEY, **JPEG}
+    for body in (big, chunks()):
+        r = client.post("/v1/predict", content=body, headers=headers)
+        assert r.status_code == 413, r.text
+        if r.headers.get("connection", "").lower() != "close":
+            probe = client.get("/healthz")
+            assert probe.status_code == 200 and _stream(probe) is _stream(r)
