@@ -119,8 +119,12 @@ def parse_options(query: Mapping[str, str]) -> StreamOptions:
     return StreamOptions(mode, smooth, model, fx, camera, grid)  # type: ignore[arg-type]
 
 
-#: A decimal number in ASCII (Python's float() also reads other scripts' digits, `1_000`, inf).
-_NUMBER = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]{1,4})?", re.ASCII)
+#: A number in ASCII: decimal, or inf / nan (refused by the ranges after, with their message);
+#: Python's float() would also read other scripts' digits (`９００`) and `1_000`.
+_NUMBER = re.compile(
+    r"[+-]?(?:(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]{1,4})?|inf|infinity|nan)",
+    re.ASCII | re.IGNORECASE,
+)
 
 
 def _number(text: str) -> float | None:

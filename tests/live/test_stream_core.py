@@ -110,7 +110,7 @@ def test_smoothing_to_class_0_drops_the_corners() -> None:
     [
         ({"mode": "nope"}, "mode: must be one of whole, sliding, proposals, got 'nope'"),
         ({"smooth": "-0.1"}, "smooth: must be in [0, 1) (0 = off), got '-0.1'"),
-        ({"smooth": "nan"}, "smooth: must be a number in [0, 1), got 'nan'"),
+        ({"smooth": "nan"}, "smooth: must be in [0, 1) (0 = off), got 'nan'"),
         ({"smooth": "０.5"}, "smooth: must be a number in [0, 1), got '０.5'"),
         ({"smooth": "x"}, "smooth: must be a number in [0, 1), got 'x'"),
         ({"fx": "wide"}, "fx: must be a number of pixels, got 'wide'"),
