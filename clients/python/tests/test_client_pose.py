@@ -477,6 +477,9 @@ def test_stream_messages_carry_the_pose_and_refusals_name_the_camera():
     assert isinstance(camera, CameraNotFoundError) and camera.message == "no camera 'c-x'"
     model = closed_error(unknown, ("model_not_found", "no model named 'm'"), "ws://h")
     assert isinstance(model, ModelNotFoundError) and model.status == 404
+    corrupt = ConnectionClosed(Close(4409, "camera 'c-x' is stored corrupt"), None)
+    refused = closed_error(corrupt, ("camera_corrupt", "camera 'c-x' is stored corrupt"), "ws://h")
+    assert isinstance(refused, CameraCorruptError) and refused.status == 409
 
 
 # --- the command line ---------------------------------------------------------------------
