@@ -3,7 +3,8 @@
 # training code; setuptools' package search finds no `train` in this context).
 # Stage "runtime": slim Python, that venv, the model folder (every models/<name>.onnx with its
 # card; chessboard-corners-160x120 answers /v1/predict), a non-root user, one worker process per CPU.
-#   docker build -t planar-pose .  &&  docker run -p 8000:8000 planar-pose
+#   docker build -t planar-pose .  &&  docker run --read-only -v pose-data:/data -p 8000:8000 planar-pose
+# (a read-only root needs no other flag: cameras in the /data volume, temporary files in /dev/shm)
 # BASE_IMAGE lets a locally made stand-in of python:3.11-slim be used (docs/service.md).
 ARG BASE_IMAGE=python:3.11-slim
 

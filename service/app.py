@@ -17,9 +17,10 @@ from fastapi.middleware.cors import CORSMiddleware
 from pydantic import ValidationError
 
 from service.drain import DrainMiddleware, hold_back_sigterm
-from service.errors import install_error_handlers
+from service.errors import CrashMiddleware, install_error_handlers
 from service.limits import BodyLimitMiddleware
 from service.metrics import MetricsMiddleware
+from service.redact import install as redact_secrets_in_logs
 from service.routes import cameras, health, model, predict, stream, v2, web
 from service.settings import Settings
 from service.state import ServiceState
@@ -43,18 +44,21 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
     others on the shared socket takes no request before its default model is loaded."""
     state: ServiceState = app.state.pose
     hold_back_sigterm(state.drain, asyncio.get_running_loop())  # POSE_DRAIN_S
+    cameras = asyncio.create_task(asyncio.to_thread(state.cameras.check_at_start))  # logged
     await asyncio.to_thread(state.load)
     follow = asyncio.create_task(state.follow())
     try:
         yield
     finally:
         follow.cancel()
+        await cameras
         state.close()
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:
     """The FastAPI app: state, routers, error handlers and middleware (wiring only)."""
     settings = settings or Settings()
+    redact_secrets_in_logs()  # ?api_key= and the like never reach a log line
     # OpenCV would log every refused upload to stderr; the client's 400 already says it.
     cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_FATAL)
     app = FastAPI(
@@ -82,6 +86,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             allow_methods=["GET", "POST"],
             allow_headers=["Authorization", "X-API-Key", "Content-Type"],
         )
+    app.add_middleware(CrashMiddleware)  # a 500 that leaves the connection usable
     app.add_middleware(MetricsMiddleware, metrics=state.metrics, routes=routes)
     return app
 

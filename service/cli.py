@@ -59,6 +59,32 @@ def _settings(overrides: dict[str, Any]) -> Settings:
     return settings
 
 
+#: Where temporary files may go when TMPDIR, /tmp and /var/tmp cannot be written (a container
+#: with a read-only root: Docker and Kubernetes give every container a writable /dev/shm).
+FALLBACK_TMP = (Path("/dev/shm"),)
+
+
+def usable_tmp() -> Path:
+    """A folder this process can make temporary files in: Python's own choice (TMPDIR, /tmp,
+    /var/tmp, ...), else /dev/shm, which then becomes TMPDIR for this process and its workers
+    (multipart uploads larger than 1 MB are spooled there). Exit 2 saying what to mount when
+    there is none."""
+    try:
+        return Path(tempfile.gettempdir())
+    except FileNotFoundError:
+        pass
+    for folder in FALLBACK_TMP:
+        if folder.is_dir() and os.access(folder, os.W_OK | os.X_OK):
+            os.environ["TMPDIR"] = str(folder)
+            tempfile.tempdir = str(folder)
+            return folder
+    _error(
+        "no writable temporary folder (TMPDIR, /tmp, /var/tmp, /dev/shm): on a read-only root, "
+        "mount one (docker/podman run --tmpfs /tmp, a Kubernetes emptyDir at /tmp) or set TMPDIR"
+    )
+    raise typer.Exit(2)
+
+
 def _worker_environment(settings: Settings, overrides: dict[str, Any], runtime: Path) -> None:
     """Put the flags and the runtime folder into os.environ for the worker processes."""
     for key, value in overrides.items():
@@ -105,6 +131,7 @@ def serve(
         "log_level": log_level,
     }
     settings = _settings(overrides)
+    tmp = usable_tmp()
     options: dict[str, Any] = {
         "host": settings.host,
         "port": settings.port,
@@ -120,7 +147,7 @@ def serve(
 
         uvicorn.run(create_app(settings), **options)
         return
-    runtime = Path(tempfile.mkdtemp(prefix="planar-pose-serve-"))
+    runtime = Path(tempfile.mkdtemp(prefix="planar-pose-serve-", dir=tmp))
     try:
         from service.supervisor import Supervisor
 

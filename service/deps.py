@@ -10,7 +10,13 @@ from typing import Annotated
 import anyio
 from fastapi import Depends, Query, Request
 
-from service.cameras import CameraNotFound, CameraStore, CameraStoreError, KnownFocal
+from service.cameras import (
+    CameraCorrupt,
+    CameraNotFound,
+    CameraStore,
+    CameraStoreError,
+    KnownFocal,
+)
 from service.core.cells import RegionGrid
 from service.errors import ApiError
 from service.metrics import Metrics
@@ -85,6 +91,15 @@ def unavailable(name: str, exc: ModelLoadError) -> str:
     return f"model {name!r} could not be loaded: {exc} (replace the file, then reload)"
 
 
+def served_name(state: ServiceState, predictor: Predictor) -> str:
+    """The name `predictor` is served under (its file's stem: the name in URLs and in every
+    answer's `model`), not its card's name, which a copied or renamed file keeps."""
+    for name, file in state.models.entries().items():
+        if file.path == predictor.model.path:
+            return name
+    return predictor.model.path.stem  # reloaded away while the request ran
+
+
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 MetricsDep = Annotated[Metrics, Depends(get_metrics)]
 LimiterDep = Annotated[anyio.CapacityLimiter, Depends(get_limiter)]
@@ -100,12 +115,15 @@ async def get_cameras(state: StateDep) -> CameraStore:
 CamerasDep = Annotated[CameraStore, Depends(get_cameras)]
 
 
-def stored_camera(cameras: CameraStore, camera_id: str) -> KnownFocal:
-    """The stored camera `camera_id`'s intrinsics; 404 unknown, 503 store unavailable."""
+async def stored_camera(cameras: CameraStore, camera_id: str) -> KnownFocal:
+    """The stored camera `camera_id`'s intrinsics (read in a worker thread); 404 unknown,
+    409 `camera_corrupt` its row unusable, 503 store unavailable."""
     try:
-        return KnownFocal.of(cameras.get(camera_id))
+        return KnownFocal.of(await anyio.to_thread.run_sync(cameras.get, camera_id, "predict"))
     except CameraNotFound as exc:
         raise ApiError(404, "camera_not_found", str(exc)) from None
+    except CameraCorrupt as exc:
+        raise ApiError(409, "camera_corrupt", str(exc)) from None
     except CameraStoreError as exc:
         raise ApiError(503, "camera_store_unavailable", str(exc)) from None
 
@@ -136,7 +154,7 @@ async def get_focal(
     if fx is not None and camera is not None:
         raise ApiError(422, "invalid_parameters", "fx and camera: give one of them")
     if camera is not None:
-        return stored_camera(cameras, camera)
+        return await stored_camera(cameras, camera)
     return None if fx is None else KnownFocal(fx, "query")
 
 

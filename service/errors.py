@@ -1,7 +1,10 @@
 """Every error as JSON `{"error": {"code", "message"}}` with its HTTP status; no stack traces.
 Under /v2 (the Open Inference Protocol) the protocol's shape instead: `{"error": "message"}`.
 
-Unexpected exceptions are logged here (with traceback) and answered 500 `internal_error`.
+Unexpected exceptions are logged here (with traceback) and answered 500 `internal_error` by
+`CrashMiddleware`, which keeps the client's keep-alive connection usable (Starlette's own 500
+re-raises the exception to the server, which then drops the connection without saying
+`Connection: close`, and the client's next request on it is reset).
 """
 
 from __future__ import annotations
@@ -14,6 +17,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.requests import ClientDisconnect
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 log = logging.getLogger("uvicorn.error.pose")  # printed by uvicorn's handlers
 
@@ -56,6 +60,38 @@ def error_response(
     if is_v2(path):
         body = {"error": message}
     return JSONResponse(body, status, headers=headers)
+
+
+class CrashMiddleware:
+    """An exception no handler answered -> logged with its traceback, answered 500
+    `internal_error`, and not passed on to the server: the connection stays usable. When the
+    answer had already begun, only closing the connection can end it: the exception goes on
+    to the server, which does that."""
+
+    def __init__(self, app: ASGIApp) -> None:
+        self.app = app
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        started = False
+
+        async def send_tracked(message: Message) -> None:
+            nonlocal started
+            started = started or message["type"] == "http.response.start"
+            await send(message)
+
+        try:
+            await self.app(scope, receive, send_tracked)
+        except Exception as exc:
+            log.exception("unhandled error on %s %s", scope["method"], scope["path"], exc_info=exc)
+            if started:
+                raise
+            response = error_response(
+                500, "internal_error", "internal server error (logged)", path=scope["path"]
+            )
+            await response(scope, receive, send)
 
 
 def _validation_message(exc: RequestValidationError) -> str:

@@ -57,6 +57,21 @@ class Metrics:
             buckets=_LATENCY_BUCKETS,
             registry=self.registry,
         )
+        self.camera_corrupt = Counter(
+            "pose_camera_corrupt_rows",
+            "Camera store rows met that do not parse or validate (left out of the list, 409 "
+            "camera_corrupt for their id), by operation: check (at start), list, get, "
+            "predict, stream.",
+            ["operation"],
+            registry=self.registry,
+        )
+        self.camera_store = Counter(
+            "pose_camera_store_events",
+            "Camera store events: integrity_failed (PRAGMA quick_check at start), "
+            "store_changed (the file removed, replaced or truncated under the service).",
+            ["event"],
+            registry=self.registry,
+        )
 
     def observe(self, mode: str, images: int, inference_s: float) -> None:
         """Count a request's images and time its batched network call."""

@@ -33,7 +33,7 @@ class ServiceState:
         self.jobs = anyio.CapacityLimiter(settings.inference_jobs)
         self.models = ModelRegistry(settings, self.metrics)
         self.drain = Drain(settings.drain_s)
-        self.cameras = CameraStore(settings.resolved_camera_db, settings.max_cameras)
+        self.cameras = CameraStore(settings.resolved_camera_db, settings.max_cameras, self.metrics)
         self.loaded = False
         self.runtime = (
             WorkerRuntime(settings.runtime_dir, settings.process_count)

@@ -25,6 +25,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import re
 import secrets
 from collections import deque
 from collections.abc import Mapping
@@ -62,7 +63,9 @@ class CloseCode(IntEnum):
     NORMAL = 1000
     TRY_AGAIN_LATER = 1013  # the model is not loaded (yet): HTTP 503
     UNAUTHORIZED = 4401  # API key missing or wrong: HTTP 401
-    NOT_FOUND = 4404  # no model of that name: HTTP 404
+    INTERNAL_ERROR = 1011  # a bug (logged): HTTP 500
+    NOT_FOUND = 4404  # no model or camera of that name: HTTP 404
+    CONFLICT = 4409  # the stored camera's row is corrupt (DELETE clears it): HTTP 409
     INVALID_PARAMETERS = 4422  # bad mode / smooth: HTTP 422
 
 
@@ -93,19 +96,17 @@ def parse_options(query: Mapping[str, str]) -> StreamOptions:
     if mode not in MODES:
         raise _invalid(f"mode: must be one of {', '.join(MODES)}, got {mode!r}")
     text = query.get("smooth", "0")
-    try:
-        smooth = float(text)
-    except ValueError:
-        raise _invalid(f"smooth: must be a number in [0, 1), got {text!r}") from None
+    smooth = _number(text)
+    if smooth is None:
+        raise _invalid(f"smooth: must be a number in [0, 1), got {text!r}")
     if not (math.isfinite(smooth) and 0.0 <= smooth < 1.0):
         raise _invalid(f"smooth: must be in [0, 1) (0 = off), got {text!r}")
     model = query.get("model") or None
     fx = None
     if query.get("fx"):
-        try:
-            fx = float(query["fx"])
-        except ValueError:
-            raise _invalid(f"fx: must be a number of pixels, got {query['fx']!r}") from None
+        fx = _number(query["fx"])
+        if fx is None:
+            raise _invalid(f"fx: must be a number of pixels, got {query['fx']!r}")
     camera = query.get("camera") or None
     if fx is not None and camera is not None:
         raise _invalid("fx and camera: give one of them")
@@ -116,6 +117,19 @@ def parse_options(query: Mapping[str, str]) -> StreamOptions:
         except ValueError as exc:
             raise _invalid(str(exc)) from None
     return StreamOptions(mode, smooth, model, fx, camera, grid)  # type: ignore[arg-type]
+
+
+#: A number in ASCII: decimal, or inf / nan (refused by the ranges after, with their message);
+#: Python's float() would also read other scripts' digits (`９００`) and `1_000`.
+_NUMBER = re.compile(
+    r"[+-]?(?:(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]{1,4})?|inf|infinity|nan)",
+    re.ASCII | re.IGNORECASE,
+)
+
+
+def _number(text: str) -> float | None:
+    """The number `text` writes in ASCII decimal, or None."""
+    return float(text) if _NUMBER.fullmatch(text.strip(" ")) else None
 
 
 def _invalid(message: str) -> StreamRefused:
@@ -317,9 +331,11 @@ class StreamSession:
         metrics: StreamMetrics,
         max_frame_bytes: int,
         focal: KnownFocal | None = None,
+        name: str | None = None,
         depth: int = QUEUE_DEPTH,
     ) -> None:
         self.websocket, self.predictor, self.options = websocket, predictor, options
+        self.name = name or predictor.model.path.stem  # the served name, the answers' `model`
         self.focal = focal  # the request's (fx= or camera=): else the stream learns one
         size_cm = predictor.model.object_size_cm
         learns = focal is None and options.mode == "whole" and predictor.model.takes_focal
@@ -334,7 +350,7 @@ class StreamSession:
         """The first message: the stream is open and what it runs."""
         return {
             "event": "ready",
-            "model": self.predictor.model.name,
+            "model": self.name,
             "mode": self.options.mode,
             "smooth": self.options.smooth,
             "fx": self.options.fx,

@@ -17,7 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 
 MAX_SECTORS, MAX_BANDS, MAX_SPLITS = 72, 18, 16
-_GRID = re.compile(r"^(\d{1,3})x(\d{1,3})(?:x([0-9.,eE+]+))?$")
+#: ASCII digits only (`\d` would read full-width and other Unicode digits), the whole text.
+_GRID = re.compile(r"([0-9]{1,3})x([0-9]{1,3})(?:x([0-9.,eE+]+))?", re.ASCII)
 
 
 @dataclass(frozen=True)
@@ -52,10 +53,11 @@ class RegionGrid:
     @classmethod
     def parse(cls, text: str) -> RegionGrid:
         """`AxE` or `AxExD1,D2,...` -> the grid; ValueError saying what is wrong."""
-        match = _GRID.match(text.strip())
+        match = _GRID.fullmatch(text.strip(" \t"))
         if match is None:
             raise ValueError(
-                f"regions: expected AxE or AxExD1,D2,... (e.g. 8x3 or 8x3x60), got {text!r}"
+                f"regions: expected AxE or AxExD1,D2,... in ASCII digits (e.g. 8x3 or 8x3x60), "
+                f"got {text!r}"
             )
         sectors, bands = int(match[1]), int(match[2])
         if not (1 <= sectors <= MAX_SECTORS and 1 <= bands <= MAX_BANDS):

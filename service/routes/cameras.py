@@ -9,13 +9,26 @@ import anyio
 from fastapi import APIRouter, Query, Request, Response
 from pydantic import ValidationError
 
-from service.cameras import CameraNotFound, CameraStore, CameraStoreError, CameraStoreFull
+from service.cameras import (
+    CameraCorrupt,
+    CameraNotFound,
+    CameraStore,
+    CameraStoreError,
+    CameraStoreFull,
+)
 from service.core.preprocess import ImageDecodeError, ImageTooLargeError
-from service.deps import AUTHORISED, CamerasDep, LimiterDep, PredictorDep, SettingsDep
+from service.deps import (
+    AUTHORISED,
+    CamerasDep,
+    LimiterDep,
+    SettingsDep,
+    StateDep,
+    get_predictor,
+)
 from service.errors import ApiError
 from service.learning import MIN_PHOTOS, learn_camera
 from service.predictor import too_large_code
-from service.schemas import ERROR_RESPONSES, CameraIn, CameraList, CameraOut
+from service.schemas import ERROR_RESPONSES, CameraIn, CameraList, CameraOut, ErrorResponse
 from service.uploads import read_images
 
 router = APIRouter(tags=["cameras"], dependencies=AUTHORISED)
@@ -45,19 +58,34 @@ CAMERA_BODY: dict[str, Any] = {
 }
 
 
-def _store_error(exc: Exception) -> ApiError:
+def store_error(exc: Exception) -> ApiError:
+    """The answer to an error of the camera store: 404 unknown id, 409 store full or the
+    camera's row corrupt (DELETE clears it), 503 the store cannot be used."""
     if isinstance(exc, CameraNotFound):
         return ApiError(404, "camera_not_found", str(exc))
     if isinstance(exc, CameraStoreFull):
         return ApiError(409, "camera_store_full", str(exc))
+    if isinstance(exc, CameraCorrupt):
+        return ApiError(409, "camera_corrupt", str(exc))
     return ApiError(503, "camera_store_unavailable", str(exc))
+
+
+#: OpenAPI of the answers of a route that reads one stored camera.
+CAMERA_RESPONSES: dict[int | str, dict[str, Any]] = {
+    **ERROR_RESPONSES,
+    409: {
+        "model": ErrorResponse,
+        "description": "camera_corrupt: the camera's stored row does not parse or validate "
+        "(DELETE /v1/cameras/{id} clears it).",
+    },
+}
 
 
 async def _stored(cameras: CameraStore, fields: dict[str, Any]) -> CameraOut:
     try:
         return await anyio.to_thread.run_sync(cameras.create, fields)
     except (CameraStoreFull, CameraStoreError) as exc:
-        raise _store_error(exc) from None
+        raise store_error(exc) from None
 
 
 @router.post(
@@ -71,14 +99,22 @@ async def _stored(cameras: CameraStore, fields: dict[str, Any]) -> CameraOut:
 async def create_camera(
     request: Request,
     cameras: CamerasDep,
-    predictor: PredictorDep,
+    state: StateDep,
     settings: SettingsDep,
     limiter: LimiterDep,
     name: Annotated[str | None, Query(max_length=100)] = None,
+    model: Annotated[
+        str | None,
+        Query(
+            description="Photos: the corner model that finds the object (default: the "
+            "default model)."
+        ),
+    ] = None,
 ) -> CameraOut:
     """JSON `{"fx": ..., "width": ..., "height": ...}` (docs/pose.md), or multipart `image`
     fields: 3 or more photos of the object, one camera, one size; `?model=` picks the
-    corner model that finds the object (default: the default model)."""
+    corner model that finds the object (default: the default model). Intrinsics need no
+    model: they are stored while the models load too."""
     kind = request.headers.get("content-type", "").split(";")[0].strip().lower()
     if kind == "application/json":
         try:
@@ -93,6 +129,7 @@ async def create_camera(
         return await _stored(
             cameras, {**fields, "source": "intrinsics", "photos_used": 0, "residual_px": None}
         )
+    predictor = await get_predictor(state, model)
     images = await read_images(request, settings.max_images)
     try:
         fields = await anyio.to_thread.run_sync(learn_camera, predictor, images, limiter=limiter)
@@ -105,36 +142,42 @@ async def create_camera(
     return await _stored(cameras, {**fields, "name": name})
 
 
-@router.get("/v1/cameras", response_model=CameraList, summary="The stored cameras, newest first")
+@router.get(
+    "/v1/cameras",
+    response_model=CameraList,
+    responses=ERROR_RESPONSES,
+    summary="The stored cameras, newest first (rows that do not parse or validate are left "
+    "out and logged)",
+)
 async def list_cameras(cameras: CamerasDep) -> CameraList:
     try:
         return CameraList(cameras=await anyio.to_thread.run_sync(cameras.list))
     except CameraStoreError as exc:
-        raise _store_error(exc) from None
+        raise store_error(exc) from None
 
 
 @router.get(
     "/v1/cameras/{camera_id}",
     response_model=CameraOut,
-    responses=ERROR_RESPONSES,
+    responses=CAMERA_RESPONSES,
     summary="One stored camera",
 )
 async def get_camera(camera_id: str, cameras: CamerasDep) -> CameraOut:
     try:
         return await anyio.to_thread.run_sync(cameras.get, camera_id)
-    except (CameraNotFound, CameraStoreError) as exc:
-        raise _store_error(exc) from None
+    except (CameraNotFound, CameraCorrupt, CameraStoreError) as exc:
+        raise store_error(exc) from None
 
 
 @router.delete(
     "/v1/cameras/{camera_id}",
     status_code=204,
     responses=ERROR_RESPONSES,
-    summary="Forget a stored camera",
+    summary="Forget a stored camera (a corrupt one too)",
 )
 async def delete_camera(camera_id: str, cameras: CamerasDep) -> Response:
     try:
         await anyio.to_thread.run_sync(cameras.delete, camera_id)
     except (CameraNotFound, CameraStoreError) as exc:
-        raise _store_error(exc) from None
+        raise store_error(exc) from None
     return Response(status_code=204)

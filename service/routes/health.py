@@ -5,7 +5,7 @@ from __future__ import annotations
 from fastapi import APIRouter
 from fastapi.responses import Response
 
-from service.deps import MetricsDep, StateDep
+from service.deps import MetricsDep, StateDep, served_name
 from service.errors import ApiError
 from service.metrics import Metrics
 from service.schemas import ERROR_RESPONSES, Status
@@ -25,7 +25,7 @@ async def readyz(state: StateDep) -> Status:
     problem = state.not_ready()
     if problem is not None or state.predictor is None:
         raise ApiError(503, "not_ready", problem or state.problem)
-    return Status(status="ready", model=state.predictor.model.name)
+    return Status(status="ready", model=served_name(state, state.predictor))
 
 
 @router.get("/metrics", response_class=Response)

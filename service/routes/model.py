@@ -23,7 +23,7 @@ def model_info(file: ModelFile, default: bool, loaded: bool) -> ModelInfo:
         name=file.name,
         default=default,
         loaded=loaded,
-        card_name=str(card["name"]),
+        card_name=str(card["name"]),  # the card's; a copied file keeps it
         version=card.get("version"),
         profile=profile.get("name") if isinstance(profile, dict) else profile,
         input=list(file.input_size or ()),

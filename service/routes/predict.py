@@ -19,6 +19,8 @@ from service.deps import (
     NamedPredictorDep,
     PredictorDep,
     SettingsDep,
+    StateDep,
+    served_name,
 )
 from service.errors import ApiError
 from service.predictor import Prediction, Predictor, too_large_code
@@ -104,6 +106,7 @@ async def run_prediction(
 )
 async def predict(
     request: Request,
+    state: StateDep,
     predictor: PredictorDep,
     settings: SettingsDep,
     limiter: LimiterDep,
@@ -121,7 +124,8 @@ async def predict(
         request, predictor, mode, settings.max_images, limiter, focal, same_camera, grid
     )
     metrics.observe(mode, len(prediction.results), prediction.inference_s)
-    return PredictResponse(model=predictor.model.name, mode=mode, results=prediction.results)
+    name = served_name(state, predictor)
+    return PredictResponse(model=name, mode=mode, results=prediction.results)
 
 
 @router.post(
@@ -133,6 +137,7 @@ async def predict(
 )
 async def predict_with(
     request: Request,
+    state: StateDep,
     predictor: NamedPredictorDep,
     settings: SettingsDep,
     limiter: LimiterDep,
@@ -147,4 +152,5 @@ async def predict_with(
         request, predictor, mode, settings.max_images, limiter, focal, same_camera, grid
     )
     metrics.observe(mode, len(prediction.results), prediction.inference_s)
-    return PredictResponse(model=predictor.model.name, mode=mode, results=prediction.results)
+    name = served_name(state, predictor)
+    return PredictResponse(model=name, mode=mode, results=prediction.results)

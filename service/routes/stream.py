@@ -3,13 +3,15 @@ live frames in, answers out (the protocol: `service/stream.py` and docs/live.md)
 
 from __future__ import annotations
 
+import logging
 from weakref import WeakKeyDictionary
 
+import anyio
 from fastapi import APIRouter, WebSocket
 from starlette.websockets import WebSocketDisconnect
 
-from service.cameras import CameraNotFound, CameraStoreError, KnownFocal
-from service.deps import unavailable
+from service.cameras import CameraCorrupt, CameraNotFound, CameraStoreError, KnownFocal
+from service.deps import served_name, unavailable
 from service.metrics import Metrics
 from service.model import ModelLoadError
 from service.predictor import Predictor
@@ -27,6 +29,7 @@ from service.stream import (
 )
 
 router = APIRouter(tags=["stream"])
+log = logging.getLogger("uvicorn.error.pose")  # printed by uvicorn's handlers
 
 _metrics: WeakKeyDictionary[Metrics, StreamMetrics] = WeakKeyDictionary()
 
@@ -61,15 +64,18 @@ async def find_predictor(state: ServiceState, name: str | None) -> Predictor:
         ) from None
 
 
-def stream_focal(state: ServiceState, options: StreamOptions) -> KnownFocal | None:
+async def stream_focal(state: ServiceState, options: StreamOptions) -> KnownFocal | None:
     """The focal length of `fx=` or of the stored camera `camera=` (StreamRefused 4404 for an
-    unknown id, 1013 when the store cannot be read)."""
+    unknown id, 4409 for a corrupt row, 1013 when the store cannot be read)."""
     if options.camera is None:
         return None if options.fx is None else KnownFocal(options.fx, "query")
     try:
-        return KnownFocal.of(state.cameras.get(options.camera))
+        camera = await anyio.to_thread.run_sync(state.cameras.get, options.camera, "stream")
+        return KnownFocal.of(camera)
     except CameraNotFound as exc:
         raise StreamRefused(CloseCode.NOT_FOUND, "camera_not_found", str(exc)) from None
+    except CameraCorrupt as exc:
+        raise StreamRefused(CloseCode.CONFLICT, "camera_corrupt", str(exc)) from None
     except CameraStoreError as exc:
         raise StreamRefused(
             CloseCode.TRY_AGAIN_LATER, "camera_store_unavailable", str(exc)
@@ -87,7 +93,7 @@ async def stream(websocket: WebSocket) -> None:
         await authorise(websocket, key)
         options = parse_options(websocket.query_params)
         predictor = await find_predictor(state, options.model)
-        focal = stream_focal(state, options)
+        focal = await stream_focal(state, options)
         problem = predictor.focal_problem(options.mode, focal)
         if problem is not None:
             raise StreamRefused(CloseCode.INVALID_PARAMETERS, "invalid_parameters", problem)
@@ -95,6 +101,11 @@ async def stream(websocket: WebSocket) -> None:
         await refuse(websocket, refused)
         return
     except WebSocketDisconnect:
+        return
+    except Exception:  # a bug: logged, and the client gets a close code, not a dropped socket
+        log.exception("stream setup failed (%s)", websocket.url.path)
+        message = "internal server error (logged)"
+        await refuse(websocket, StreamRefused(CloseCode.INTERNAL_ERROR, "internal_error", message))
         return
     session = StreamSession(
         websocket,
@@ -104,5 +115,6 @@ async def stream(websocket: WebSocket) -> None:
         stream_metrics(state.metrics),
         settings.max_upload_bytes,
         focal,
+        served_name(state, predictor),
     )
     await session.run()

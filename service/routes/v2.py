@@ -22,6 +22,7 @@ from service.deps import (
     NamedPredictorDep,
     SettingsDep,
     StateDep,
+    served_name,
 )
 from service.errors import ApiError
 from service.oip import InferRequest, ProtocolError, infer_response, parse_infer_request
@@ -71,13 +72,14 @@ async def server_metadata() -> dict[str, Any]:
 @router.get("/v2/models/{name}")
 @router.get("/v2/models/{name}/versions/{model_version}")
 async def model_metadata(
-    name: str, predictor: NamedPredictorDep, model_version: str | None = None
+    name: str, state: StateDep, predictor: NamedPredictorDep, model_version: str | None = None
 ) -> dict[str, Any]:
-    """Inputs (FP32 network input or BYTES encoded images) and outputs of model `name`."""
+    """Inputs (FP32 network input or BYTES encoded images) and outputs of model `name` (its
+    served name: `default` is the default model's)."""
     _check_version(predictor, name, model_version)
     w, h = predictor.model.input_size
     return {
-        "name": name,
+        "name": served_name(state, predictor),
         "versions": [_model_version(predictor)],
         "platform": "onnxruntime_onnx",
         "inputs": [
@@ -94,11 +96,11 @@ async def model_metadata(
 @router.get("/v2/models/{name}/ready")
 @router.get("/v2/models/{name}/versions/{model_version}/ready")
 async def model_ready(
-    name: str, predictor: NamedPredictorDep, model_version: str | None = None
+    name: str, state: StateDep, predictor: NamedPredictorDep, model_version: str | None = None
 ) -> dict[str, Any]:
     """Model `name` is loaded (unknown names: 404)."""
     _check_version(predictor, name, model_version)
-    return {"name": name, "ready": True}
+    return {"name": served_name(state, predictor), "ready": True}
 
 
 def _probabilities(predictor: Predictor, infer: InferRequest, max_pixels: int) -> np.ndarray:
@@ -122,6 +124,7 @@ def _probabilities(predictor: Predictor, infer: InferRequest, max_pixels: int) -
 async def infer(
     name: str,
     request: Request,
+    state: StateDep,
     predictor: NamedPredictorDep,
     settings: SettingsDep,
     limiter: LimiterDep,
@@ -154,4 +157,4 @@ async def infer(
     except ImageDecodeError as exc:
         raise ApiError(400, "undecodable_image", str(exc)) from None
     metrics.images.labels("v2").inc(count)
-    return infer_response(name, _model_version(predictor), parsed, probs)
+    return infer_response(served_name(state, predictor), _model_version(predictor), parsed, probs)

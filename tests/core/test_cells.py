@@ -29,6 +29,10 @@ def test_a_grid_reads_its_text_and_writes_it_back() -> None:
         ("8x3x-5", "expected AxE"),
         ("8x3x1e400", "increasing"),
         ("8x3x1.2.3", "must be numbers"),
+        ("８x３", "in ASCII digits"),  # full-width digits, which int() would read as 8x3
+        ("8x3x６0", "in ASCII digits"),
+        ("٨x3", "in ASCII digits"),
+        ("8x3\n", "in ASCII digits"),
     ],
 )
 def test_a_bad_grid_says_what_is_wrong(text: str, message: str) -> None:

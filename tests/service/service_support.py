@@ -7,6 +7,7 @@ import json
 import sys
 from collections.abc import Callable
 from contextlib import AbstractContextManager
+from functools import cache
 from pathlib import Path
 from typing import Any
 
@@ -18,7 +19,8 @@ from fastapi.testclient import TestClient
 from service.core.preprocess import load_image, to_network_input
 from service.core.regions import region_of_class
 from service.model import PoseModel
-from service.settings import DEFAULT_MODEL, DEFAULT_MODEL_DIR
+from service.predictor import Predictor
+from service.settings import DEFAULT_MODEL, DEFAULT_MODEL_DIR, Settings
 
 ROOT = Path(__file__).resolve().parents[2]
 REAL = ROOT / "train" / "assets" / "real" / "chessboard-stereo"
@@ -48,6 +50,24 @@ OTHER_MODELS = [
     if p != DEFAULT_MODEL and np.abs(_answers(p) - _DEFAULT_ANSWERS).max() > 1e-3
 ]
 assert len(OTHER_MODELS) >= 2, "the service tests need two shipped models besides the default"
+
+
+@cache
+def served_answer(model: Path) -> np.ndarray:
+    """The service's whole-mode probabilities for PHOTO with `model` (the full pipeline)."""
+    predictor = Predictor(PoseModel.load(model), Settings())
+    return np.array(predictor.predict([(None, PHOTO)], "whole").results[0].probabilities)
+
+
+def network_of(answer: dict[str, Any], models: tuple[Path, ...]) -> str:
+    """The card name of the one of `models` that gave `answer` to PHOTO: the nearest
+    probabilities (every answer names the served name, the same before and after a file is
+    replaced)."""
+    got = np.array(answer["results"][0]["probabilities"])
+    nearest = min(models, key=lambda m: float(np.abs(served_answer(m) - got).max()))
+    return str(card_of(nearest)["name"])
+
+
 #: `app_factory` (conftest): `with app_factory(**settings) as client:` an in-process app.
 AppFactory = Callable[..., AbstractContextManager[TestClient]]
 JPEG = {"content-type": "image/jpeg"}

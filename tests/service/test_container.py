@@ -14,6 +14,7 @@ import os
 import sys
 import time
 from collections.abc import Iterator
+from contextlib import contextmanager
 from types import ModuleType
 
 import httpx
@@ -54,26 +55,35 @@ def image() -> str:
     return TAG
 
 
-@pytest.fixture(scope="module")
-def container(image: str) -> Iterator[tuple[str, str]]:
+@contextmanager
+def running(image: str, *flags: str, ready: str = "/readyz") -> Iterator[tuple[str, str]]:
+    """`podman run -d FLAGS image` on a free port: (container id, base URL) once `ready`
+    answers 200; removed afterwards."""
     port = free_port()
-    cid = build_image.podman("run", "-d", "-p", f"127.0.0.1:{port}:8000", image).stdout.strip()
+    cid = build_image.podman("run", "-d", "-p", f"127.0.0.1:{port}:8000", *flags, image)
+    cid_text = cid.stdout.strip()
     base = f"http://127.0.0.1:{port}"
     try:
         deadline = time.monotonic() + 120
         while True:
             try:
-                if httpx.get(base + "/readyz", timeout=2).status_code == 200:
+                if httpx.get(base + ready, timeout=2).status_code == 200:
                     break
             except httpx.TransportError:
                 pass
             if time.monotonic() > deadline:
-                logs = build_image.podman("logs", cid, check=False)
+                logs = build_image.podman("logs", cid_text, check=False)
                 pytest.fail(f"container not ready after 120 s:\n{logs.stdout}{logs.stderr}")
             time.sleep(0.25)
-        yield cid, base
+        yield cid_text, base
     finally:
-        build_image.podman("rm", "--force", cid, check=False)
+        build_image.podman("rm", "--force", cid_text, check=False)
+
+
+@pytest.fixture(scope="module")
+def container(image: str) -> Iterator[tuple[str, str]]:
+    with running(image) as started:
+        yield started
 
 
 def test_the_container_answers_a_photo(container: tuple[str, str]) -> None:
@@ -105,6 +115,38 @@ def test_healthcheck_user_and_no_training_code(container: tuple[str, str]) -> No
     for module in ("torch", "train"):
         done = build_image.podman("exec", cid, "python", "-c", f"import {module}", check=False)
         assert done.returncode != 0 and f"No module named '{module}'" in done.stderr
+
+
+def test_a_read_only_container_without_extra_flags_stores_a_camera(image: str) -> None:
+    """`--read-only` as Docker has it (no tmpfs on /tmp: podman's --read-only-tmpfs=false):
+    the service starts (temporary files in /dev/shm) and the camera store works on the image's
+    /data volume."""
+    with running(image, "--read-only", "--read-only-tmpfs=false") as (cid, base):
+        made = httpx.post(base + "/v1/cameras", json={"fx": 900.0, "width": 640, "height": 480})
+        assert made.status_code == 201, made.text
+        r = httpx.post(base + "/v1/predict", content=PHOTO, headers=JPEG, timeout=60)
+        assert r.status_code == 200, r.text
+        mounts = build_image.podman("exec", cid, "cat", "/proc/mounts").stdout
+        assert not [m for m in mounts.splitlines() if m.split()[1] in ("/tmp", "/var/tmp")]
+
+
+def test_a_camera_store_on_a_tmpfs_says_what_to_mount_or_works(image: str) -> None:
+    """podman's `--tmpfs /data` is root's, mode 755, whatever mode= says: the store answers
+    503 naming what to mount, and the tmpfs it names (`:U`, owned by the service's user)
+    works."""
+    flags = ("--read-only", "--read-only-tmpfs=false")
+    with running(image, *flags, "--tmpfs", "/data:mode=1777", ready="/healthz") as (_, base):
+        r = httpx.post(base + "/v1/cameras", json={"fx": 900.0})
+        assert r.status_code == 503, r.text
+        message = r.json()["error"]["message"]
+        assert "/data belongs to uid 0 with mode 755" in message, message
+        assert "--tmpfs /data:U" in message and "-v pose-data:/data" in message
+    with running(image, *flags, "--tmpfs", "/data:U", ready="/healthz") as (_, base):
+        made = httpx.post(base + "/v1/cameras", json={"fx": 900.0})
+        assert made.status_code == 201, made.text
+        assert [c["id"] for c in httpx.get(base + "/v1/cameras").json()["cameras"]] == [
+            made.json()["id"]
+        ]
 
 
 def test_sigterm_stops_the_container_cleanly(container: tuple[str, str]) -> None:

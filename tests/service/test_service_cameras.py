@@ -3,16 +3,28 @@
 
 from __future__ import annotations
 
+import json
+import logging
+import os
+import sqlite3
+from collections.abc import Iterator
+from contextlib import closing
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
+from planar_pose_client import models as sdk_models
+from pydantic import ValidationError
 from service_support import AppFactory
+from starlette.websockets import WebSocketDisconnect
 from test_service_pose import ROWS, photo
 
+from service import schemas
+from service.cameras import CameraStore
 from service.core.paths import ASSETS_DIR
+from service.metrics import Metrics
 
 NEGATIVES = sorted(
     (ASSETS_DIR / "real/corpus/negatives/ageitgey__face_recognition/images").iterdir()
@@ -101,6 +113,28 @@ def test_cameras_survive_a_restart_and_every_process_sees_them(
         ({"fx": 900, "cx": 320}, "give the image's width and height"),
         ({"fx": 900, "dist": [0.1]}, "dist: List should have at least 4 items"),
         ({"fx": 900, "lens": "50mm"}, "lens: Extra inputs are not permitted"),
+        # strict types: no booleans or strings for numbers, no fractions for sizes
+        ({"fx": True}, "fx: Input should be a valid number"),
+        ({"fx": "900"}, "fx: Input should be a valid number"),
+        ({"fx": 900, "dist": [True, 0, 0, 0]}, "dist.0: Input should be a valid number"),
+        ({"fx": 900, "width": 640.0, "height": 480}, "width: Input should be a valid integer"),
+        ({"fx": 900, "width": True, "height": 480}, "width: Input should be a valid integer"),
+        ({"fx": 900, "name": 5}, "name: Input should be a valid string"),
+        # bounds of real cameras
+        (
+            {"fx": 900, "width": 640, "height": 480, "cx": 1e300, "cy": 240},
+            "cx: must lie within the image (0 to 640 px), got 1e+300",
+        ),
+        (
+            {"fx": 900, "width": 640, "height": 480, "cx": 320, "cy": -5},
+            "cy: must lie within the image (0 to 480 px)",
+        ),
+        ({"fx": 900, "fy": 3000}, "fy / fx: must lie within 0.5 to 2"),
+        ({"fx": 900, "dist": [1e300, 0, 0, 0]}, "dist: k1 must lie within +-10"),
+        ({"fx": 900, "dist": [0, 0, 0, 0, 0, 0, 0, 1e300]}, "dist: k6 must lie within +-100"),
+        ({"fx": 900, "dist": [0.1, 0, 0.5, 0]}, "dist: p1 must lie within +-0.1"),
+        ({"fx": 900, "dist": [0.1, 0, 0, 0, 0, 0]}, "OpenCV's 4, 5 or 8 coefficients"),
+        ({"fx": 900, "dist": [0.1] * 9}, "dist: List should have at most 8 items"),
     ],
 )
 def test_nonsense_intrinsics_are_a_422_and_store_nothing(
@@ -113,11 +147,37 @@ def test_nonsense_intrinsics_are_a_422_and_store_nothing(
 
 
 @pytest.mark.parametrize(
-    "text", [b'{"fx":', b'{"fx": NaN}', b'{"fx": Infinity}', b"[]", b"\xff\xfe"]
+    "text",
+    [
+        b'{"fx":',
+        b'{"fx": NaN}',
+        b'{"fx": Infinity}',
+        b'{"fx": 1e400}',
+        b'{"fx": 900, "dist": [NaN, 0, 0, 0]}',
+        b'{"fx": 900, "width": 640, "height": 480, "cx": -Infinity, "cy": 1}',
+        b"[]",
+        b"\xff\xfe",
+    ],
 )
 def test_a_body_that_is_not_a_camera_is_a_422(client: TestClient, text: bytes) -> None:
     r = client.post("/v1/cameras", content=text, headers={"content-type": "application/json"})
     assert r.status_code == 422 and r.json()["error"]["code"] == "invalid_camera"
+
+
+def test_a_real_calibration_is_stored_as_given(client: TestClient) -> None:
+    """OpenCV's calibration of its own sample camera (left01.jpg ...): 5 coefficients."""
+    given = {
+        "fx": 532.4,
+        "fy": 532.4,
+        "cx": 341.7,
+        "cy": 232.7,
+        "dist": [-0.3045, 0.1414, 0.000864, 0.000388, 0],
+        "width": 640,
+        "height": 480,
+    }
+    r = client.post("/v1/cameras", json=given)
+    assert r.status_code == 201, r.text
+    assert {k: r.json()[k] for k in given} == given
 
 
 def test_photos_without_the_object_or_too_few_are_a_422(client: TestClient) -> None:
@@ -194,3 +254,186 @@ def test_a_stream_with_a_stored_camera_uses_it(client: TestClient) -> None:
     assert answer["fx_source"] == "camera" and answer["cell"]["grid"] == "8x3"
     with client.websocket_connect("/v1/stream?regions=banana") as ws:
         assert "expected AxE" in ws.receive_json()["error"]["message"]
+
+
+#: Rows a store may hold that are no camera: JSON that does not parse, JSON that is no object,
+#: fields that do not validate (a boolean, a principal point far outside the image), bytes
+#: that are not UTF-8.
+CORRUPT_ROWS: dict[str, str | bytes] = {
+    "c-badjson1": '{"fx": 900, ',
+    "c-notadict": "[1, 2]",
+    "c-boolfx00": '{"fx": true, "source": "intrinsics"}',
+    "c-hugecx00": '{"fx": 900, "cx": 1e300, "cy": 1, "width": 640, "height": 480, '
+    '"source": "intrinsics"}',
+    "c-notutf80": b"\xff\xfe{",
+}
+
+
+def put_rows(db: Path, rows: dict[str, str | bytes]) -> None:
+    """Write rows into the store's table as they are (what a hand edit or a damaged file
+    leaves)."""
+    with closing(sqlite3.connect(db, isolation_level=None)) as con:
+        for camera_id, body in rows.items():
+            con.execute(
+                "INSERT INTO cameras (id, created, body) VALUES (?, ?, ?)",
+                (camera_id, "2026-01-01T00:00:00Z", body),
+            )
+
+
+@pytest.fixture
+def store(client: TestClient, tmp_path: Path) -> Iterator[Path]:
+    """The shared app with a store of its own in `tmp_path` for the test (its file's path)."""
+    state = client.app.state.pose  # type: ignore[attr-defined]
+    kept = state.cameras
+    db = tmp_path / "c.db"
+    state.cameras = CameraStore(db, 1000, state.metrics)
+    try:
+        yield db
+    finally:
+        state.cameras = kept
+
+
+def test_a_corrupt_row_is_left_out_of_the_list_and_a_409_for_its_id_until_deleted(
+    client: TestClient, store: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    c = client
+    good = [c.post("/v1/cameras", json={"fx": 900.0 + i}).json()["id"] for i in range(2)]
+    put_rows(store, CORRUPT_ROWS)
+    assert sorted(k["id"] for k in cameras(c)) == sorted(good)
+    assert cameras(c) and cameras(c)  # listed again: logged once per row all the same
+    for camera_id in CORRUPT_ROWS:
+        for r in (
+            c.get(f"/v1/cameras/{camera_id}"),
+            c.post(f"/v1/predict?camera={camera_id}", files=[photo(ROWS[0])]),
+        ):
+            error = r.json()["error"]
+            assert r.status_code == 409 and error["code"] == "camera_corrupt", r.text
+            assert f"DELETE /v1/cameras/{camera_id} clears it" in error["message"]
+        with c.websocket_connect(f"/v1/stream?camera={camera_id}") as ws:
+            assert ws.receive_json()["error"]["code"] == "camera_corrupt"
+            with pytest.raises(WebSocketDisconnect) as closed:
+                ws.receive_json()
+        assert closed.value.code == 4409
+        assert caplog.text.count(f"'{camera_id}' is stored corrupt") == 1, caplog.text
+    metrics = c.get("/metrics").text
+    for operation in ("list", "get", "predict", "stream"):
+        assert f'pose_camera_corrupt_rows_total{{operation="{operation}"}}' in metrics
+    for camera_id in CORRUPT_ROWS:
+        assert c.delete(f"/v1/cameras/{camera_id}").status_code == 204
+        assert c.get(f"/v1/cameras/{camera_id}").status_code == 404
+    assert sorted(k["id"] for k in cameras(c)) == sorted(good)
+
+
+def test_the_store_is_checked_at_start(
+    app_factory: AppFactory, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """`PRAGMA quick_check` and every row read when the app starts, the outcome logged."""
+    caplog.set_level(logging.INFO, "uvicorn.error.pose")
+    db = tmp_path / "c.db"
+    CameraStore(db, 10).create({"fx": 900.0, "source": "intrinsics"})
+    put_rows(db, {"c-badjson1": "{"})
+    no_models = tmp_path / "models"  # no model to load: the app starts at once
+    no_models.mkdir()
+    with app_factory(ready="/healthz", camera_db=db, model_dir=no_models) as c:
+        assert len(cameras(c)) == 1
+    assert "2 cameras, 1 unusable rows, integrity ok" in caplog.text, caplog.text
+    assert "'c-badjson1' is stored corrupt" in caplog.text
+    junk = tmp_path / "junk.db"
+    junk.write_bytes(b"this is not a database" * 500)
+    caplog.clear()
+    with app_factory(ready="/healthz", camera_db=junk, model_dir=no_models) as c:
+        r = c.get("/v1/cameras")
+        assert r.status_code == 503 and "not an SQLite database" in r.json()["error"]["message"]
+    assert "not an SQLite database" in caplog.text
+
+
+def test_a_damaged_page_fails_the_integrity_check(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A page of the file overwritten: `check` (at start) logs it and counts it."""
+    db = tmp_path / "c.db"
+    store = CameraStore(db, 1000)
+    for i in range(60):
+        store.create({"fx": 500.0 + i, "source": "intrinsics", "name": "x" * 90})
+    data = bytearray(db.read_bytes())
+    page = 4096
+    assert len(data) > 3 * page
+    data[2 * page + 8 : 2 * page + 4000] = bytes(range(256)) * 15 + bytes(32)  # cells garbled
+    db.write_bytes(bytes(data))
+    metrics = Metrics()
+    CameraStore(db, 1000, metrics).check_at_start()
+    assert "the file is damaged: move it away or restore it" in caplog.text, caplog.text
+    events = {"event": "integrity_failed"}
+    assert metrics.registry.get_sample_value("pose_camera_store_events_total", events) == 1
+
+
+@pytest.mark.parametrize("how", ["truncated", "replaced", "removed"])
+def test_a_store_changed_under_the_service_is_logged(
+    client: TestClient, store: Path, caplog: pytest.LogCaptureFixture, how: str
+) -> None:
+    metric = 'pose_camera_store_events_total{event="store_changed"}'
+
+    def changes() -> float:
+        line = [x for x in client.get("/metrics").text.splitlines() if x.startswith(metric)]
+        return float(line[0].split()[-1]) if line else 0.0
+
+    for i in range(20):
+        assert client.post("/v1/cameras", json={"fx": 900.0 + i}).status_code == 201
+    before = changes()
+    if how == "truncated":
+        store.write_bytes(b"")
+    elif how == "replaced":
+        other = store.with_name("other.db")
+        CameraStore(other, 10).create({"fx": 700.0, "source": "intrinsics"})
+        os.replace(other, store)
+    else:
+        store.unlink()
+    caplog.clear()
+    assert len(cameras(client)) == (1 if how == "replaced" else 0)
+    assert f"camera store {store} was {how}" in caplog.text, caplog.text
+    assert changes() == before + 1
+    cameras(client)
+    assert caplog.text.count(f"camera store {store} was") == 1  # once, not at every read
+
+
+def test_the_sdk_takes_the_cameras_the_service_takes() -> None:
+    """The SDK's CameraIntrinsics checks what CameraIn checks: same bounds, same verdicts."""
+    for name in ("FX_BOUNDS_PX", "FY_OVER_FX", "DIST_LENGTHS", "DIST_NAMES", "TANGENTIAL_MAX"):
+        assert getattr(sdk_models, name) == getattr(schemas, name), name
+    assert (sdk_models.RADIAL_MAX, sdk_models.RATIONAL_MAX) == (
+        schemas.RADIAL_MAX,
+        schemas.RATIONAL_MAX,
+    )
+    size = {"width": 640, "height": 480}
+    bodies: list[dict] = [
+        {"fx": 900},
+        {"fx": 900.5, "fy": 901, **size, "cx": 320, "cy": 240, "dist": [-0.3, 0.1, 0, 0, 0]},
+        {"fx": 900, "dist": [20, -30, 0.01, 0, 5, 21, -29, 4]},
+        {"fx": 900, "dist": [20, 0, 0, 0]},
+        {"fx": 900, "dist": [0, 0, 0, 0, 0, 0, 0, 101]},
+        {"fx": 900, "dist": [0, 0, 0.2, 0, 0]},
+        {"fx": 900, "dist": [0, 0, 0, 0, 0, 0]},
+        {"fx": 900, **size, "cx": 641, "cy": 0},
+        {"fx": 900, **size, "cx": 0, "cy": 480.5},
+        {"fx": 900, "cx": 3},
+        {"fx": 900, "fy": 449},
+        {"fx": 900, "fy": 1801},
+        {"fx": True},
+        {"fx": "900"},
+        {"fx": 0.5},
+        {"fx": 900, "width": 640},
+        {"fx": 900, "width": 640.0, "height": 480},
+        {"fx": 900, "lens": 1},
+    ]
+    taken = []
+    for body in bodies:
+        verdicts = []
+        for model in (schemas.CameraIn, sdk_models.CameraIntrinsics):
+            try:
+                model.model_validate_json(json.dumps(body))
+                verdicts.append(True)
+            except ValidationError:
+                verdicts.append(False)
+        assert verdicts[0] == verdicts[1], (body, verdicts)
+        taken.append(verdicts[0])
+    assert taken == [True] * 3 + [False] * (len(bodies) - 3)

@@ -4,6 +4,7 @@ replaced, broken and removed files, a request holding the old session finishing 
 
 from __future__ import annotations
 
+import base64
 import os
 import shutil
 import time
@@ -55,7 +56,7 @@ def test_two_models_chosen_per_request(served: TestClient) -> None:
     small = predict(served, "/v1/models/default/predict")  # the alias of the default model
     large = predict(served, "/v1/models/board-large/predict")
     check_answer(small, "whole", [(640, 480)], model=DEFAULT)
-    check_answer(large, "whole", [(640, 480)], model=card_of(LARGE)["name"])
+    check_answer(large, "whole", [(640, 480)], model="board-large")  # served name, not card
     default = predict(served)  # /v1/predict answers with the default model
     assert default["model"] == DEFAULT
     assert default["results"][0]["probabilities"] == small["results"][0]["probabilities"]
@@ -64,7 +65,36 @@ def test_two_models_chosen_per_request(served: TestClient) -> None:
     sliding = served.post(
         "/v1/models/board-large/predict?mode=sliding", content=PHOTO, headers={**JPEG, **KEY}
     )
-    check_answer(sliding.json(), "sliding", [(640, 480)], model=card_of(LARGE)["name"])
+    check_answer(sliding.json(), "sliding", [(640, 480)], model="board-large")
+
+
+def test_a_copied_model_answers_under_its_served_name_everywhere(
+    app_factory: AppFactory, tmp_path: Path
+) -> None:
+    """models/foo.onnx copied from another model (its card's name that model's): every
+    answer names it foo, the name it is served under; /v1/models keeps the card's name as
+    card_name."""
+    put(tmp_path, "foo", SMALL)
+    put(tmp_path, "bar", LARGE)
+    assert card_of(tmp_path / "foo.onnx")["name"] == DEFAULT
+    with app_factory(model_dir=tmp_path, default_model="foo") as c:
+        assert predict(c)["model"] == "foo"
+        assert predict(c, "/v1/predict?model=bar")["model"] == "bar"
+        assert predict(c, "/v1/models/default/predict")["model"] == "foo"
+        assert predict(c, "/v1/models/bar/predict")["model"] == "bar"
+        assert c.get("/readyz").json()["model"] == "foo"
+        listed = {m["name"]: m for m in c.get("/v1/models").json()["models"]}
+        assert set(listed) == {"foo", "bar"} and listed["foo"]["card_name"] == DEFAULT
+        for query, name in (("", "foo"), ("?model=bar", "bar"), ("?model=default", "foo")):
+            with c.websocket_connect(f"/v1/stream{query}") as ws:
+                assert ws.receive_json()["model"] == name
+        assert c.get("/v2/models/default").json()["name"] == "foo"
+        assert c.get("/v2/models/bar/ready").json() == {"name": "bar", "ready": True}
+        image = {"name": "image_bytes", "datatype": "BYTES", "shape": [1]}
+        data = [base64.b64encode(PHOTO).decode()]
+        for url, name in (("/v2/models/default/infer", "foo"), ("/v2/models/bar/infer", "bar")):
+            r = c.post(url, json={"inputs": [{**image, "data": data}]})
+            assert r.status_code == 200 and r.json()["model_name"] == name, r.text
 
 
 def test_the_list_of_models(served: TestClient) -> None:
@@ -106,8 +136,8 @@ def test_reload_adds_replaces_refuses_and_removes(served: TestClient, folder: Pa
     assert report["removed"] == []
     assert "model file gone" in report["problems"]["board-large"]
     assert "not a loadable ONNX model" in report["problems"]["broken"]
-    assert predict(served, "/v1/models/board-large/predict")["model"] == card_of(LARGE)["name"]
-    assert predict(served)["model"] == card_of(REPLACEMENT)["name"]
+    assert predict(served, "/v1/models/board-large/predict")["model"] == "board-large"
+    assert predict(served)["model"] == DEFAULT  # the replacement's card names another
     assert predict(served, "/v1/models/extra/predict")["results"][0]["probabilities"] == first
     assert served.get("/v1/models", headers=KEY).json()["problems"] == report["problems"]
     # the old session still answers (what a request in flight at the swap does)
@@ -131,14 +161,14 @@ def test_a_vanished_file_is_served_for_its_grace_time_only(
         (folder / f"{DEFAULT}.onnx").unlink()
         report = c.post("/v1/models/reload", headers=KEY).json()
         assert DEFAULT in report["models"] and "model file gone" in report["problems"][DEFAULT]
-        assert c.get("/readyz").status_code == 200 and predict(c)["model"] == CARD["name"]
+        assert c.get("/readyz").status_code == 200 and predict(c)["model"] == DEFAULT
         time.sleep(0.6)
         report = c.post("/v1/models/reload", headers=KEY).json()
         assert report["removed"] == [DEFAULT] and DEFAULT not in report["problems"]
         assert c.get("/readyz").status_code == 503
         put(folder, DEFAULT, REPLACEMENT)  # a deploy that came too late
         assert c.post("/v1/models/reload", headers=KEY).json()["loaded"] == [DEFAULT]
-        assert predict(c)["model"] == card_of(REPLACEMENT)["name"]
+        assert predict(c)["model"] == DEFAULT
 
 
 def test_folder_without_a_default_is_not_ready(app_factory: AppFactory, tmp_path: Path) -> None:
@@ -152,7 +182,7 @@ def test_folder_without_a_default_is_not_ready(app_factory: AppFactory, tmp_path
         assert r.status_code == 503
         assert f"no {DEFAULT}.onnx in" in r.json()["error"]["message"]
         assert "served: only-this" in r.json()["error"]["message"]
-        assert predict(c, "/v1/models/only-this/predict")["model"] == DEFAULT  # its card name
+        assert predict(c, "/v1/models/only-this/predict")["model"] == "only-this"
         assert c.post("/v1/predict", content=PHOTO, headers=JPEG).status_code == 503
 
 

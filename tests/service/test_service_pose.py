@@ -91,6 +91,7 @@ def test_regions_name_the_cell_of_the_pose(client: TestClient) -> None:
     ("query", "message"),
     [
         ("?regions=8", "expected AxE"),
+        ("?regions=%EF%BC%98x%EF%BC%93", "in ASCII digits"),  # full-width 8x3
         ("?regions=8x3x60,30", "increasing"),
         ("?fx=1000&camera=c-1", "give one of them"),
         ("?mode=sliding&fx=1000", "mode=whole only"),

@@ -16,7 +16,7 @@ from pathlib import Path
 import httpx
 import pytest
 from server_process import live_server
-from service_support import CARD, JPEG, PHOTO, SERVE, card_of
+from service_support import CARD, JPEG, PHOTO, SERVE, card_of, network_of, served_answer
 from test_service_models import DEFAULT, REPLACEMENT, SMALL
 
 NEW_NAME = card_of(REPLACEMENT)["name"]
@@ -38,7 +38,7 @@ class Load:
             try:
                 r = client.post("/v1/predict", content=PHOTO, headers=JPEG)
                 if r.status_code == 200:
-                    self.answers[r.json()["model"]] += 1
+                    self.answers[network_of(r.json(), (SMALL, REPLACEMENT))] += 1
                 else:
                     self.failures.append(f"{r.status_code} {r.text[:200]}")
             except httpx.HTTPError as exc:
@@ -124,7 +124,7 @@ def watched(folder: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterator[
 def _every_worker_answers(base: str, name: str) -> bool:
     for _ in range(8):  # new connections: the kernel spreads them over both workers
         r = httpx.post(base + "/v1/predict", content=PHOTO, headers=JPEG, timeout=60)
-        if r.status_code != 200 or r.json()["model"] != name:
+        if r.status_code != 200 or network_of(r.json(), (SMALL, REPLACEMENT)) != name:
             return False
     return True
 
@@ -185,8 +185,10 @@ def test_a_redeploy_under_load_fails_no_request(
 ) -> None:
     """The default model replaced under load (2 workers, folder watched): 0 failed requests,
     the old model answering until the new one is loaded, then the new one everywhere."""
+    for model in (SMALL, REPLACEMENT):  # what tells the two networks' answers apart
+        served_answer(model)
     current = httpx.post(watched + "/v1/predict", content=PHOTO, headers=JPEG, timeout=60)
-    old_name = current.json()["model"]
+    old_name = network_of(current.json(), (SMALL, REPLACEMENT))
     back = old_name != CARD["name"]
     source, new_name = (SMALL, CARD["name"]) if back else (REPLACEMENT, NEW_NAME)
     with Load(watched, threads=4) as load:

@@ -20,7 +20,7 @@ from tritonclient.utils import InferenceServerException
 
 from service.core.preprocess import load_image, to_network_input
 from service.model import PoseModel
-from service.settings import DEFAULT_MODEL
+from service.settings import DEFAULT_MODEL, DEFAULT_MODEL_NAME
 from service.zoom import detail_decode_size
 
 PHOTOS = [(REAL / name).read_bytes() for name in ("left01.jpg", "right05.jpg", "left12.jpg")]
@@ -67,7 +67,8 @@ def test_health_and_metadata(triton_client: triton.InferenceServerClient) -> Non
     server = triton_client.get_server_metadata()
     assert server["name"] == "planar-pose" and "binary_tensor_data" in server["extensions"]
     meta = triton_client.get_model_metadata("default")
-    assert meta["name"] == "default" and meta["versions"] == [VERSION]
+    # the alias `default` answers with the name the default model is served under
+    assert meta["name"] == DEFAULT_MODEL_NAME and meta["versions"] == [VERSION]
     assert {(i["name"], i["datatype"]) for i in meta["inputs"]} == {
         ("image", "FP32"),
         ("image_bytes", "BYTES"),

@@ -16,6 +16,7 @@ from .client import AsyncPoseClient, PoseClient
 from .errors import (
     AuthError,
     BadImageError,
+    CameraCorruptError,
     CameraNotFoundError,
     InvalidRequestError,
     ModelNotFoundError,
@@ -30,6 +31,7 @@ from .images import ImageInput, encode_png
 from .models import (
     Box,
     Camera,
+    CameraIntrinsics,
     CameraList,
     Cell,
     CellNeighbour,
@@ -52,7 +54,9 @@ __all__ = [
     "BadImageError",
     "Box",
     "Camera",
+    "CameraIntrinsics",
     "CameraList",
+    "CameraCorruptError",
     "CameraNotFoundError",
     "Cell",
     "CellNeighbour",

@@ -17,7 +17,16 @@ from pydantic import BaseModel, ValidationError
 
 from .errors import PoseConnectionError, PoseError, error_from_response
 from .images import ImageInput, is_single_image, to_upload
-from .models import Camera, CameraList, Mode, ModelCard, ModelList, Prediction, PredictResponse
+from .models import (
+    Camera,
+    CameraIntrinsics,
+    CameraList,
+    Mode,
+    ModelCard,
+    ModelList,
+    Prediction,
+    PredictResponse,
+)
 
 DEFAULT_TIMEOUT_S = 30.0
 #: What the service accepts as a model name in a URL.
@@ -158,6 +167,14 @@ class ClientCore:
                 body[key] = int(size)
         if name is not None:
             body["name"] = name
+        try:  # the service's rules (types and bounds of real cameras)
+            CameraIntrinsics.model_validate(body)
+        except ValidationError as exc:
+            problems = "; ".join(
+                f"{'.'.join(str(p) for p in e['loc']) or 'camera'}: {e['msg']}"
+                for e in exc.errors()
+            )
+            raise ValueError(f"not a camera the service takes: {problems}") from None
         return {"method": "POST", "url": "/v1/cameras", "json": body}
 
     @staticmethod

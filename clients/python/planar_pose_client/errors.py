@@ -6,6 +6,7 @@
     ├── NotFoundError             404  no such thing:
     │   ├── ModelNotFoundError         no served model of that name (the message lists them)
     │   └── CameraNotFoundError        no stored camera of that id (`cameras()` lists them)
+    ├── CameraCorruptError        409  the stored camera's row is corrupt: delete_camera clears it
     ├── TooLargeError             413  too many bytes, too many pixels or too many images
     ├── UnsupportedMediaError     415  content type the service does not accept
     ├── InvalidRequestError       422  bad parameters (e.g. an unknown mode)
@@ -58,6 +59,11 @@ class ModelNotFoundError(NotFoundError):
 
 class CameraNotFoundError(NotFoundError):
     """404: the service stores no camera of that id (`cameras()` lists the stored ones)."""
+
+
+class CameraCorruptError(PoseError):
+    """409 `camera_corrupt`: the service holds a row of that camera id that does not parse or
+    validate (a hand edit, another version's, a damaged file); `delete_camera` clears it."""
 
 
 class TooLargeError(PoseError):
@@ -117,6 +123,8 @@ def error_from_response(response: httpx.Response) -> PoseError:
     cls = _BY_STATUS.get(response.status_code, PoseError)
     if response.status_code == 404 and _about_a_camera(code, response):
         cls = CameraNotFoundError
+    if response.status_code == 409 and code == "camera_corrupt":
+        cls = CameraCorruptError
     return cls(message, status=response.status_code, code=code)
 
 

@@ -8,9 +8,9 @@ y towards the top of its texture, z towards the viewer): near/far, x side, y sid
 from __future__ import annotations
 
 from datetime import datetime
-from typing import Any, Literal
+from typing import Annotated, Any, Literal, Self
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 Mode = Literal["whole", "sliding", "proposals"]
 #: Where the focal length of a pose came from (docs/pose.md): the request's `fx=`, a stored
@@ -215,6 +215,77 @@ class ModelList(_Answer):
     default: str
     models: list[ModelInfo]
     problems: dict[str, str] = Field(default_factory=dict)
+
+
+#: The bounds of a camera's intrinsics, the service's own (its docs/pose.md, "Stored cameras";
+#: `service/schemas.py`): fx, fy px; fy / fx; OpenCV's 4, 5 or 8 distortion coefficients
+#: (k1, k2, p1, p2[, k3[, k4, k5, k6]]) with |p| and |k| at most these (the rational model's,
+#: 8 coefficients, larger); the principal point within the image.
+FX_BOUNDS_PX = (1.0, 100_000.0)
+FY_OVER_FX = (0.5, 2.0)
+DIST_LENGTHS = (4, 5, 8)
+DIST_NAMES = ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6")
+TANGENTIAL_MAX = 0.1
+RADIAL_MAX = 10.0
+RATIONAL_MAX = 100.0
+SIZE_MAX_PX = 100_000
+
+_Finite = Annotated[float, Field(allow_inf_nan=False)]
+
+
+def camera_problem(
+    fx: float,
+    fy: float | None,
+    cx: float | None,
+    cy: float | None,
+    dist: list[float] | None,
+    size: tuple[int, int] | None,
+) -> str | None:
+    """Why intrinsics are not a real camera's (the service's rules), or None."""
+    if size is None and (cx is not None or cy is not None):
+        return "cx, cy: give the image's width and height with them"
+    for name, value, side in (("cx", cx, size and size[0]), ("cy", cy, size and size[1])):
+        if value is not None and side and not 0.0 <= value <= side:
+            return f"{name}: must lie within the image (0 to {side} px), got {value:g}"
+    if fy is not None and not FY_OVER_FX[0] <= fy / fx <= FY_OVER_FX[1]:
+        return f"fy / fx: must lie within {FY_OVER_FX[0]:g} to {FY_OVER_FX[1]:g}, got {fy / fx:g}"
+    if dist is None:
+        return None
+    if len(dist) not in DIST_LENGTHS:
+        return f"dist: OpenCV's 4, 5 or 8 coefficients, got {len(dist)}"
+    radial = RATIONAL_MAX if len(dist) == 8 else RADIAL_MAX
+    for name, value in zip(DIST_NAMES, dist, strict=False):
+        bound = TANGENTIAL_MAX if name.startswith("p") else radial
+        if abs(value) > bound:
+            return f"dist: {name} must lie within +-{bound:g} with {len(dist)} coefficients"
+    return None
+
+
+class CameraIntrinsics(BaseModel):
+    """A camera's intrinsics as POST /v1/cameras takes them, checked as the service does
+    (strict types: numbers, not booleans or strings; the bounds above): a camera the service
+    would refuse fails here, before anything is sent."""
+
+    model_config = ConfigDict(strict=True, extra="forbid", frozen=True)
+
+    fx: float = Field(ge=FX_BOUNDS_PX[0], le=FX_BOUNDS_PX[1], allow_inf_nan=False)
+    fy: float | None = Field(None, ge=FX_BOUNDS_PX[0], le=FX_BOUNDS_PX[1], allow_inf_nan=False)
+    cx: float | None = Field(None, allow_inf_nan=False)
+    cy: float | None = Field(None, allow_inf_nan=False)
+    dist: list[_Finite] | None = Field(None, min_length=4, max_length=8)
+    width: int | None = Field(None, ge=1, le=SIZE_MAX_PX)
+    height: int | None = Field(None, ge=1, le=SIZE_MAX_PX)
+    name: str | None = Field(None, max_length=100)
+
+    @model_validator(mode="after")
+    def _real(self) -> Self:
+        if (self.width is None) != (self.height is None):
+            raise ValueError("width and height: give both or neither")
+        size = None if self.width is None or self.height is None else (self.width, self.height)
+        problem = camera_problem(self.fx, self.fy, self.cx, self.cy, self.dist, size)
+        if problem is not None:
+            raise ValueError(problem)
+        return self
 
 
 class Camera(_Answer):

@@ -33,6 +33,7 @@ from websockets.sync.client import ClientConnection, connect
 from ._core import ClientCore, check_camera_id, check_positive
 from .errors import (
     AuthError,
+    CameraCorruptError,
     CameraNotFoundError,
     InvalidRequestError,
     ModelNotFoundError,
@@ -52,6 +53,7 @@ JPEG_QUALITY = 90  # numpy frames are sent as JPEG when OpenCV is installed, els
 _CLOSE_ERRORS: dict[int, tuple[type[PoseError], int]] = {
     4401: (AuthError, 401),
     4404: (PoseError, 404),
+    4409: (CameraCorruptError, 409),
     4422: (InvalidRequestError, 422),
     1013: (ServiceUnavailable, 503),
 }

@@ -17,6 +17,7 @@ import pytest
 from planar_pose_client import (
     AsyncPoseClient,
     Camera,
+    CameraCorruptError,
     CameraNotFoundError,
     InvalidRequestError,
     ModelNotFoundError,
@@ -28,6 +29,7 @@ from planar_pose_client import (
 )
 from planar_pose_client import cli as cli_module
 from planar_pose_client.cli import ExitCode, app
+from planar_pose_client.errors import error_from_response
 from planar_pose_client.stream import StreamPrediction, closed_error, parse_message, stream_url
 from typer.testing import CliRunner
 from websockets.exceptions import ConnectionClosed
@@ -254,7 +256,7 @@ def test_bad_pose_arguments_fail_before_sending(fake):
     with sync_client(fake) as c:
         with pytest.raises(ValueError, match="fx or camera, not both"):
             c.predict(PHOTOS[0], fx=1400.0, camera="c-1")
-        for grid in ("8", "8x", "8x3x", "8x3x60;120", "8 x 3", "8x3 "):
+        for grid in ("8", "8x", "8x3x", "8x3x60;120", "8 x 3", "8x3 ", "８x３"):
             with pytest.raises(ValueError, match="regions must be AxE"):
                 c.predict(PHOTOS[0], regions=grid)
         for camera_id in ("", "../v1/model", "c 1"):
@@ -276,6 +278,23 @@ def test_an_unknown_camera_on_predict_is_camera_not_found(fake):
 
 
 # --- the camera store -----------------------------------------------------------------------
+
+
+def test_a_corrupt_camera_is_camera_corrupt_error() -> None:
+    message = "camera 'c-1' is stored corrupt: DELETE /v1/cameras/c-1 clears it (...)"
+
+    def corrupt(request: httpx.Request) -> httpx.Response:
+        return error(409, "camera_corrupt", message)
+
+    transport = httpx.MockTransport(corrupt)
+    with (
+        PoseClient(URL, retries=0, transport=transport, **FAST) as c,
+        pytest.raises(CameraCorruptError) as got,
+    ):
+        c.camera("c-1")
+    assert got.value.status == 409 and got.value.message == message
+    full = httpx.Response(409, json={"error": {"code": "camera_store_full", "message": "x"}})
+    assert type(error_from_response(full)) is PoseError  # another 409: not about one camera
 
 
 def test_create_list_get_and_delete_cameras(fake):
@@ -342,6 +361,20 @@ def test_bad_camera_arguments_fail_before_sending(fake):
             c.create_camera(1400, width=0)
         with pytest.raises(ValueError, match="height must be a whole number of pixels"):
             c.create_camera(1400, height=480.5)  # type: ignore[arg-type]
+        # the service's rules: real cameras only
+        for kwargs, message in [
+            ({"cx": 1e300, "cy": 1, "width": 640, "height": 480}, "cx: must lie within the image"),
+            ({"cx": 320}, "give the image's width and height"),
+            ({"width": 640}, "width and height: give both or neither"),
+            ({"fy": 9000}, "fy / fx: must lie within 0.5 to 2"),
+            ({"dist": [1e300, 0, 0, 0]}, "k1 must lie within"),
+            ({"dist": [0, 0, 0, 0, 0, 0]}, "4, 5 or 8 coefficients"),
+            ({"fy": 1e9}, "fy: Input should be less than or equal to 100000"),
+            ({"name": "x" * 101}, "name: String should have at most 100 characters"),
+        ]:
+            with pytest.raises(ValueError, match="not a camera the service takes") as refused:
+                c.create_camera(1400, **kwargs)  # type: ignore[arg-type]
+            assert message in str(refused.value)
         with pytest.raises(TypeError, match="takes a list of photos"):
             c.learn_camera(PHOTOS[0])  # type: ignore[arg-type]
         with pytest.raises(ValueError, match="needs photos"):
@@ -444,6 +477,9 @@ def test_stream_messages_carry_the_pose_and_refusals_name_the_camera():
     assert isinstance(camera, CameraNotFoundError) and camera.message == "no camera 'c-x'"
     model = closed_error(unknown, ("model_not_found", "no model named 'm'"), "ws://h")
     assert isinstance(model, ModelNotFoundError) and model.status == 404
+    corrupt = ConnectionClosed(Close(4409, "camera 'c-x' is stored corrupt"), None)
+    refused = closed_error(corrupt, ("camera_corrupt", "camera 'c-x' is stored corrupt"), "ws://h")
+    assert isinstance(refused, CameraCorruptError) and refused.status == 409
 
 
 # --- the command line ---------------------------------------------------------------------

@@ -9,6 +9,7 @@ import json
 import math
 
 import cv2
+import httpx
 import numpy as np
 import pytest
 from live_service import MAX_IMAGES, REAL
@@ -71,9 +72,12 @@ def test_bad_regions_and_camera_fields_are_422(service_url, photos):
     with PoseClient(service_url, retries=0) as client:
         with pytest.raises(InvalidRequestError, match="regions"):
             client.predict(photos[0], regions="0x3")  # the shape passes, the numbers do not
-        with pytest.raises(InvalidRequestError) as sizeless:
-            client.create_camera(1600.0, cx=320.0, cy=240.0)  # cx, cy need the image's size
-        assert sizeless.value.status == 422 and "width and height" in sizeless.value.message
+        # cx, cy need the image's size: the SDK refuses it as the service does, unsent
+        with pytest.raises(ValueError, match="give the image's width and height"):
+            client.create_camera(1600.0, cx=320.0, cy=240.0)
+    for body in ({"fx": 1600.0, "cx": 320.0, "cy": 240.0}, {"fx": True}):
+        r = httpx.post(f"{service_url}/v1/cameras", json=body, timeout=30)
+        assert r.status_code == 422 and r.json()["error"]["code"] == "invalid_camera", r.text
 
 
 def test_a_camera_from_intrinsics_create_list_predict_delete(service_url, photos):
