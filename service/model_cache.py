@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import hashlib
 import logging
-import os
 import threading
 import time
 from collections import OrderedDict
@@ -30,6 +29,7 @@ from service.metrics import Metrics
 from service.model import ModelLoadError
 from service.onnx_file import OnnxFileError, read_graph_size
 from service.predictor import Predictor, give_back_memory
+from service.workers import alive
 
 log = logging.getLogger("uvicorn.error.pose")
 
@@ -138,18 +138,8 @@ def forget_dead_workers(folder: Path) -> None:
     count its loaded models for good otherwise)."""
     for file in folder.glob("gauge_live*_*.db"):
         pid = file.stem.rsplit("_", 1)[-1]
-        if pid.isdigit() and not _alive(int(pid)):
+        if pid.isdigit() and not alive(int(pid)):
             mark_process_dead(int(pid), str(folder))
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
 
 
 @dataclass(frozen=True)

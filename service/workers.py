@@ -9,7 +9,8 @@ import os
 from pathlib import Path
 
 
-def _alive(pid: int) -> bool:
+def alive(pid: int) -> bool:
+    """Whether process `pid` runs (it may belong to another user)."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -38,7 +39,7 @@ class WorkerRuntime:
     def ready_count(self) -> int:
         """Live workers that have loaded their models."""
         pids = [int(p.name) for p in self.ready_dir.iterdir() if p.name.isdigit()]
-        return sum(_alive(pid) for pid in pids)
+        return sum(alive(pid) for pid in pids)
 
     def generation(self) -> int:
         try:
