@@ -106,9 +106,9 @@ def _rebuild_lines(card: dict[str, Any]) -> list[str]:
 
 
 def source_sections(card: dict[str, Any]) -> list[str]:
-    """The card's real figures by source (`source_table`), at the real blur levels of
-    `COLUMNS`, test then val, each with its margin and framing lines."""
-    levels = {f"-b{b}" for d, b in COLUMNS if d == "real"}
+    """The card's real figures by source (`source_table`) at blur 0, test then val, each
+    with its margin and framing lines (the other blur levels: the card's `by_source`)."""
+    levels = {"-b0"}
     lines: list[str] = []
     for field, title in (
         ("accuracy", "Real test sources"),

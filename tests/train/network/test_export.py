@@ -139,15 +139,18 @@ def test_catalog_lists_every_card_with_its_measured_accuracy(tmp_path):
     card["accuracy"] = {
         "real-s1-b0": {"split": "test", "count": 10, "accuracy": 0.25, "by_source": by_source}
     }
-    card["accuracy_val"] = {
-        "real-s1-b3": {"split": "val", "count": 6, "accuracy": 0.5, "by_source": {
-            "cam-v": {"count": 6, "accuracy": 0.5, "detected": 1.0, "side": 0.5,
-                      "distance": 1.0, "focal_scale": 0.61}}}
+    cam_v = {"count": 6, "accuracy": 0.5, "detected": 1.0, "side": 0.5, "distance": 1.0,
+             "focal_scale": 0.61}  # fmt: skip
+    card["accuracy_val"] = {  # the page shows blur 0 by source; the card holds every level
+        f"real-s1-b{b}": {"split": "val", "count": 6, "accuracy": 0.5, "by_source": {
+            "cam-v": {**cam_v, "accuracy": 0.5 if b == 0 else 0.25}}}
+        for b in (0, 3)
     }  # fmt: skip
     (models / "tiny.json").write_text(json.dumps(card))
     page = write_catalog(models).read_text()
-    assert "Real val sources (the model was selected on them), `real-s1-b3`:" in page
+    assert "Real val sources (the model was selected on them), `real-s1-b0`:" in page
     assert "| `cam-v` | 6 | 50.0 % | 100.0 % | 100.0 % | 50.0 % | 0.61 |" in page
+    assert "`real-s1-b3`" not in page and "| `cam-v` | 6 | 25.0 %" not in page
     assert "| `tiny` |  | spec | 80x60 |" in page and "| 25.0 % |" in page
     assert "| test |  | no model of this object is marked pick | `tiny` |" in page
     assert "| `cam-a` | 6 | 33.3 % | 100.0 % | 66.7 % | 50.0 % | 1.73 |" in page
