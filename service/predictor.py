@@ -41,6 +41,7 @@ from service.core.refine import (
     Refinement,
     Texture,
     extent,
+    image_centre,
     refine_corners,
 )
 from service.core.regions import pose_probabilities, region_of_class
@@ -153,11 +154,6 @@ class ObjectView:
     lens: LensName
     refinement: Refinement | None = None
     kappa: float | None = None
-
-
-def _centre(size: tuple[int, int]) -> tuple[float, float]:
-    """The centre (x, y) px of an image of `size` (W, H)."""
-    return ((size[0] - 1) / 2.0, (size[1] - 1) / 2.0)
 
 
 def _refinement_out(ref: Refinement) -> RefinementOut:
@@ -434,7 +430,7 @@ class Predictor:
             if camera is not None and camera.dist is not None and not learned:
                 lens, kind = CameraLens(camera), "camera"
             elif answer.undistorted is not None:  # fitted again by the refinement
-                lens, kind = RadialLens.fitted(seen, corners[1][i], _centre(size)), "network"
+                lens, kind = RadialLens.fitted(seen, corners[1][i], image_centre(size)), "network"
             pinhole = seen if lens is None else lens.undistort(seen)
             view = ObjectView(seen, pinhole, kind)
             if texture is not None and max(size) >= MIN_PHOTO_SCALE * max(self.model.input_size):
@@ -555,7 +551,7 @@ class Predictor:
             return None
         camera = None if focal is None else focal.camera(size)
         learned = focal is not None and focal.lens_learned
-        lens: Lens = RadialLens(_centre(size), last.kappa or 0.0)
+        lens: Lens = RadialLens(image_centre(size), last.kappa or 0.0)
         kind: LensName = "fitted"
         if camera is not None and camera.dist is not None and not learned:
             lens, kind = CameraLens(camera), "camera"

@@ -6,14 +6,19 @@ itself by a homography, started from those corners (OpenCV's ECC, `cv2.findTrans
 coarse to fine over a pyramid):
 
     crop      the photo around the start corners (a margin of `MARGIN` of the object's
-              extent), made a pinhole image where the camera's lens is known (the crop
-              undistorted through OpenCV's 5 coefficients, `cv2.initUndistortRectifyMap`),
-              at a scale that brings the object to at most `MAX_EXTENT_PX`
+              extent), reduced by area to bring the object to at most `MAX_EXTENT_PX`, and
+              resampled as a pinhole sees it through the lens: the camera's (`CameraLens`,
+              OpenCV's coefficients) where known, else one radial coefficient
+              (`RadialLens`, the corner network's division model)
     half turn the texture compared with the crop in both half-turn orders of the start
               corners (the network reads the order from a 160 x 120 input): the better
               correlation starts
     pyramid   ECC from the coarsest level (the object about `COARSE_PX` wide) to the finest,
               each level started from the one before; pixels outside the photo do not count
+    features  where the alignment correlates less than `GOOD_SCORE`, again from the
+              texture's SIFT features matched in the photo (`feature_start`)
+    lens      where the lens is not known, its radial coefficient fitted with the alignment
+              (`fit_radial_lens`)
     checks    kept only where ECC converged, correlates better than the start, and moved no
               corner more than `MAX_SHIFT` of the object's extent; else the start is kept
 
@@ -139,6 +144,11 @@ def extent(corners: np.ndarray) -> float:
     """The object's extent in px: the longest side or diagonal of its corners [4, 2]."""
     q = np.asarray(corners, np.float64)
     return float(max(np.linalg.norm(q[i] - q[j]) for i in range(4) for j in range(i + 1, 4)))
+
+
+def image_centre(size: tuple[int, int]) -> tuple[float, float]:
+    """The centre (x, y) px of an image of `size` (W, H), pixel centres at integers."""
+    return ((size[0] - 1) / 2.0, (size[1] - 1) / 2.0)
 
 
 def scaled_camera(camera: Camera, factor: float) -> Camera:
@@ -540,7 +550,8 @@ def refine_corners(
             if other.refused is None and (best.refused is not None or other.score > best.score):
                 best = other
     if fit_lens and best.refused is None:
-        guess = lens if isinstance(lens, RadialLens) else RadialLens(_centre(grey), 0.0)
+        centre = image_centre((grey.shape[1], grey.shape[0]))
+        guess = lens if isinstance(lens, RadialLens) else RadialLens(centre, 0.0)
         if lens is None:  # the alignment's corners under the guess: the same, kappa 0
             best = replace(best, pinhole=guess.undistort(best.pinhole))
         best, lens = fit_radial_lens(grey, best, guess, texture, deadline)
@@ -554,8 +565,3 @@ def refine_corners(
     return Refinement(
         out, best.pinhole, True, best.start_score, best.score, best.turned, None, ms, lens
     )
-
-
-def _centre(grey: np.ndarray) -> tuple[float, float]:
-    """The centre (x, y) px of an image [H, W]."""
-    return ((grey.shape[1] - 1) / 2.0, (grey.shape[0] - 1) / 2.0)
