@@ -156,6 +156,21 @@ class ObjectView:
     kappa: float | None = None
 
 
+def _camera_lens(known: KnownFocal | None, size: tuple[int, int]) -> CameraLens | None:
+    """A registered camera's whole lens for an image of `size` (W, H), or None where none is
+    known or it was learned from photos (each image fits its own: docs/decisions.md)."""
+    camera = None if known is None else known.camera(size)
+    if known is None or camera is None or camera.dist is None or known.lens_learned:
+        return None
+    return CameraLens(camera)
+
+
+def _reduction(corners: np.ndarray) -> int:
+    """How far a photo may be decoded reduced for the refinement: its object's extent
+    (`corners` [4, 2] px) still `MAX_EXTENT_PX` or more."""
+    return max(1, int(extent(corners) / MAX_EXTENT_PX))
+
+
 def _refinement_out(ref: Refinement) -> RefinementOut:
     def rounded(v: float) -> float | None:
         return round(v, 4) if math.isfinite(v) else None
@@ -421,15 +436,10 @@ class Predictor:
             if p.argmax() == 0:
                 views.append(None)
                 continue
-            seen, k, size = corners[0][i], known[i], frames[i].image_size
-            camera = None if k is None else k.camera(size)
-            # a lens learned from photos is each image's own to fit (docs/decisions.md)
-            learned = k is not None and k.lens_learned
-            lens: Lens | None = None
-            kind: LensName = "none"
-            if camera is not None and camera.dist is not None and not learned:
-                lens, kind = CameraLens(camera), "camera"
-            elif answer.undistorted is not None:  # fitted again by the refinement
+            seen, size = corners[0][i], frames[i].image_size
+            lens: Lens | None = _camera_lens(known[i], size)
+            kind: LensName = "none" if lens is None else "camera"
+            if lens is None and answer.undistorted is not None:  # fitted again by refinement
                 lens, kind = RadialLens.fitted(seen, corners[1][i], image_centre(size)), "network"
             pinhole = seen if lens is None else lens.undistort(seen)
             view = ObjectView(seen, pinhole, kind)
@@ -445,8 +455,7 @@ class Predictor:
     ) -> ObjectView:
         """`view` with its corners refined at the photo's own resolution (`refine_corners`),
         the photo decoded reduced as far as the object keeps `MAX_EXTENT_PX` of extent."""
-        reduction = max(1, int(extent(view.pinhole) / MAX_EXTENT_PX))
-        grey, f = load_grey(data, reduction)
+        grey, f, _ = load_grey(data, _reduction(view.pinhole))
         fit = view.lens != "camera"  # a lens not known is fitted with the alignment
         ref = refine_corners(
             grey,
@@ -542,19 +551,13 @@ class Predictor:
             return None
         t0 = time.perf_counter()
         self.check_pixels([(None, data)], "whole")  # the size limits, from the header
-        header = image_header(data)
-        grey, f = load_grey(data, max(1, int(extent(last.corners) / MAX_EXTENT_PX)))
-        size = (header.width, header.height)
-        if (grey.shape[1] > grey.shape[0]) != (size[0] > size[1]):  # EXIF turned it
-            size = (size[1], size[0])
+        grey, f, size = load_grey(data, _reduction(last.corners))
         if max(size) < MIN_PHOTO_SCALE * max(self.model.input_size):
             return None
-        camera = None if focal is None else focal.camera(size)
-        learned = focal is not None and focal.lens_learned
-        lens: Lens = RadialLens(image_centre(size), last.kappa or 0.0)
-        kind: LensName = "fitted"
-        if camera is not None and camera.dist is not None and not learned:
-            lens, kind = CameraLens(camera), "camera"
+        lens: Lens | None = _camera_lens(focal, size)
+        kind: LensName = "fitted" if lens is None else "camera"
+        if lens is None:
+            lens = RadialLens(image_centre(size), last.kappa or 0.0)
         ref = refine_corners(
             grey,
             (last.corners + 0.5) / f - 0.5,

@@ -188,9 +188,15 @@ def load_image(
         raise ImageDecodeError(f"could not decode the {header.format.upper()} image") from exc
     if rgb is None or rgb.size == 0:
         raise ImageDecodeError(f"could not decode the {header.format.upper()} image (corrupt?)")
+    return DecodedImage(rgb, *_upright_size(header, rgb))
+
+
+def _upright_size(header: ImageHeader, decoded: np.ndarray) -> tuple[int, int]:
+    """The full-resolution (W, H) of an image once EXIF turned it: the stored size, swapped
+    where the decoded pixels [h, w, ...] (reduced or not) lie the other way (a 90/270 turn)."""
     w, h = header.width, header.height
-    turned = (rgb.shape[1] > rgb.shape[0]) != (w > h) and w != h  # EXIF 90/270 degree turn
-    return DecodedImage(rgb, *((h, w) if turned else (w, h)))
+    turned = (decoded.shape[1] > decoded.shape[0]) != (w > h) and w != h
+    return (h, w) if turned else (w, h)
 
 
 _REDUCED_GREY = {
@@ -200,13 +206,14 @@ _REDUCED_GREY = {
 }
 
 
-def load_grey(data: bytes, reduction: int = 1) -> tuple[np.ndarray, int]:
-    """Image bytes (already read by `load_image`: size guarded) -> grey uint8 [h, w], EXIF
-    orientation applied, and the factor it is reduced by: a JPEG decoded at 1 / the largest
-    of 8, 4, 2 not above `reduction` (libjpeg's DCT scaling), anything else at full size
-    (factor 1). Pixel (u, v) of the reduced image is ((u + 0.5) f - 0.5, (v + 0.5) f - 0.5)
-    of the full one."""
-    jpeg = image_header(data).format == "jpeg"
+def load_grey(data: bytes, reduction: int = 1) -> tuple[np.ndarray, int, tuple[int, int]]:
+    """Image bytes (size already guarded: `load_image`, `Predictor.check_pixels`) -> grey
+    uint8 [h, w], EXIF orientation applied, the factor it is reduced by and the full size
+    (W, H) after EXIF orientation: a JPEG decoded at 1 / the largest of 8, 4, 2 not above
+    `reduction` (libjpeg's DCT scaling), anything else at full size (factor 1). Pixel (u, v)
+    of the reduced image is ((u + 0.5) f - 0.5, (v + 0.5) f - 0.5) of the full one."""
+    header = image_header(data)
+    jpeg = header.format == "jpeg"
     factor = next((f for f in (8, 4, 2) if f <= reduction), 1) if jpeg else 1
     flags = _REDUCED_GREY[factor] if factor > 1 else cv2.IMREAD_GRAYSCALE
     try:
@@ -215,7 +222,7 @@ def load_grey(data: bytes, reduction: int = 1) -> tuple[np.ndarray, int]:
         raise ImageDecodeError("could not decode the image") from exc
     if grey is None or grey.size == 0:
         raise ImageDecodeError("could not decode the image (corrupt?)")
-    return grey, factor
+    return grey, factor, _upright_size(header, grey)
 
 
 def decode_image(data: bytes, max_pixels: int | None = None) -> np.ndarray:
