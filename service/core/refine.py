@@ -123,21 +123,25 @@ class Texture:
 @dataclass(frozen=True)
 class Refinement:
     """A refinement's answer: the corners [4, 2] px of the photo as seen and as a pinhole
-    camera sees them (the same where no lens is known), whether they are the refined ones
-    (else the start's, unchanged), the alignment's correlation at the start and at the end
-    (-1..1; the start's where not refined), whether the start's order was half turned, and
-    why it was not refined (None where it was); and the lens the pinhole corners undo: the
-    one given, or (`fit_lens`) the radial lens the alignment fitted."""
+    camera sees them (the same where no lens is known; the start's, unchanged, where not
+    refined), the alignment's correlation at the start and at the end (-1..1; the start's
+    where not refined), whether the start's order was half turned, and why it was not
+    refined (None where it was); and the lens the pinhole corners undo: the one given, or
+    (`fit_lens`) the radial lens the alignment fitted."""
 
     corners: np.ndarray
     pinhole: np.ndarray
-    refined: bool
     start_score: float
     score: float
     turned: bool
     reason: str | None
     elapsed_ms: float
     lens: Lens | None = None
+
+    @property
+    def refined(self) -> bool:
+        """Whether the corners are the alignment's (else the start's)."""
+        return self.reason is None
 
 
 def extent(corners: np.ndarray) -> float:
@@ -559,9 +563,7 @@ def refine_corners(
     if best.refused is not None:
         start_score = best.start_score
         return Refinement(
-            seen, pinhole, False, start_score, start_score, best.turned, best.refused, ms, lens
+            seen, pinhole, start_score, start_score, best.turned, best.refused, ms, lens
         )
     out = best.pinhole if lens is None else lens.distort(best.pinhole)
-    return Refinement(
-        out, best.pinhole, True, best.start_score, best.score, best.turned, None, ms, lens
-    )
+    return Refinement(out, best.pinhole, best.start_score, best.score, best.turned, None, ms, lens)
