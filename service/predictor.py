@@ -35,6 +35,7 @@ from service.core.preprocess import (
 from service.core.refine import (
     MAX_EXTENT_PX,
     REFINED_NOISE_PX,
+    GOOD_SCORE,
     CameraLens,
     Lens,
     RadialLens,
@@ -513,7 +514,8 @@ class Predictor:
         size_cm = self.model.object_size_cm
         if size_cm is None:
             return
-        noise = REFINED_NOISE_PX if result.corners_source == "refined" else None
+        sharp = ref is not None and ref.refined and ref.score >= GOOD_SCORE
+        noise = REFINED_NOISE_PX if sharp else None
         focal = focal_of(view.pinhole, size, size_cm, known, self.model.focal_prior, noise)
         if joint is not None and joint.interval is not None:
             s = joint.scale(size)

@@ -17,7 +17,11 @@ coarse to fine over a pyramid):
               each level started from the one before; pixels outside the photo do not count
     features  where the alignment correlates less than `GOOD_SCORE`, again from the
               texture's SIFT features matched in the photo (`feature_start`)
-    lens      where the lens is not known, its radial coefficient fitted with the alignment
+    blur      the photo's blur read from the texture blurred that correlates best; a
+              blurred photo is aligned again at the finest level with the texture blurred
+              alike (`_photo_blur`)
+    lens      where the lens is not known, its radial coefficient fitted to the texture's
+              features followed into the photo (Lucas-Kanade), then aligned through
               (`fit_radial_lens`)
     checks    kept only where ECC converged, correlates better than the start, and moved no
               corner more than `MAX_SHIFT` of the object's extent; else the start is kept
@@ -50,11 +54,14 @@ COARSE_PX = 60
 #: The crop's lens map is computed every this many crop px (bilinear between).
 MAP_STEP = 8
 #: The radial lens fit (`fit_radial_lens`), in units of kappa (W/2)^2 (W the photo's longer
-#: side; webcams and phones about -0.3 to 0.1): the range it keeps to, the step of its
-#: three samples, and the least curvature of their correlations that counts as a signal.
-LENS_RANGE, LENS_STEP, LENS_MIN_CURVE = (-0.8, 0.4), 0.1, 1e-3
-#: How many times the lens fit moves its three samples towards the parabola's vertex.
-LENS_MOVES = 2
+#: side; webcams and phones about -0.3 to 0.1): the range it searches and the values of
+#: its grid.
+LENS_RANGE, LENS_GRID = (-0.8, 0.4), 13
+#: The texture features the lens fit follows into the photo (at most), the least it needs,
+#: and Lucas-Kanade's window px.
+TRACK_POINTS, MIN_TRACKED, TRACK_WINDOW = 80, 12, 15
+#: How near px a followed feature must come back to where it started, followed back.
+TRACK_RETURN_PX = 0.3
 #: The least gain in correlation a fitted lens must bring over the start's: less is noise
 #: (a head-on view of a lens-free photo gains 0.0002, the ChArUco val frames 0.01-0.05).
 LENS_MIN_GAIN = 0.002
@@ -70,6 +77,10 @@ GAUSS_TAPS = 5
 MAX_SHIFT = 0.25
 #: ECC's iterations per level and its convergence threshold on the correlation's increment.
 ITERATIONS, EPSILON = 20, 1e-4
+#: ECC's iterations where the start is already close (the alignment through a fitted lens).
+REALIGN_ITERATIONS = 8
+#: The blurs (Gaussian sigma px at the crop's scale) a photo's blur is read among (0: sharp).
+PHOTO_BLURS = (2.0, 3.5)
 #: The least correlation of a refined alignment (good ones of the ChArUco val frames: 0.78-0.97,
 #: alignments onto the wrong place: up to 0.3).
 MIN_SCORE = 0.5
@@ -346,21 +357,24 @@ def _align(
     extent_px: float,
     deadline: float,
     finest_only: bool = False,
+    iterations: int = ITERATIONS,
+    blur_px: float = 0.0,
 ) -> tuple[np.ndarray, float]:
     """ECC from the corners [4, 2] px of the crop `start`, coarse to fine (`finest_only`:
-    the crop's own level alone, for a start already close) -> the refined corners [4, 2] px
+    the crop's own level alone with at most `iterations`, for a start already close) -> the
+    refined corners [4, 2] px
     of the crop and the final correlation; cv2.error where it fails, _OverBudget where
     `deadline` (`time.perf_counter()`) passes between two levels."""
     levels = (
         1 if finest_only else max(1, min(5, 1 + int(math.log2(max(extent_px / COARSE_PX, 1.0)))))
     )
-    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, ITERATIONS, EPSILON)
+    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, iterations, EPSILON)
     corners, score = start, -1.0
     for level in reversed(range(levels)):
         if time.perf_counter() > deadline:
             raise _OverBudget
         factor = 2.0**level
-        template = texture.at_extent(extent_px / factor)
+        template = _blurred(texture.at_extent(extent_px / factor), blur_px / factor)
         size = (
             max(8, round(crop.grey.shape[1] / factor)),
             max(8, round(crop.grey.shape[0] / factor)),
@@ -375,6 +389,28 @@ def _align(
         moved = cv2.perspectiveTransform(tex.reshape(-1, 1, 2), np.asarray(H, np.float64))
         corners = (moved.reshape(4, 2) + 0.5) * factor - 0.5
     return corners, float(score)
+
+
+def _blurred(grey: np.ndarray, sigma_px: float) -> np.ndarray:
+    """float32 [h, w] blurred by a Gaussian of `sigma_px` (the same below 0.3 px)."""
+    if sigma_px < 0.3:
+        return grey
+    return cv2.GaussianBlur(grey, (0, 0), sigma_px, borderType=cv2.BORDER_REPLICATE)
+
+
+def _photo_blur(texture: Texture, crop: _Crop, corners: np.ndarray) -> float:
+    """The Gaussian sigma px (of `PHOTO_BLURS`, tried in turn while the correlation grows)
+    of the texture blurred that correlates best with the crop at the aligned corners [4, 2]
+    px of the crop: the photo's own blur."""
+    template = texture.at_extent(extent(corners))
+    H = _homography(Texture(template).corners, corners)
+    best, best_score = 0.0, _score(template, crop, H)
+    for sigma in PHOTO_BLURS:
+        score = _score(_blurred(template, sigma), crop, H)
+        if score <= best_score:
+            break
+        best, best_score = sigma, score
+    return best
 
 
 def _sift(grey: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
@@ -413,13 +449,15 @@ def feature_start(grey: np.ndarray, texture: Texture) -> np.ndarray | None:
 @dataclass(frozen=True)
 class _Aligned:
     """One alignment's pinhole corners [4, 2] px of the photo, its correlation, the start's,
-    whether the start was half turned, and why it is refused (None: it holds)."""
+    whether the start was half turned, why it is refused (None: it holds) and the crop it
+    aligned in."""
 
     pinhole: np.ndarray
     score: float
     start_score: float
     turned: bool
     refused: str | None
+    crop: _Crop | None = None
 
 
 def _aligned_from(
@@ -456,66 +494,121 @@ def _aligned_from(
         return refused("the alignment moved the corners too far")
     if score < max(start_score, MIN_SCORE):
         return refused("the alignment correlates too little")
-    return _Aligned(crop.to_image(moved), score, start_score, turned, None)
+    blur = _photo_blur(texture, crop, moved)
+    if blur > 0:  # a blurred photo: aligned again at its level with the texture blurred alike
+        try:
+            again, s = _align(texture, crop, moved, size * scale, deadline, True, ITERATIONS, blur)
+            if s > score:
+                moved, score = again, s
+        except (cv2.error, _OverBudget):
+            pass
+    return _Aligned(crop.to_image(moved), score, start_score, turned, None, crop)
 
 
 def _realigned(
-    grey: np.ndarray,
-    pinhole: np.ndarray,
-    old: Lens,
-    new: RadialLens,
-    texture: Texture,
-    deadline: float,
+    grey: np.ndarray, start: np.ndarray, lens: RadialLens, texture: Texture, deadline: float
 ) -> _Aligned:
-    """An alignment's pinhole corners [4, 2] px under the lens `old` aligned again under the
-    lens `new` from where they move to, at the finest level alone."""
-    start = new.undistort(old.distort(pinhole))
+    """The alignment through `lens` from the pinhole corners [4, 2] px `start` (already
+    close: the crop's own level, `REALIGN_ITERATIONS`)."""
     size, nan = extent(start), float("nan")
     scale = min(1.0, MAX_EXTENT_PX / size)
     try:
-        crop = _crop(grey, start, new, scale)
-        moved, score = _align(texture, crop, crop.to_crop(start), size * scale, deadline, True)
+        crop = _crop(grey, start, lens, scale)
+        at = crop.to_crop(start)
+        moved, score = _align(texture, crop, at, size * scale, deadline, True, REALIGN_ITERATIONS)
     except (ValueError, cv2.error):
         return _Aligned(start, nan, nan, False, "the alignment did not converge")
     except _OverBudget:
         return _Aligned(start, nan, nan, False, "the alignment ran out of its time budget")
-    return _Aligned(crop.to_image(moved), score, nan, False, None)
+    return _Aligned(crop.to_image(moved), score, nan, False, None, crop)
+
+
+def _tracked_points(
+    aligned: _Aligned, lens: RadialLens, texture: Texture
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Where the texture's own corner features lie in the photo, around an alignment
+    (pinhole corners under `lens`, in its crop): the crop warped onto the texture by the
+    alignment's homography, its brightness and contrast matched to the texture's, and the
+    texture's `TRACK_POINTS` strongest features (Shi-Tomasi) followed into it (Lucas-Kanade,
+    kept where they follow back to within `TRACK_RETURN_PX`) -> (texture points [K, 2] px of
+    the texture at the crop's scale, photo points [K, 2] px as the photo shows them), or None
+    where fewer than `MIN_TRACKED` are followed."""
+    crop = aligned.crop
+    if crop is None:
+        return None
+    template = texture.at_extent(extent(aligned.pinhole) * crop.scale)
+    h, w = template.shape
+    H = _homography(Texture(template).corners, crop.to_crop(aligned.pinhole))
+    flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
+    warped = cv2.warpPerspective(crop.grey, H, (w, h), flags=flags)
+    seen = cv2.warpPerspective(crop.mask, H, (w, h), flags=cv2.INTER_NEAREST | flags) > 0
+    if np.count_nonzero(seen) < 0.2 * seen.size:
+        return None
+    # Lucas-Kanade is not invariant to brightness and contrast as the correlation is
+    gain = template[seen].std() / max(float(warped[seen].std()), 1e-6)
+    matched = (warped - warped[seen].mean()) * gain + template[seen].mean()
+    ours, theirs = (np.clip(a * 255.0 + 0.5, 0, 255).astype(np.uint8) for a in (template, matched))
+    found = cv2.goodFeaturesToTrack(ours, TRACK_POINTS, 0.02, max(w, h) / 15.0)
+    if found is None or len(found) < MIN_TRACKED:
+        return None
+    window = (TRACK_WINDOW, TRACK_WINDOW)
+    moved, status, _ = cv2.calcOpticalFlowPyrLK(ours, theirs, found, None, winSize=window)
+    back, again, _ = cv2.calcOpticalFlowPyrLK(theirs, ours, moved, None, winSize=window)
+    src, dst = found.reshape(-1, 2), moved.reshape(-1, 2)
+    inside = np.all((dst >= 0) & (dst <= [w - 1, h - 1]), axis=1)
+    at = np.clip(dst.round().astype(int), 0, [w - 1, h - 1])
+    keep = (
+        (status.ravel() == 1)
+        & (again.ravel() == 1)
+        & (np.linalg.norm(back.reshape(-1, 2) - src, axis=1) < TRACK_RETURN_PX)
+        & inside
+        & seen[at[:, 1], at[:, 0]]
+    )
+    if np.count_nonzero(keep) < MIN_TRACKED:
+        return None
+    in_crop = cv2.perspectiveTransform(dst[keep].reshape(-1, 1, 2), H).reshape(-1, 2)
+    return src[keep], lens.distort(crop.to_image(in_crop))
+
+
+def _homography_fit(
+    texture_pts: np.ndarray, seen: np.ndarray, lens: RadialLens
+) -> tuple[np.ndarray, float]:
+    """The least-squares homography of the texture points [K, 2] onto the photo points `seen`
+    [K, 2] undone by `lens`, and their mean squared distance px^2 from it."""
+    pinhole = lens.undistort(seen)
+    H, _ = cv2.findHomography(texture_pts, pinhole, 0)
+    if H is None:
+        return np.eye(3), math.inf
+    fit = cv2.perspectiveTransform(texture_pts.reshape(-1, 1, 2), H).reshape(-1, 2)
+    return H, float(((fit - pinhole) ** 2).sum(1).mean())
 
 
 def fit_radial_lens(
     grey: np.ndarray, aligned: _Aligned, lens: RadialLens, texture: Texture, deadline: float
 ) -> tuple[_Aligned, RadialLens]:
-    """The radial lens about `lens.centre` whose undistorted photo the texture fits best,
-    and the alignment through it: the alignment repeated with kappa (W/2)^2 at a centre
-    (`lens`'s first) and `LENS_STEP` either side (W the photo's longer side), the centre
-    moved towards the vertex of the parabola through their correlations while it lies
-    beyond them (`LENS_MOVES` times at most), and the vertex (within `LENS_RANGE`) aligned
-    again; kept where it correlates better than `aligned` by `LENS_MIN_GAIN` -> (alignment,
-    lens). Where the correlations do not curve (an object too small to show its lens), or
-    time runs out, `aligned` and `lens` stay."""
+    """The radial lens about `lens.centre` under which the texture's features, followed into
+    the photo `grey` uint8 [H, W] (`_tracked_points`), lie on one homography best: kappa
+    (W/2)^2 (W the photo's longer side) on a grid of `LENS_GRID` values over `LENS_RANGE`,
+    then the vertex of the parabola through the best and its neighbours; the alignment is
+    then repeated through it from that homography's corners, and kept where it correlates
+    better than `aligned` by `LENS_MIN_GAIN` -> (alignment, lens). Where too few features are
+    followed, or time runs out, `aligned` and `lens` stay."""
+    points = _tracked_points(aligned, lens, texture)
+    if points is None or aligned.crop is None or time.perf_counter() > deadline:
+        return aligned, lens
     unit = (0.5 * max(grey.shape)) ** 2
-    lo, hi = LENS_RANGE[0] + LENS_STEP, LENS_RANGE[1] - LENS_STEP
-    centre, scores = float(np.clip(lens.kappa * unit, lo, hi)), dict[float, float]()
-    for _ in range(1 + LENS_MOVES):
-        ks = (centre - LENS_STEP, centre, centre + LENS_STEP)
-        for k in ks:
-            if k not in scores:
-                if time.perf_counter() > deadline:
-                    return aligned, lens
-                new = RadialLens(lens.centre, k / unit)
-                sample = _realigned(grey, aligned.pinhole, lens, new, texture, deadline)
-                scores[k] = -1.0 if sample.refused is not None else sample.score
-        s0, s1, s2 = (scores[k] for k in ks)
-        curve = s0 - 2 * s1 + s2
-        if min(s0, s1, s2) <= -1.0 or curve > -LENS_MIN_CURVE:
-            return aligned, lens
-        vertex = centre + LENS_STEP * (s0 - s2) / (2 * curve)
-        if abs(vertex - centre) <= LENS_STEP:
-            break
-        centre = float(np.clip(vertex, centre - 2 * LENS_STEP, centre + 2 * LENS_STEP))
-        centre = float(np.clip(centre, lo, hi))
-    fitted = RadialLens(lens.centre, float(np.clip(vertex, *LENS_RANGE)) / unit)
-    found = _realigned(grey, aligned.pinhole, lens, fitted, texture, deadline)
+    grid = np.linspace(*LENS_RANGE, LENS_GRID)
+    costs = [_homography_fit(*points, RadialLens(lens.centre, k / unit))[1] for k in grid]
+    best = int(np.clip(np.argmin(costs), 1, LENS_GRID - 2))
+    c0, c1, c2 = costs[best - 1 : best + 2]
+    curve = c0 - 2 * c1 + c2
+    step = grid[1] - grid[0]
+    offset = 0.5 * (c0 - c2) / curve if curve > 0 else 0.0
+    fitted = RadialLens(lens.centre, (grid[best] + step * float(np.clip(offset, -1, 1))) / unit)
+    H, _ = _homography_fit(*points, fitted)
+    template = texture.at_extent(extent(aligned.pinhole) * aligned.crop.scale)
+    start = cv2.perspectiveTransform(Texture(template).corners.reshape(-1, 1, 2), H)
+    found = _realigned(grey, start.reshape(4, 2), fitted, texture, deadline)
     if found.refused is not None or found.score < aligned.score + LENS_MIN_GAIN:
         return aligned, lens
     return replace(found, start_score=aligned.start_score, turned=aligned.turned), fitted
