@@ -12,10 +12,11 @@ import pytest
 from fastapi.testclient import TestClient
 from live_support import PHOTO
 
+from service.api.schemas import ImageResult, RegionOut
 from service.app import create_app
-from service.schemas import ImageResult, RegionOut
-from service.settings import DEFAULT_MODEL, Settings
-from service.stream import (
+from service.core.paths import DEFAULT_MODEL
+from service.settings import Settings
+from service.stream.protocol import (
     CloseCode,
     Frame,
     FrameQueue,

@@ -22,7 +22,7 @@ from starlette.websockets import WebSocketDisconnect
 from test_service_pose import ROWS, photo
 
 from service import schemas
-from service.cameras import CameraStore
+from service.cameras.store import CameraStore
 from service.core.paths import ASSETS_DIR
 from service.metrics import Metrics
 

@@ -7,10 +7,7 @@ from typing import Annotated, Any
 import anyio
 from fastapi import APIRouter, Query, Request
 
-from service.cameras import KnownFocal
-from service.core.cells import RegionGrid
-from service.core.preprocess import ImageDecodeError, ImageTooLargeError
-from service.deps import (
+from service.api.deps import (
     AUTHORISED,
     FocalDep,
     GridDep,
@@ -22,10 +19,13 @@ from service.deps import (
     StateDep,
     served_name,
 )
-from service.errors import ApiError
-from service.predictor import Prediction, Predictor, too_large_code
-from service.schemas import ERROR_RESPONSES, Mode, PredictResponse
-from service.uploads import read_images
+from service.api.errors import ApiError
+from service.api.schemas import ERROR_RESPONSES, Mode, PredictResponse
+from service.api.uploads import read_images
+from service.cameras.store import KnownFocal
+from service.core.cells import RegionGrid
+from service.core.preprocess import ImageDecodeError, ImageTooLargeError
+from service.pipeline.predictor import Prediction, Predictor, too_large_code
 
 router = APIRouter(tags=["predict"], dependencies=AUTHORISED)
 

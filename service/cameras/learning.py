@@ -8,7 +8,7 @@ from typing import Any
 from service.core.calibration import fit_camera
 from service.core.frame import object_corners
 from service.core.preprocess import camera_pixels
-from service.predictor import Predictor
+from service.pipeline.predictor import Predictor
 
 #: Photos of the object a camera is learned from, at least.
 MIN_PHOTOS = 3

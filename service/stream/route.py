@@ -1,5 +1,5 @@
 """`WS /v1/stream?mode=whole|sliding|proposals&smooth=F&model=NAME&fx=F&camera=ID&regions=G`:
-live frames in, answers out (the protocol: `service/stream.py` and docs/live.md)."""
+live frames in, answers out (the protocol: `service/stream/protocol.py` and docs/live.md)."""
 
 from __future__ import annotations
 
@@ -10,14 +10,14 @@ import anyio
 from fastapi import APIRouter, WebSocket
 from starlette.websockets import WebSocketDisconnect
 
-from service.cameras import CameraCorrupt, CameraNotFound, CameraStoreError, KnownFocal
-from service.deps import served_name, unavailable
+from service.api.deps import served_name, unavailable
+from service.api.state import ServiceState
+from service.cameras.store import CameraCorrupt, CameraNotFound, CameraStoreError, KnownFocal
 from service.metrics import Metrics
-from service.model import ModelLoadError
-from service.predictor import Predictor
-from service.registry import UnknownModel
-from service.state import ServiceState
-from service.stream import (
+from service.pipeline.model import ModelLoadError
+from service.pipeline.predictor import Predictor
+from service.pipeline.registry import UnknownModel
+from service.stream.protocol import (
     CloseCode,
     StreamMetrics,
     StreamOptions,

@@ -14,11 +14,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from service.cameras import KnownFocal
+from service.api.schemas import CellOut, CellShare, FocalSource, Lens, Pose
+from service.cameras.store import KnownFocal
 from service.core.cells import RegionGrid
 from service.core.frame import object_corners
 from service.core.pose import FOCAL_PRIOR, Camera, corner_noise_px, estimate_focal, solve_pose
-from service.schemas import CellOut, CellShare, FocalSource, Lens, Pose
 
 #: Poses sampled for a cell's probabilities: the corners' noise and the focal range drawn.
 CELL_SAMPLES = 64

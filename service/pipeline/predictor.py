@@ -1,7 +1,7 @@
 """Bytes of one or many images -> per-image answers, the HTTP-free core of `/v1/predict`.
 
 Every image of a call goes through ONE batched onnxruntime run (whole mode: one input per
-image, then one more for the zoom pass's crops where it applies, `service.zoom`; sliding
+image, then one more for the zoom pass's crops where it applies, `service.pipeline.zoom`; sliding
 mode: all windows of all images). Thread-safe: the session is shared.
 """
 
@@ -16,7 +16,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from service.cameras import KnownFocal
+from service.api.schemas import Box, Detection, ImageResult, Mode, RefinementOut, RegionOut
+from service.api.schemas import Lens as LensName
+from service.cameras.store import KnownFocal
 from service.core.calibration import fit_camera
 from service.core.cells import RegionGrid
 from service.core.frame import object_corners
@@ -45,14 +47,11 @@ from service.core.refine import (
     refine_corners,
 )
 from service.core.regions import pose_probabilities, region_of_class
-from service.exif import exif_focal
-from service.model import Answer, PoseModel
-from service.posing import cell_of, focal_of, pose_of
-from service.proposals import propose_boxes
-from service.schemas import Box, Detection, ImageResult, Mode, RefinementOut, RegionOut
-from service.schemas import Lens as LensName
-from service.settings import Settings
-from service.sliding import (
+from service.pipeline.exif import exif_focal
+from service.pipeline.model import Answer, PoseModel
+from service.pipeline.posing import cell_of, focal_of, pose_of
+from service.pipeline.proposals import propose_boxes
+from service.pipeline.sliding import (
     BoxGenerator,
     SlidingWindows,
     best_window,
@@ -61,7 +60,8 @@ from service.sliding import (
     working_copy,
     working_min_size,
 )
-from service.zoom import detail_decode_size, detail_of, zoomed
+from service.pipeline.zoom import detail_decode_size, detail_of, zoomed
+from service.settings import Settings
 
 _LIBC = ctypes.CDLL(ctypes.util.find_library("c") or None)
 

@@ -1,5 +1,5 @@
 """`/v1/cameras`: cameras the service learns, from their intrinsics or from photos of the object
-(docs/pose.md); stored in SQLite (`service/cameras.py`)."""
+(docs/pose.md); stored in SQLite (`service/cameras/store.py`)."""
 
 from __future__ import annotations
 
@@ -9,15 +9,7 @@ import anyio
 from fastapi import APIRouter, Query, Request, Response
 from pydantic import ValidationError
 
-from service.cameras import (
-    CameraCorrupt,
-    CameraNotFound,
-    CameraStore,
-    CameraStoreError,
-    CameraStoreFull,
-)
-from service.core.preprocess import ImageDecodeError, ImageTooLargeError
-from service.deps import (
+from service.api.deps import (
     AUTHORISED,
     CamerasDep,
     LimiterDep,
@@ -25,11 +17,19 @@ from service.deps import (
     StateDep,
     get_predictor,
 )
-from service.errors import ApiError
-from service.learning import MIN_PHOTOS, learn_camera
-from service.predictor import too_large_code
-from service.schemas import ERROR_RESPONSES, CameraIn, CameraList, CameraOut, ErrorResponse
-from service.uploads import read_images
+from service.api.errors import ApiError
+from service.api.schemas import ERROR_RESPONSES, CameraIn, CameraList, CameraOut, ErrorResponse
+from service.api.uploads import read_images
+from service.cameras.learning import MIN_PHOTOS, learn_camera
+from service.cameras.store import (
+    CameraCorrupt,
+    CameraNotFound,
+    CameraStore,
+    CameraStoreError,
+    CameraStoreFull,
+)
+from service.core.preprocess import ImageDecodeError, ImageTooLargeError
+from service.pipeline.predictor import too_large_code
 
 router = APIRouter(tags=["cameras"], dependencies=AUTHORISED)
 

@@ -165,8 +165,8 @@ class ImageResult(BaseModel):
     fx_source: FocalSource | None = Field(
         default=None,
         description="Where `fx` came from: the request's fx, a stored camera, the photo's "
-        "EXIF 35 mm equivalent focal length (service/exif.py), the stream's learned camera or "
-        "the photos of a same_camera request; null where it was estimated.",
+        "EXIF 35 mm equivalent focal length (service/pipeline/exif.py), the stream's learned "
+        "camera or the photos of a same_camera request; null where it was estimated.",
     )
     image_size: list[int] | None = Field(
         default=None,

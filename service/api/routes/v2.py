@@ -1,6 +1,6 @@
 """The Open Inference Protocol (KServe v2 REST) under /v2, for KServe/Triton/Seldon clients.
 
-Errors here are the protocol's `{"error": "message"}` (service.errors picks the shape by path).
+Errors here are the protocol's `{"error": "message"}` (service.api.errors picks the shape by path).
 """
 
 from __future__ import annotations
@@ -13,9 +13,7 @@ import numpy as np
 from fastapi import APIRouter, Request
 from fastapi.responses import JSONResponse
 
-from service.core.preprocess import ImageDecodeError, ImageTooLargeError
-from service.core.regions import NUM_CLASSES
-from service.deps import (
+from service.api.deps import (
     AUTHORISED,
     LimiterDep,
     MetricsDep,
@@ -24,9 +22,11 @@ from service.deps import (
     StateDep,
     served_name,
 )
-from service.errors import ApiError
-from service.oip import InferRequest, ProtocolError, infer_response, parse_infer_request
-from service.predictor import ImageInput, Predictor, too_large_code
+from service.api.errors import ApiError
+from service.api.oip import InferRequest, ProtocolError, infer_response, parse_infer_request
+from service.core.preprocess import ImageDecodeError, ImageTooLargeError
+from service.core.regions import NUM_CLASSES
+from service.pipeline.predictor import ImageInput, Predictor, too_large_code
 
 health = APIRouter(tags=["v2"])
 router = APIRouter(tags=["v2"], dependencies=AUTHORISED)

@@ -10,7 +10,9 @@ from typing import Annotated
 import anyio
 from fastapi import Depends, Query, Request
 
-from service.cameras import (
+from service.api.errors import ApiError
+from service.api.state import ServiceState
+from service.cameras.store import (
     CameraCorrupt,
     CameraNotFound,
     CameraStore,
@@ -18,13 +20,11 @@ from service.cameras import (
     KnownFocal,
 )
 from service.core.cells import RegionGrid
-from service.errors import ApiError
 from service.metrics import Metrics
-from service.model import ModelLoadError
-from service.predictor import FX_MAX_PX, FX_MIN_PX, Predictor
-from service.registry import ModelRegistry, UnknownModel
+from service.pipeline.model import ModelLoadError
+from service.pipeline.predictor import FX_MAX_PX, FX_MIN_PX, Predictor
+from service.pipeline.registry import ModelRegistry, UnknownModel
 from service.settings import Settings
-from service.state import ServiceState
 
 
 async def get_state(request: Request) -> ServiceState:

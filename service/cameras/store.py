@@ -29,9 +29,9 @@ from typing import Any
 
 from pydantic import ValidationError
 
+from service.api.schemas import CameraOut, FocalSource
 from service.core.pose import Camera
 from service.metrics import Metrics
-from service.schemas import CameraOut, FocalSource
 
 log = logging.getLogger("uvicorn.error.pose")  # printed by uvicorn's handlers
 

@@ -11,7 +11,7 @@ socket closes, both tasks stop at once and the waiting frames are thrown away.
 
 `fx=F` gives the camera's focal length in pixels of the frames, `camera=ID` a stored camera
 (whole mode; see `Predictor.predict`); without either, the stream learns its camera from the
-frames it answers (`service.stream_camera`; `fx_source: "stream"` once it has).
+frames it answers (`service.cameras.stream_camera`; `fx_source: "stream"` once it has).
 `smooth=f` (0 <= f < 1, default 0 = off) smooths the probabilities
 exponentially over the frames: p_t = f * p_(t-1) + (1 - f) * q_t, with q_t the frame's own
 probabilities; class, confidence and region follow p_t, the box and detections stay the
@@ -39,14 +39,14 @@ from prometheus_client import Counter, Gauge
 from starlette.websockets import WebSocket, WebSocketDisconnect, WebSocketState
 
 from service import bounded_json
-from service.cameras import KnownFocal
+from service.api.schemas import ImageResult, Mode, RegionOut
+from service.cameras.store import KnownFocal
+from service.cameras.stream_camera import StreamCamera
 from service.core.cells import RegionGrid
 from service.core.preprocess import ImageDecodeError, ImageTooLargeError
 from service.core.regions import region_of_class
 from service.metrics import Metrics
-from service.predictor import Prediction, Predictor, Track, too_large_code
-from service.schemas import ImageResult, Mode, RegionOut
-from service.stream_camera import StreamCamera
+from service.pipeline.predictor import Prediction, Predictor, Track, too_large_code
 
 #: Frames that may wait besides the one being answered; more and the oldest is dropped.
 QUEUE_DEPTH = 2
