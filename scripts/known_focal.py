@@ -18,10 +18,10 @@ from pathlib import Path
 
 import numpy as np
 
-from service.cameras.store import KnownFocal
 from service.core.dataset import DatasetError, LoadedDataset, load_dataset
 from service.core.inputs import spec_fx
 from service.core.paths import REPO_ROOT
+from service.pipeline.focal import KnownFocal
 from service.pipeline.model import ModelLoadError, PoseModel
 from service.pipeline.predictor import Predictor
 from service.settings import Settings

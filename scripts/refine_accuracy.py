@@ -39,11 +39,11 @@ import cv2
 import numpy as np
 
 from service.cameras.learning import learn_camera
-from service.cameras.store import KnownFocal
 from service.core.dataset import camera_of_row, corners_of_row
 from service.core.paths import REPO_ROOT
 from service.core.profile import load_profile
 from service.core.regions import is_far, quadrant_of_class
+from service.pipeline.focal import KnownFocal
 from service.pipeline.model import PoseModel
 from service.pipeline.predictor import Predictor
 from service.settings import Settings

@@ -16,10 +16,10 @@ from collections import deque
 import cv2
 import numpy as np
 
-from service.cameras.store import KnownFocal
 from service.core.calibration import fit_camera
 from service.core.frame import object_corners
 from service.core.pose import Camera, focal_prior, solve_pose
+from service.pipeline.focal import KnownFocal
 
 MIN_VIEWS = 5
 MAX_VIEWS = 30

@@ -29,7 +29,7 @@ import re
 import secrets
 from collections import deque
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from enum import IntEnum
 from typing import Any, get_args
 
@@ -39,14 +39,16 @@ from prometheus_client import Counter, Gauge
 from starlette.websockets import WebSocket, WebSocketDisconnect, WebSocketState
 
 from service import bounded_json
-from service.api.schemas import ImageResult, Mode, RegionOut
-from service.cameras.store import KnownFocal
+from service.api.schemas import image_result_out
 from service.cameras.stream_camera import StreamCamera
 from service.core.cells import RegionGrid
 from service.core.preprocess import ImageDecodeError, ImageTooLargeError
 from service.core.regions import region_of_class
 from service.metrics import Metrics
-from service.pipeline.predictor import Prediction, Predictor, Track, too_large_code
+from service.pipeline.focal import KnownFocal
+from service.pipeline.job import too_large_code
+from service.pipeline.predictor import Prediction, Predictor, Track
+from service.pipeline.results import ImageResult, Mode, Region
 
 #: Frames that may wait besides the one being answered; more and the oldest is dropped.
 QUEUE_DEPTH = 2
@@ -287,16 +289,15 @@ class Smoother:
             probs = self.factor * self._state + (1.0 - self.factor) * probs
         self._state = probs
         class_id = int(probs.argmax())
-        return result.model_copy(
-            update={
-                "class_id": class_id,
-                "region": RegionOut(**region_of_class(class_id)),
-                "probabilities": probs.tolist(),
-                "confidence": float(probs[class_id]),
-                "corners": result.corners if class_id != 0 else None,
-                "pose": result.pose if class_id != 0 else None,
-                "cell": result.cell if class_id != 0 else None,
-            }
+        return replace(
+            result,
+            class_id=class_id,
+            region=Region(**region_of_class(class_id)),
+            probabilities=probs.tolist(),
+            confidence=float(probs[class_id]),
+            corners=result.corners if class_id != 0 else None,
+            pose=result.pose if class_id != 0 else None,
+            cell=result.cell if class_id != 0 else None,
         )
 
 
@@ -435,7 +436,7 @@ class StreamSession:
         self.metrics.frames.labels(mode, "answered").inc()
         self.metrics.metrics.observe(mode, 1, prediction.inference_s)
         result = self.smoother.apply(prediction.results[0])
-        return json.dumps({**where, **result.model_dump(mode="json")})
+        return json.dumps({**where, **image_result_out(result).model_dump(mode="json")})
 
     def _predict(self, data: bytes) -> Prediction:
         """One frame's answer (with the learned camera once there is one): tracked from the

@@ -12,8 +12,9 @@ from starlette.websockets import WebSocketDisconnect
 
 from service.api.deps import served_name, unavailable
 from service.api.state import ServiceState
-from service.cameras.store import CameraCorrupt, CameraNotFound, CameraStoreError, KnownFocal
+from service.cameras.store import CameraCorrupt, CameraNotFound, CameraStoreError, known_focal
 from service.metrics import Metrics
+from service.pipeline.focal import KnownFocal
 from service.pipeline.model import ModelLoadError
 from service.pipeline.predictor import Predictor
 from service.pipeline.registry import UnknownModel
@@ -71,7 +72,7 @@ async def stream_focal(state: ServiceState, options: StreamOptions) -> KnownFoca
         return None if options.fx is None else KnownFocal(options.fx, "query")
     try:
         camera = await anyio.to_thread.run_sync(state.cameras.get, options.camera, "stream")
-        return KnownFocal.of(camera)
+        return known_focal(camera)
     except CameraNotFound as exc:
         raise StreamRefused(CloseCode.NOT_FOUND, "camera_not_found", str(exc)) from None
     except CameraCorrupt as exc:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import time
+from dataclasses import replace
 from typing import Any
 
 import anyio
@@ -12,9 +13,9 @@ import pytest
 from fastapi.testclient import TestClient
 from live_support import PHOTO
 
-from service.api.schemas import ImageResult, RegionOut
 from service.app import create_app
 from service.core.paths import DEFAULT_MODEL
+from service.pipeline.results import ImageResult, Region
 from service.settings import Settings
 from service.stream.protocol import (
     CloseCode,
@@ -69,7 +70,7 @@ def _result(probs: list[float]) -> ImageResult:
     return ImageResult(
         filename=None,
         class_id=k,
-        region=RegionOut(present=k > 0, depth=None, x=None, y=None, label="x"),
+        region=Region(present=k > 0, depth=None, x=None, y=None, label="x"),
         probabilities=probs,
         confidence=probs[k],
         box=None,
@@ -99,9 +100,9 @@ def test_smoothing_to_class_0_drops_the_corners() -> None:
     board[2], empty[0] = 1.0, 1.0
     corners = [[1.0, 2.0], [3.0, 2.0], [3.0, 4.0], [1.0, 4.0]]
     smooth = Smoother(0.75)
-    assert smooth.apply(_result(board).model_copy(update={"corners": corners})).corners == corners
+    assert smooth.apply(replace(_result(board), corners=corners)).corners == corners
     # the frames' own answers say class 0 (with corners, to see them dropped)
-    lagging = [smooth.apply(_result(empty).model_copy(update={"corners": corners})) for _ in "abc"]
+    lagging = [smooth.apply(replace(_result(empty), corners=corners)) for _ in "abc"]
     assert [r.class_id for r in lagging] == [2, 2, 0]  # board at 0.75, 0.56, 0.42
     assert lagging[1].corners == corners and lagging[2].corners is None
 

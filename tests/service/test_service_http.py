@@ -398,7 +398,7 @@ def test_not_ready_without_model(app_factory: AppFactory, tmp_path: Path) -> Non
 
 
 class _Exploding(Predictor):
-    def predict(self, *args: Any, **kwargs: Any) -> Any:
+    def run(self, *args: Any, **kwargs: Any) -> Any:
         raise RuntimeError("secret internals")
 
 

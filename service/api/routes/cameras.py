@@ -18,9 +18,10 @@ from service.api.deps import (
     get_predictor,
 )
 from service.api.errors import ApiError
-from service.api.schemas import ERROR_RESPONSES, CameraIn, CameraList, CameraOut, ErrorResponse
+from service.api.schemas import ERROR_RESPONSES, CameraList, ErrorResponse
 from service.api.uploads import read_images
 from service.cameras.learning import MIN_PHOTOS, learn_camera
+from service.cameras.schema import CameraIn, CameraOut
 from service.cameras.store import (
     CameraCorrupt,
     CameraNotFound,
@@ -29,7 +30,7 @@ from service.cameras.store import (
     CameraStoreFull,
 )
 from service.core.preprocess import ImageDecodeError, ImageTooLargeError
-from service.pipeline.predictor import too_large_code
+from service.pipeline.job import too_large_code
 
 router = APIRouter(tags=["cameras"], dependencies=AUTHORISED)
 
