@@ -29,7 +29,7 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from service.cameras.schema import CameraOut
+from service.cameras.schema import CameraIn, CameraOut
 from service.metrics import Metrics
 from service.pipeline.focal import KnownFocal
 
@@ -241,6 +241,14 @@ class CameraStore:
                 db.execute("ROLLBACK")
                 raise
         return camera
+
+    def create_from(self, given: CameraIn, name: str | None = None) -> CameraOut:
+        """Store a camera of the intrinsics `given` (named by its `name`, else `name`)."""
+        fields = given.model_dump()
+        fields["name"] = fields["name"] or name
+        return self.create(
+            {**fields, "source": "intrinsics", "photos_used": 0, "residual_px": None}
+        )
 
     def get(self, camera_id: str, operation: str = "get") -> CameraOut:
         """The camera `camera_id`; CameraNotFound when there is none, CameraCorrupt when its
