@@ -20,9 +20,9 @@ from service.api.drain import DrainMiddleware, hold_back_sigterm
 from service.api.errors import CrashMiddleware, install_error_handlers
 from service.api.limits import BodyLimitMiddleware
 from service.api.redact import install as redact_secrets_in_logs
+from service.api.request_metrics import MetricsMiddleware
 from service.api.routes import cameras, health, model, predict, v2, web
 from service.api.state import ServiceState
-from service.metrics import MetricsMiddleware
 from service.settings import Settings
 from service.stream import route as stream
 
