@@ -46,7 +46,7 @@ from service.core.preprocess import ImageDecodeError, ImageTooLargeError
 from service.core.regions import region_of_class
 from service.metrics import Metrics
 from service.pipeline.focal import KnownFocal
-from service.pipeline.job import too_large_code
+from service.pipeline.job import Options, too_large_code
 from service.pipeline.predictor import Prediction, Predictor, Track
 from service.pipeline.results import ImageResult, Mode, Region
 
@@ -445,9 +445,9 @@ class StreamSession:
         known = self.focal or (self.camera.known if self.camera is not None else None)
         prediction = self._tracked(data, known)
         if prediction is None:
-            prediction = self.predictor.predict(
-                [(None, data)], self.options.mode, known, grid=self.options.grid
-            )
+            # the request's focal length was checked once, when the stream opened
+            options = Options(self.options.mode, known, grid=self.options.grid)
+            prediction = self.predictor.run(self.predictor.admit([(None, data)], options))
             self.tracked = 0
             if prediction.results[0].corners is not None:
                 prediction.results[0].tracked = False
