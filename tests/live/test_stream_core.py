@@ -144,7 +144,7 @@ def test_a_crash_on_one_frame_is_an_error_message_and_the_stream_goes_on(
         while client.get("/readyz").status_code != 200 and time.monotonic() < deadline:
             time.sleep(0.05)
         predictor = app.state.pose.predictor
-        real = predictor.predict
+        real = predictor.run
         calls = {"n": 0}
 
         def flaky(*args: Any, **kwargs: Any) -> object:
@@ -153,7 +153,7 @@ def test_a_crash_on_one_frame_is_an_error_message_and_the_stream_goes_on(
                 raise RuntimeError("boom")
             return real(*args, **kwargs)
 
-        monkeypatch.setattr(predictor, "predict", flaky)
+        monkeypatch.setattr(predictor, "run", flaky)
         with client.websocket_connect("/v1/stream") as ws:
             assert json.loads(ws.receive_text())["event"] == "ready"
             answers = []
