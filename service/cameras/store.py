@@ -8,7 +8,8 @@ transaction: concurrent creators cannot pass `max_cameras` together.
 
 A camera's intrinsics are px of images `width` x `height`; it answers an image of another
 size with them scaled by the ratio of the longer sides (a portrait photo of a landscape
-camera is the same lens turned). A camera without a size uses its fx as is.
+camera is the same lens turned; `service.pipeline.focal.KnownFocal.camera`). A camera
+without a size uses its fx as is.
 """
 
 from __future__ import annotations
