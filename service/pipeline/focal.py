@@ -1,11 +1,15 @@
 """The focal length a request knows (`KnownFocal`), and the range of one it may give.
 
 Where it came from: the request's `fx`, a stored camera (`service.cameras`), the photo's
-EXIF (`exif.py`) or the camera a stream learns.
+EXIF (`exif.py`) or the camera a stream learns. The range is checked once, where a number
+becomes a `KnownFocal`: the HTTP query's bounds (`service.api.deps`), a stream's query
+(`fx_problem`), a stored camera's record (`service.cameras.schema`); the pipeline takes a
+`KnownFocal` as checked.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from service.core.pose import Camera
@@ -16,6 +20,13 @@ from service.pipeline.results import FocalSource
 #: sensor (a 600 mm lens on a 24 mm wide 8000 px sensor is 200,000 px: 1e5 is f = 300 mm
 #: there). Outside, float32 would turn it to 0 (unknown) or inf.
 FX_MIN_PX, FX_MAX_PX = 1.0, 100_000.0
+
+
+def fx_problem(fx: float) -> str | None:
+    """Why `fx` px is not a focal length a request may give, or None where it is."""
+    if math.isfinite(fx) and FX_MIN_PX <= fx <= FX_MAX_PX:
+        return None
+    return f"fx: must be {FX_MIN_PX:g} to {FX_MAX_PX:g} pixels, got {fx}"
 
 
 @dataclass(frozen=True)

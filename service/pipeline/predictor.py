@@ -42,7 +42,7 @@ from service.core.refine import (
 )
 from service.core.regions import pose_probabilities, region_of_class
 from service.pipeline.exif import exif_focal
-from service.pipeline.focal import FX_MAX_PX, FX_MIN_PX, KnownFocal
+from service.pipeline.focal import KnownFocal
 from service.pipeline.job import ImageInput, Job, Options, Upload, admit
 from service.pipeline.model import Answer, PoseModel
 from service.pipeline.posing import cell_of, focal_of, pose_of
@@ -254,7 +254,8 @@ class Predictor:
         self, mode: Mode, focal: KnownFocal | None, same_camera: bool = False
     ) -> str | None:
         """Why the known focal length `focal` (or a `same_camera` fit) cannot be used with
-        `mode` and this model, or None when it can (or neither is asked for)."""
+        `mode` and this model, or None when it can (or neither is asked for); its range was
+        checked where it was made (`service.pipeline.focal`)."""
         if focal is None and not same_camera:
             return None
         what = (
@@ -264,10 +265,6 @@ class Predictor:
         )
         if focal is not None and same_camera:
             return f"same_camera: the focal length is known already ({what}); give one of them"
-        if focal is not None and not (
-            math.isfinite(focal.fx) and FX_MIN_PX <= focal.fx <= FX_MAX_PX
-        ):
-            return f"fx: must be {FX_MIN_PX:g} to {FX_MAX_PX:g} pixels, got {focal.fx}"
         if mode != "whole":
             return f"{what}: applies to mode=whole only, not mode={mode}"
         if not self.model.takes_focal:

@@ -14,7 +14,7 @@ from service.api.deps import served_name, unavailable
 from service.api.state import ServiceState
 from service.cameras.store import CameraCorrupt, CameraNotFound, CameraStoreError, known_focal
 from service.metrics import Metrics
-from service.pipeline.focal import KnownFocal
+from service.pipeline.focal import KnownFocal, fx_problem
 from service.pipeline.model import ModelLoadError
 from service.pipeline.predictor import Predictor
 from service.pipeline.registry import UnknownModel
@@ -66,10 +66,16 @@ async def find_predictor(state: ServiceState, name: str | None) -> Predictor:
 
 
 async def stream_focal(state: ServiceState, options: StreamOptions) -> KnownFocal | None:
-    """The focal length of `fx=` or of the stored camera `camera=` (StreamRefused 4404 for an
-    unknown id, 4409 for a corrupt row, 1013 when the store cannot be read)."""
+    """The focal length of `fx=` or of the stored camera `camera=` (StreamRefused 4422 for an
+    fx out of its range, 4404 for an unknown id, 4409 for a corrupt row, 1013 when the store
+    cannot be read)."""
     if options.camera is None:
-        return None if options.fx is None else KnownFocal(options.fx, "query")
+        if options.fx is None:
+            return None
+        problem = fx_problem(options.fx)  # the range, checked once: here
+        if problem is not None:
+            raise StreamRefused(CloseCode.INVALID_PARAMETERS, "invalid_parameters", problem)
+        return KnownFocal(options.fx, "query")
     try:
         camera = await anyio.to_thread.run_sync(state.cameras.get, options.camera, "stream")
         return known_focal(camera)
