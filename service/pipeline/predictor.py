@@ -512,18 +512,21 @@ class Predictor:
         focal: KnownFocal | None = None,
         grid: RegionGrid | None = None,
     ) -> Prediction | None:
-        """One frame of a stream whose object the frame before showed at `last`: its corners
-        refined from there (no network, no feature search, the last frame's lens), or None
-        where the model carries no texture, refinement is off, the frame is small
-        (`MIN_PHOTO_SCALE`), or the alignment does not
-        hold at `TRACK_SCORE` (then the network answers the frame, `predict`); the errors of
-        `predict` for an image it refuses."""
+        """`follow` for a frame's bytes (its header read here, its size limits checked)."""
+        return self.follow(self.admit([(None, data)], Options("whole", focal, grid=grid)), last)
+
+    def follow(self, job: Job, last: Track) -> Prediction | None:
+        """The one frame of `job`, of a stream whose object the frame before showed at `last`:
+        its corners refined from there (no network, no feature search, the last frame's
+        lens), or None where the model carries no texture, refinement is off, the frame is small
+        (`MIN_PHOTO_SCALE`), or the alignment does not hold at `TRACK_SCORE` (then the
+        network answers the frame, `run`); ImageDecodeError for a frame that does not decode."""
         texture, size_cm = self.model.texture, self.model.object_size_cm
         if texture is None or size_cm is None or not self.settings.refine:
             return None
         t0 = time.perf_counter()
-        image = self.admit([(None, data)], Options()).uploads[0]  # the size limits, from the header
-        grey, f, size = load_grey(data, _reduction(last.corners), image.header)
+        image, focal, grid = job.uploads[0], job.options.focal, job.options.grid
+        grey, f, size = load_grey(image.data, _reduction(last.corners), image.header)
         if max(size) < MIN_PHOTO_SCALE * max(self.model.input_size):
             return None
         lens: Lens | None = _camera_lens(focal, size)

@@ -46,7 +46,7 @@ from service.core.preprocess import ImageDecodeError, ImageTooLargeError
 from service.core.regions import region_of_class
 from service.metrics import Metrics
 from service.pipeline.focal import KnownFocal
-from service.pipeline.job import Options, too_large_code
+from service.pipeline.job import Job, Options, too_large_code
 from service.pipeline.predictor import Prediction, Predictor, Track
 from service.pipeline.results import ImageResult, Mode, Region
 
@@ -440,14 +440,16 @@ class StreamSession:
 
     def _predict(self, data: bytes) -> Prediction:
         """One frame's answer (with the learned camera once there is one): tracked from the
-        last frame's corners where it can be (`Predictor.track`), else the network's; its
+        last frame's corners where it can be (`Predictor.follow`), else the network's; its
         corners are then offered to the camera the stream learns."""
         known = self.focal or (self.camera.known if self.camera is not None else None)
-        prediction = self._tracked(data, known)
+        # the request's focal length was checked once, when the stream opened; the frame's
+        # header is read once, here
+        options = Options(self.options.mode, known, grid=self.options.grid)
+        job = self.predictor.admit([(None, data)], options)
+        prediction = self._tracked(job)
         if prediction is None:
-            # the request's focal length was checked once, when the stream opened
-            options = Options(self.options.mode, known, grid=self.options.grid)
-            prediction = self.predictor.run(self.predictor.admit([(None, data)], options))
+            prediction = self.predictor.run(job)
             self.tracked = 0
             if prediction.results[0].corners is not None:
                 prediction.results[0].tracked = False
@@ -461,14 +463,14 @@ class StreamSession:
             self.camera.offer(pinhole, (w, h), prediction.kappas[0])
         return prediction
 
-    def _tracked(self, data: bytes, known: KnownFocal | None) -> Prediction | None:
+    def _tracked(self, job: Job) -> Prediction | None:
         """The frame tracked from the last one, or None where the network answers it: no
         track, tracking off or due the network (`Settings.stream_track_every`), not whole
         mode, or the track lost."""
         every = self.predictor.settings.stream_track_every
         if self.track is None or self.options.mode != "whole" or self.tracked + 1 >= every:
             return None
-        prediction = self.predictor.track(data, self.track, known, self.options.grid)
+        prediction = self.predictor.follow(job, self.track)
         if prediction is not None:
             self.tracked += 1
         return prediction

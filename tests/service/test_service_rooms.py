@@ -61,3 +61,20 @@ def test_each_uploads_header_is_read_once(
     answer = client.post("/v1/predict", params={"mode": mode}, files=files)
     assert answer.status_code == 200, answer.text
     assert calls == [len(PHOTO)] * 2
+
+
+def test_each_stream_frames_header_is_read_once_tracked_or_not(
+    client: TestClient, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    calls: list[int] = []
+    counted = _counting(calls, preprocess.image_header)
+    monkeypatch.setattr(job, "image_header", counted)
+    monkeypatch.setattr(preprocess, "image_header", counted)
+    with client.websocket_connect("/v1/stream") as ws:
+        assert ws.receive_json()["event"] == "ready"
+        answers = []
+        for _ in range(3):
+            ws.send_bytes(PHOTO)
+            answers.append(ws.receive_json())
+    assert all("class_id" in a for a in answers), answers
+    assert calls == [len(PHOTO)] * 3
