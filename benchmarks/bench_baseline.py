@@ -12,7 +12,7 @@ On the 26 real photographs (train/assets/real/chessboard-stereo) resized to each
   `findChessboardCornersSB`, fallback `findChessboardCorners`, parity, IPPE PnP) and how many
   of the photos it answers right;
 * box generation on the 640x480 photos: the service's sliding-window grid vs
-  `service.proposals.propose_boxes`.
+  `service.pipeline.proposals.propose_boxes`.
 
 Prints ms / image and the ratios (the thesis: baseline about 10x slower than the network).
 
@@ -28,13 +28,13 @@ from pathlib import Path
 
 import numpy as np
 
+from service.core.paths import DEFAULT_MODEL
 from service.core.preprocess import resize_rgb
 from service.core.profile import load_profile
 from service.core.regions import pose_class
-from service.model import PoseModel
-from service.proposals import propose_boxes
-from service.settings import DEFAULT_MODEL
-from service.sliding import SlidingWindows
+from service.pipeline.model import PoseModel
+from service.pipeline.proposals import propose_boxes
+from service.pipeline.sliding import SlidingWindows
 from train.compare.baseline import BaselineConfig, FeatureBaseline
 from train.compare.chessboard_peer import ChessboardPeer
 from train.network.evaluate import model_predictor, predict_all

@@ -2,11 +2,11 @@
 measured in one run: the model issue's budget is an ONNX file under 10 MB and inference per
 image within 2x of the SPEC network at the same input size.
 
-For every models/*.onnx, with onnxruntime on one thread (`service.model.PoseModel`, as one
+For every models/*.onnx, with onnxruntime on one thread (`service.pipeline.model.PoseModel`, as one
 service worker runs it): the file's size; ms per image of the graph alone (`PoseModel.run`)
 at batch 1 and batch 64, on a board photo (train/assets/real/chessboard-stereo/left01.jpg)
 brought to the network's input as the service does; and ms per image of the service's whole
-mode (preprocessing + graph + the zoom pass where the graph serves it, `service.zoom`) on
+mode (preprocessing + graph + the zoom pass where the graph serves it, `service.pipeline.zoom`) on
 that photo and on a photo without the board (train/assets/backgrounds/photos/camera.jpg),
 where the zoom pass searches its tiles. Each time is the best of `--repeat` rounds of
 `--seconds` each. The ratios are to the SPEC network (the models whose card names no
@@ -30,10 +30,10 @@ import numpy as np
 import onnxruntime
 from docs_section import write_section  # benchmarks/, the script's own folder
 
+from service.core.paths import DEFAULT_MODEL_NAME
 from service.core.preprocess import to_network_input
-from service.model import PoseModel
-from service.settings import DEFAULT_MODEL_NAME
-from service.zoom import detail_of, zoomed
+from service.pipeline.model import PoseModel
+from service.pipeline.zoom import detail_of, zoomed
 from train.markdown import table
 
 ROOT = Path(__file__).resolve().parent.parent

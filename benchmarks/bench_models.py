@@ -52,7 +52,7 @@ import httpx
 import psutil
 from docs_section import write_section  # benchmarks/, the script's own folder
 
-from service.model import PoseModel
+from service.pipeline.model import PoseModel
 
 ROOT = Path(__file__).resolve().parent.parent
 MODELS = ROOT / "models"
@@ -253,7 +253,7 @@ def kill_under_load(server: Server, clients: int, seconds: float) -> tuple[Load,
 
 def load_cpu_lines() -> list[str]:
     """CPU seconds to load each shipped corner graph from its ONNX file and from its
-    optimized graph (what `service.model.open_session` caches), in this process."""
+    optimized graph (what `service.pipeline.model.open_session` caches), in this process."""
     lines = []
     with tempfile.TemporaryDirectory(prefix="bench-models-ort-") as tmp:
         for path in sorted(MODELS.glob("*corners*.onnx")):

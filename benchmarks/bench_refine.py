@@ -34,13 +34,13 @@ import numpy as np
 from bench_inference import best_ms  # benchmarks/, the script's own folder
 from docs_section import write_section
 
-from service.cameras import KnownFocal
 from service.core.dataset import camera_of_row
 from service.core.geometry import intrinsics
 from service.core.profile import load_profile
-from service.model import PoseModel
-from service.predictor import Predictor, Track
-from service.schemas import ImageResult
+from service.pipeline.focal import KnownFocal
+from service.pipeline.model import PoseModel
+from service.pipeline.predictor import Predictor, Track
+from service.pipeline.results import ImageResult
 from service.settings import Settings
 from train.markdown import table
 from train.synth.background import BackgroundPool, shipped_backgrounds

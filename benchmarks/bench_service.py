@@ -8,7 +8,7 @@ JPEG, so decoding costs what a colour photo costs), in whole and sliding mode, a
 * HTTP: `planar-pose-serve --workers 1` and `--workers N` (N = the CPUs, access log off);
   requests/s, p50/p99 latency and server CPU ms per request (the whole process tree), from
   `wrk` (C, one thread, raw image body) or, without wrk, an httpx client in another process;
-* in-process: `service.predictor.Predictor.predict` on the same bytes from c threads.
+* in-process: `service.pipeline.predictor.Predictor.predict` on the same bytes from c threads.
 
 The three are measured back to back for each cell (both servers stay up), best of
 `--repeat` rounds, so that the other work of a shared machine moves them alike.
@@ -33,7 +33,7 @@ Then, in the same run, the service under stress (section "Service under stress")
   the zoom pass buys on the real val and test sources, blur 0-3 (the evaluation path:
   `train.network.evaluate.network_batch`, then the graph with the pass off, searching 9
   tiles, searching the default's), and on the corpus photos as stored (blur 0) through
-  `service.predictor.Predictor`, whose tiles are cut from the upload (target: the gain
+  `service.pipeline.predictor.Predictor`, whose tiles are cut from the upload (target: the gain
   within 1 point of the 9-tile search's).
 
     .venv/bin/python benchmarks/bench_service.py [--seconds 3] [--repeat 2] [--write-docs]
@@ -66,8 +66,8 @@ import numpy as np
 import psutil
 from docs_section import write_section  # benchmarks/, the script's own folder
 
-from service.model import PoseModel
-from service.predictor import Predictor
+from service.pipeline.model import PoseModel
+from service.pipeline.predictor import Predictor
 from service.settings import Settings, cpu_count
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -465,7 +465,7 @@ def stress(workers: int, body: Path, generate: object, args: object) -> list[str
 def recall_lines(sets: Path) -> list[str]:
     """The zoom pass's accuracy on the real val and test sources (module doc)."""
     from service.core.dataset import load_dataset
-    from service.zoom import GRID, SEARCH_TILES, zoomed
+    from service.pipeline.zoom import GRID, SEARCH_TILES, zoomed
     from train.network.evaluate import network_batch
 
     model = PoseModel.load(Settings().resolved_model_path)
@@ -507,7 +507,7 @@ def service_recall_lines(sets: Path, model: PoseModel) -> list[str]:
     """The same through `Predictor` on the corpus photos as stored (blur 0; tiles cut from
     the upload where it has the pixels)."""
     from service.core.dataset import load_dataset
-    from service.zoom import GRID, SEARCH_TILES
+    from service.pipeline.zoom import GRID, SEARCH_TILES
 
     corpus = ROOT / "train" / "assets" / "real" / "corpus"
     variants: dict[str, dict[str, object]] = {

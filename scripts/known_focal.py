@@ -1,7 +1,7 @@
 """What a known focal length gives: class accuracy on the real sets with and without `fx`.
 
 Each photo of the corpus's real-s2-b0..3 sets (val and test sources) is sent through the
-service's own path (`service.predictor.Predictor`, whole mode, the settings' defaults) once
+service's own path (`service.pipeline.predictor.Predictor`, whole mode, the settings' defaults) once
 without `fx` (the pose estimates the focal length) and once with the photo's calibrated fx
 (labels.csv `focal_scale`, x the SPEC camera's; photos without a calibration get none).
 Writes a markdown page (default docs/known_focal.md) with the date and the machine.
@@ -18,12 +18,12 @@ from pathlib import Path
 
 import numpy as np
 
-from service.cameras import KnownFocal
 from service.core.dataset import DatasetError, LoadedDataset, load_dataset
 from service.core.inputs import spec_fx
 from service.core.paths import REPO_ROOT
-from service.model import ModelLoadError, PoseModel
-from service.predictor import Predictor
+from service.pipeline.focal import KnownFocal
+from service.pipeline.model import ModelLoadError, PoseModel
+from service.pipeline.predictor import Predictor
 from service.settings import Settings
 from train.markdown import table, written_by
 

@@ -38,14 +38,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from service.cameras import KnownFocal
+from service.cameras.learning import learn_camera
 from service.core.dataset import camera_of_row, corners_of_row
 from service.core.paths import REPO_ROOT
 from service.core.profile import load_profile
 from service.core.regions import is_far, quadrant_of_class
-from service.learning import learn_camera
-from service.model import PoseModel
-from service.predictor import Predictor
+from service.pipeline.focal import KnownFocal
+from service.pipeline.model import PoseModel
+from service.pipeline.predictor import Predictor
 from service.settings import Settings
 from train.markdown import pct_cell, table, written_by
 from train.synth.background import BackgroundPool, procedural_backgrounds, shipped_backgrounds

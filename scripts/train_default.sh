@@ -14,7 +14,7 @@
 #      corpus split of 2026-12-02 with the squash crop (stage 4), best epochs on the real val
 #      sources; exported with its corners aligned to the image and the camera model of
 #      docs/camera_model.md (that page is written too) and the zoom pass's inputs and outputs
-#      (service/zoom.py; its accuracies are measured with it); WEIGHTS_NOTE, if set, is added
+#      (service/pipeline/zoom.py; its accuracies are measured with it); WEIGHTS_NOTE, if set, is added
 #      to its card notes;
 #   3. with SPEC=1 also the SPEC-network models (the thesis's reference) at 80x60 and 160x120;
 #      otherwise the shipped ones are measured again on this run's data sets. Superseded
@@ -98,7 +98,7 @@ train_recipe chessboard-corners-160x120
 NOTES="Made by scripts/train_default.sh from recipes/chessboard-corners-160x120.toml; \
 its corners are aligned to the image (train/network/align.py).${WEIGHTS_NOTE:+ $WEIGHTS_NOTE}"
 export_model chessboard-corners-160x120 chessboard-corners-160x120 2 "The default model. $NOTES \
-Since 3.5.0 its graph serves the zoom pass (service/zoom.py), with which its accuracies are measured; \
+Since 3.5.0 its graph serves the zoom pass (service/pipeline/zoom.py), with which its accuracies are measured; \
 since 3.6.0 it also takes the camera's focal length where the caller knows it (input focal; /v1/predict?fx=); \
 since 3.7.0 its corner alignment fits the lens's radial distortion per image (train/network/align.py); \
 since 3.8.0 a fitted barrel stronger than a lens's own (BARREL_LIMIT, train/network/corners.py) \

@@ -2,7 +2,7 @@
 
 `uvicorn service.app:app` serves with settings from the environment (`POSE_*`); `create_app`
 builds an app from explicit settings (the `planar-pose-serve` command, tests). The routes live
-in `service/routes/` (one APIRouter per concern), their dependencies in `service/deps.py`.
+in `service/api/routes/` (one APIRouter per concern), their dependencies in `service/api/deps.py`.
 """
 
 from __future__ import annotations
@@ -16,14 +16,15 @@ from fastapi import APIRouter, FastAPI
 from fastapi.middleware.cors import CORSMiddleware
 from pydantic import ValidationError
 
-from service.drain import DrainMiddleware, hold_back_sigterm
-from service.errors import CrashMiddleware, install_error_handlers
-from service.limits import BodyLimitMiddleware
-from service.metrics import MetricsMiddleware
-from service.redact import install as redact_secrets_in_logs
-from service.routes import cameras, health, model, predict, stream, v2, web
+from service.api.drain import DrainMiddleware, hold_back_sigterm
+from service.api.errors import CrashMiddleware, install_error_handlers
+from service.api.limits import BodyLimitMiddleware
+from service.api.redact import install as redact_secrets_in_logs
+from service.api.request_metrics import MetricsMiddleware
+from service.api.routes import cameras, health, model, predict, v2, web
+from service.api.state import ServiceState
 from service.settings import Settings
-from service.state import ServiceState
+from service.stream import route as stream
 
 #: The routers served, in order; adding one is one line here.
 ROUTERS: list[APIRouter] = [
@@ -66,7 +67,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         summary="Coarse camera pose region of a known planar object from one photograph.",
         version="1",
         lifespan=lifespan,
-        docs_url=None,  # self-hosted docs pages: service/routes/web.py
+        docs_url=None,  # self-hosted docs pages: service/api/routes/web.py
         redoc_url=None,
     )
     app.state.pose = state = ServiceState(settings)

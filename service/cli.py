@@ -20,8 +20,8 @@ from pydantic import ValidationError
 from rich.console import Console
 from rich.markup import escape
 
-from service.core.paths import repo_relative
-from service.settings import DEFAULT_MODEL_DIR, Settings, cpu_count
+from service.core.paths import DEFAULT_MODEL_DIR, repo_relative
+from service.settings import Settings, cpu_count
 
 err = Console(stderr=True)
 

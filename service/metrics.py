@@ -1,4 +1,5 @@
-"""Prometheus metrics: requests by route/status, latency, images processed, inference time.
+"""Prometheus metrics: requests by route/status, latency, images processed, inference time
+(counted by every room; the HTTP requests by `service.api.request_metrics`).
 
 Under `planar-pose-serve --workers N` (PROMETHEUS_MULTIPROC_DIR set before the workers start)
 every worker writes its values to files there and /metrics, answered by any worker, adds up
@@ -8,7 +9,6 @@ all of them (prometheus-client's multiprocess mode).
 from __future__ import annotations
 
 import os
-import time
 
 from prometheus_client import (
     CONTENT_TYPE_LATEST,
@@ -19,7 +19,6 @@ from prometheus_client import (
     generate_latest,
 )
 from prometheus_client.multiprocess import MultiProcessCollector
-from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 _LATENCY_BUCKETS = (0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 10.0)
 
@@ -85,29 +84,3 @@ class Metrics:
         merged = CollectorRegistry()
         MultiProcessCollector(merged, path=self.multiprocess_dir)
         return generate_latest(merged)
-
-
-class MetricsMiddleware:
-    """Count and time every HTTP request; unknown paths share the route label `unmatched`."""
-
-    def __init__(self, app: ASGIApp, metrics: Metrics, routes: frozenset[str]) -> None:
-        self.app, self.metrics, self.routes = app, metrics, routes
-
-    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] != "http":
-            await self.app(scope, receive, send)
-            return
-        start, status = time.perf_counter(), 500
-
-        async def send_status(message: Message) -> None:
-            nonlocal status
-            if message["type"] == "http.response.start":
-                status = message["status"]
-            await send(message)
-
-        try:
-            await self.app(scope, receive, send_status)
-        finally:
-            route = scope["path"] if scope["path"] in self.routes else "unmatched"
-            self.metrics.requests.labels(route, scope["method"], str(status)).inc()
-            self.metrics.latency.labels(route).observe(time.perf_counter() - start)

@@ -14,12 +14,7 @@ from pydantic import Field, SecretStr, field_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 from service.core.cells import RegionGrid
-from service.core.paths import REPO_ROOT
-
-DEFAULT_MODEL_DIR = REPO_ROOT / "models"
-#: The shipped model that /v1/predict answers with: object, network, input size.
-DEFAULT_MODEL_NAME = "chessboard-corners-160x120"
-DEFAULT_MODEL = DEFAULT_MODEL_DIR / f"{DEFAULT_MODEL_NAME}.onnx"
+from service.core.paths import DEFAULT_MODEL_DIR, DEFAULT_MODEL_NAME
 
 
 def _split_list(value: Any) -> Any:
@@ -71,7 +66,7 @@ class Settings(BaseSettings):
         default=True,
         description="Write the optimized graph of every model in the background (lowest "
         "priority, one worker): a model's first load then takes 0.1-0.3 s instead of 0.5-1.2 "
-        "(service/model_cache.py).",
+        "(service/pipeline/model_cache.py).",
     )
     workers: int = Field(
         default=0, ge=0, description="Server processes (planar-pose-serve), 0 = one per CPU."
@@ -106,7 +101,7 @@ class Settings(BaseSettings):
     zoom: bool = Field(
         default=True,
         description="Whole mode: a second look at 2x tiles where the board is small or "
-        "missed (service/zoom.py; models with its view input).",
+        "missed (service/pipeline/zoom.py; models with its view input).",
     )
     zoom_search: bool = Field(
         default=True,
@@ -119,7 +114,7 @@ class Settings(BaseSettings):
         ge=1,
         le=9,
         description="Tiles searched where no board was found: those centred nearest the "
-        "whole frame's corner guess (9: all; service/zoom.py).",
+        "whole frame's corner guess (9: all; service/pipeline/zoom.py).",
     )
     refine: bool = Field(
         default=True,
@@ -148,7 +143,8 @@ class Settings(BaseSettings):
     exif_focal: bool = Field(
         default=True,
         description="Whole mode, models that take a focal length: where a request gives no "
-        "fx, use the one of the photo's EXIF 35 mm equivalent focal length (service/exif.py).",
+        "fx, use the one of the photo's EXIF 35 mm equivalent focal length "
+        "(service/pipeline/exif.py).",
     )
     camera_db: Path | None = Field(
         default=None,
@@ -190,7 +186,7 @@ class Settings(BaseSettings):
         le=3600,
         description="After SIGTERM: /readyz 503 at once, requests still accepted and answered "
         "this many s (a load balancer's time to let go), then the listener closes "
-        "(service/drain.py). 0: it closes at once.",
+        "(service/api/drain.py). 0: it closes at once.",
     )
     graceful_timeout_s: int = Field(
         default=20,

@@ -18,7 +18,7 @@ class Supervisor(Multiprocess):
     """uvicorn's supervisor of worker processes, with two changes for a clean shutdown:
 
     * SIGTERM stops its loop at once (uvicorn's looks at its signals every 0.5 s), so the
-      workers start draining (service/drain.py) and /readyz answers 503 right away;
+      workers start draining (service/api/drain.py) and /readyz answers 503 right away;
     * it closes its copy of the listening socket when it stops the workers: once they have
       drained and closed theirs, a new connection is refused instead of waiting in the
       backlog of a socket no process accepts from, to be reset when this one exits.

@@ -1,6 +1,6 @@
 """The exported graph's contract: input and output names, shapes and defaults.
 
-`train.network.export` writes graphs to it and `service.model` reads them by it.
+`train.network.export` writes graphs to it and `service.pipeline.model` reads them by it.
 
 Inputs: `image` float32 [N, 3, H, W], RGB in [0, 1] (`service.core.preprocess`). The corner
 networks also take three inputs with a default (overridable initializers, one row that
@@ -10,10 +10,10 @@ broadcasts over N): `pixel_aspect` [N], `view` [N, 3] and `focal` [N], described
 Outputs: `probabilities` float32 [N, 9] (softmax, index = class id). The corner networks also
 give `corners` float32 [N, 4, 2], the object's corners (u, v) in frame pixels in
 `service.core.frame.CORNER_ORDER`, and `pattern` float32 [N], P(object present) from the
-pattern at the corners alone (the zoom pass, `service.zoom`), and (since 3.11.0) `undistorted`
-float32 [N, 4, 2], the same corners without the lens's radial distortion the network fitted
-(where a pinhole camera would see them: the pose's corners, `service.posing`). A graph with one
-output gives the probabilities whatever its name.
+pattern at the corners alone (the zoom pass, `service.pipeline.zoom`), and (since 3.11.0)
+`undistorted` float32 [N, 4, 2], the same corners without the lens's radial distortion the
+network fitted (where a pinhole camera would see them: the pose's corners,
+`service.pipeline.posing`). A graph with one output gives the probabilities whatever its name.
 """
 
 from __future__ import annotations

@@ -165,15 +165,20 @@ def decoded_pixels(header: ImageHeader, min_size: tuple[int, int] | None = None)
 
 
 def load_image(
-    data: bytes, *, max_pixels: int | None = None, min_size: tuple[int, int] | None = None
+    data: bytes,
+    *,
+    max_pixels: int | None = None,
+    min_size: tuple[int, int] | None = None,
+    header: ImageHeader | None = None,
 ) -> DecodedImage:
     """Decode image bytes to RGB uint8, refusing more than `max_pixels` before decoding.
 
     EXIF orientation is applied; grey, alpha (dropped) and 16-bit images become 8-bit RGB.
     With `min_size` = (W, H), a JPEG at least twice that size on its short side is decoded at
-    reduced scale (both sides stay >= max(W, H)), which is several times faster.
+    reduced scale (both sides stay >= max(W, H)), which is several times faster. `header`:
+    the bytes' `image_header` where the caller read it already.
     """
-    header = image_header(data)
+    header = header or image_header(data)
     pixels = header.width * header.height
     if max_pixels is not None and pixels > max_pixels:
         raise ImageTooLargeError(
@@ -206,13 +211,16 @@ _REDUCED_GREY = {
 }
 
 
-def load_grey(data: bytes, reduction: int = 1) -> tuple[np.ndarray, int, tuple[int, int]]:
-    """Image bytes (size already guarded: `load_image`, `Predictor.check_pixels`) -> grey
+def load_grey(
+    data: bytes, reduction: int = 1, header: ImageHeader | None = None
+) -> tuple[np.ndarray, int, tuple[int, int]]:
+    """Image bytes (size already guarded: `load_image`, `Predictor.admit`) -> grey
     uint8 [h, w], EXIF orientation applied, the factor it is reduced by and the full size
     (W, H) after EXIF orientation: a JPEG decoded at 1 / the largest of 8, 4, 2 not above
     `reduction` (libjpeg's DCT scaling), anything else at full size (factor 1). Pixel (u, v)
-    of the reduced image is ((u + 0.5) f - 0.5, (v + 0.5) f - 0.5) of the full one."""
-    header = image_header(data)
+    of the reduced image is ((u + 0.5) f - 0.5, (v + 0.5) f - 0.5) of the full one. `header`:
+    the bytes' `image_header` where the caller read it already."""
+    header = header or image_header(data)
     jpeg = header.format == "jpeg"
     factor = next((f for f in (8, 4, 2) if f <= reduction), 1) if jpeg else 1
     flags = _REDUCED_GREY[factor] if factor > 1 else cv2.IMREAD_GRAYSCALE

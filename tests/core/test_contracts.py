@@ -73,7 +73,7 @@ def test_region_rule_borders_belong_to_the_positive_side_and_far() -> None:
 
 
 def test_the_default_model_has_the_graph_contract() -> None:
-    """The shipped default graph: the inputs and outputs `service.model` reads, by name."""
+    """The shipped default graph: the inputs and outputs `service.pipeline.model` reads, by name."""
     session = ort.InferenceSession(
         str(Settings().resolved_model_path), providers=["CPUExecutionProvider"]
     )

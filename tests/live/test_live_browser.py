@@ -25,7 +25,7 @@ from live_support import API_KEY, PHOTO, ROOT, Server
 from PIL import Image
 from PIL.ExifTags import IFD, Base
 
-from service.settings import DEFAULT_MODEL_NAME
+from service.core.paths import DEFAULT_MODEL_NAME
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 CHROMEDRIVER = shutil.which("chromedriver") or (

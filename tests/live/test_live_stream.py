@@ -34,7 +34,7 @@ from planar_pose_client import PoseClient, ServiceUnavailable
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import ClientConnection, connect
 
-from service.stream import QUEUE_DEPTH
+from service.stream.protocol import QUEUE_DEPTH
 
 
 @contextmanager

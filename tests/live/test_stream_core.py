@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import time
+from dataclasses import replace
 from typing import Any
 
 import anyio
@@ -13,9 +14,10 @@ from fastapi.testclient import TestClient
 from live_support import PHOTO
 
 from service.app import create_app
-from service.schemas import ImageResult, RegionOut
-from service.settings import DEFAULT_MODEL, Settings
-from service.stream import (
+from service.core.paths import DEFAULT_MODEL
+from service.pipeline.results import ImageResult, Region
+from service.settings import Settings
+from service.stream.protocol import (
     CloseCode,
     Frame,
     FrameQueue,
@@ -68,7 +70,7 @@ def _result(probs: list[float]) -> ImageResult:
     return ImageResult(
         filename=None,
         class_id=k,
-        region=RegionOut(present=k > 0, depth=None, x=None, y=None, label="x"),
+        region=Region(present=k > 0, depth=None, x=None, y=None, label="x"),
         probabilities=probs,
         confidence=probs[k],
         box=None,
@@ -98,9 +100,9 @@ def test_smoothing_to_class_0_drops_the_corners() -> None:
     board[2], empty[0] = 1.0, 1.0
     corners = [[1.0, 2.0], [3.0, 2.0], [3.0, 4.0], [1.0, 4.0]]
     smooth = Smoother(0.75)
-    assert smooth.apply(_result(board).model_copy(update={"corners": corners})).corners == corners
+    assert smooth.apply(replace(_result(board), corners=corners)).corners == corners
     # the frames' own answers say class 0 (with corners, to see them dropped)
-    lagging = [smooth.apply(_result(empty).model_copy(update={"corners": corners})) for _ in "abc"]
+    lagging = [smooth.apply(replace(_result(empty), corners=corners)) for _ in "abc"]
     assert [r.class_id for r in lagging] == [2, 2, 0]  # board at 0.75, 0.56, 0.42
     assert lagging[1].corners == corners and lagging[2].corners is None
 
@@ -142,7 +144,7 @@ def test_a_crash_on_one_frame_is_an_error_message_and_the_stream_goes_on(
         while client.get("/readyz").status_code != 200 and time.monotonic() < deadline:
             time.sleep(0.05)
         predictor = app.state.pose.predictor
-        real = predictor.predict
+        real = predictor.run
         calls = {"n": 0}
 
         def flaky(*args: Any, **kwargs: Any) -> object:
@@ -151,7 +153,7 @@ def test_a_crash_on_one_frame_is_an_error_message_and_the_stream_goes_on(
                 raise RuntimeError("boom")
             return real(*args, **kwargs)
 
-        monkeypatch.setattr(predictor, "predict", flaky)
+        monkeypatch.setattr(predictor, "run", flaky)
         with client.websocket_connect("/v1/stream") as ws:
             assert json.loads(ws.receive_text())["event"] == "ready"
             answers = []

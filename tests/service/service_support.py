@@ -16,11 +16,12 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
+from service.core.paths import DEFAULT_MODEL, DEFAULT_MODEL_DIR
 from service.core.preprocess import load_image, to_network_input
 from service.core.regions import region_of_class
-from service.model import PoseModel
-from service.predictor import Predictor
-from service.settings import DEFAULT_MODEL, DEFAULT_MODEL_DIR, Settings
+from service.pipeline.model import PoseModel
+from service.pipeline.predictor import Predictor
+from service.settings import Settings
 
 ROOT = Path(__file__).resolve().parents[2]
 REAL = ROOT / "train" / "assets" / "real" / "chessboard-stereo"

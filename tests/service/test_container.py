@@ -22,7 +22,7 @@ import pytest
 from server_process import free_port
 from service_support import JPEG, PHOTO, ROOT, check_answer
 
-from service.settings import DEFAULT_MODEL_NAME
+from service.core.paths import DEFAULT_MODEL_NAME
 
 # The build (pip install of the service's wheels) takes minutes on a loaded 2-core machine.
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(1500)]

@@ -23,7 +23,7 @@ import pytest
 from server_process import free_port, live_server
 from service_support import PHOTO, ROOT, check_answer
 
-from service.settings import DEFAULT_MODEL_NAME
+from service.core.paths import DEFAULT_MODEL_NAME
 
 DOCKERFILE = ROOT / "Dockerfile"
 

@@ -1,5 +1,5 @@
-"""The focal length from a photo's EXIF tags (service/exif.py): the 35 mm equivalent over the
-diagonal, either orientation, crops and absurd or broken tags ignored."""
+"""The focal length from a photo's EXIF tags (service/pipeline/exif.py): the 35 mm equivalent
+over the diagonal, either orientation, crops and absurd or broken tags ignored."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from image_bytes import with_exif_focal, with_exif_orientation
 
-from service.exif import exif_focal
+from service.pipeline.exif import exif_focal
 
 PHOTO = cv2.imencode(".png", np.full((48, 64, 3), 90, np.uint8))[1].tobytes()
 JPEG = cv2.imencode(".jpg", np.full((48, 64, 3), 90, np.uint8))[1].tobytes()

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from service_support import REAL as TEXTURE
 
-from service.proposals import fit_aspect, propose_boxes
+from service.pipeline.proposals import fit_aspect, propose_boxes
 
 
 def _iou(a: np.ndarray, b: np.ndarray) -> float:

@@ -21,8 +21,8 @@ from service_support import AppFactory
 from starlette.websockets import WebSocketDisconnect
 from test_service_pose import ROWS, photo
 
-from service import schemas
-from service.cameras import CameraStore
+from service.cameras import schema as schemas
+from service.cameras.store import CameraStore
 from service.core.paths import ASSETS_DIR
 from service.metrics import Metrics
 

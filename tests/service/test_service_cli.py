@@ -13,7 +13,8 @@ from pydantic import ValidationError
 from typer.testing import CliRunner
 
 from service.cli import serve_app as app
-from service.settings import DEFAULT_MODEL, DEFAULT_MODEL_NAME, Settings
+from service.core.paths import DEFAULT_MODEL, DEFAULT_MODEL_NAME
+from service.settings import Settings
 
 
 def test_defaults_serve_the_shipped_model(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -105,7 +106,7 @@ def test_serve_missing_model_folder_and_bad_workers_exit_2(tmp_path: Path) -> No
 
 
 def test_worker_settings_and_model_files(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
-    from service.registry import ModelRegistry
+    from service.pipeline.registry import ModelRegistry
 
     monkeypatch.setenv("POSE_WORKERS", "3")
     monkeypatch.setenv("POSE_MODEL_DIR", str(tmp_path))

@@ -26,7 +26,7 @@ from service_support import JPEG, PHOTO, SERVE
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect
 
-from service.cameras import CameraStore
+from service.cameras.store import CameraStore
 
 KEY = "hostile-suite-key-7f3a"
 CORRUPT = {"c-corrupt1": '{"fx": ', "c-corrupt2": '{"fx": true, "source": "intrinsics"}'}

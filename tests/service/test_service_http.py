@@ -16,10 +16,11 @@ from fastapi.testclient import TestClient
 from image_bytes import png_claiming, with_exif_focal, with_exif_orientation
 from service_support import CARD, JPEG, PHOTO, REAL, ROOT, AppFactory, check_answer, encode
 
-from service.deps import get_predictor
-from service.model import PoseModel
-from service.predictor import Predictor
-from service.settings import DEFAULT_MODEL, Settings
+from service.api.deps import get_predictor
+from service.core.paths import DEFAULT_MODEL
+from service.pipeline.model import PoseModel
+from service.pipeline.predictor import Predictor
+from service.settings import Settings
 
 # --- inputs ----------------------------------------------------------------------------------
 
@@ -397,7 +398,7 @@ def test_not_ready_without_model(app_factory: AppFactory, tmp_path: Path) -> Non
 
 
 class _Exploding(Predictor):
-    def predict(self, *args: Any, **kwargs: Any) -> Any:
+    def run(self, *args: Any, **kwargs: Any) -> Any:
         raise RuntimeError("secret internals")
 
 

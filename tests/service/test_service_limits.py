@@ -14,8 +14,8 @@ from service_support import JPEG, PHOTO, AppFactory
 
 from service.bounded_json import MAX_DEPTH, JSONTooDeepError, loads, nesting_depth
 from service.core.preprocess import decoded_pixels, image_header, load_image
+from service.pipeline.zoom import detail_decode_size
 from service.settings import Settings
-from service.zoom import detail_decode_size
 
 BUDGET = Settings().max_request_pixels
 
@@ -161,7 +161,7 @@ def test_draining_says_not_ready_and_closes_connections(app_factory: AppFactory)
         state = c.app.state.pose  # type: ignore[attr-defined]
         assert c.get("/readyz").status_code == 200
         assert "connection" not in c.get("/healthz").headers
-        state.drain.started = 0.0  # what SIGTERM does with POSE_DRAIN_S (service/drain.py)
+        state.drain.started = 0.0  # what SIGTERM does with POSE_DRAIN_S (service/api/drain.py)
         r = c.get("/readyz")
         assert r.status_code == 503 and "shutting down (SIGTERM)" in r.json()["error"]["message"]
         assert c.get("/v2/health/ready").status_code == 503

@@ -1,4 +1,5 @@
-"""service.model: the shipped default model loads and follows the I/O contract; bad files fail."""
+"""service.pipeline.model: the shipped default model loads and follows the I/O contract; bad
+files fail."""
 
 from __future__ import annotations
 
@@ -10,10 +11,11 @@ import numpy as np
 import onnx
 import pytest
 
+from service.core.paths import DEFAULT_MODEL
 from service.core.pose import FOCAL_PRIOR
-from service.model import ModelLoadError, PoseModel
-from service.predictor import Predictor
-from service.settings import DEFAULT_MODEL, Settings
+from service.pipeline.model import ModelLoadError, PoseModel
+from service.pipeline.predictor import Predictor
+from service.settings import Settings
 
 
 def test_default_model_contract() -> None:

@@ -18,10 +18,11 @@ from service_support import CARD, JPEG, PHOTO, AppFactory
 from test_service_models import DEFAULT, SMALL, put
 
 from service.app import create_app
-from service.model import ModelLoadError, PoseModel, read_card
-from service.model_cache import estimated_bytes
-from service.onnx_file import OnnxFileError, read_graph_size, read_metadata
-from service.settings import DEFAULT_MODEL, DEFAULT_MODEL_DIR, Settings
+from service.core.paths import DEFAULT_MODEL, DEFAULT_MODEL_DIR
+from service.pipeline.model import ModelLoadError, PoseModel, read_card
+from service.pipeline.model_cache import estimated_bytes
+from service.pipeline.onnx_file import OnnxFileError, read_graph_size, read_metadata
+from service.settings import Settings
 
 SPEC_80x60 = DEFAULT_MODEL_DIR / "chessboard-spec-80x60.onnx"
 

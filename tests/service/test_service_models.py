@@ -16,7 +16,7 @@ import pytest
 from fastapi.testclient import TestClient
 from service_support import CARD, JPEG, OTHER_MODELS, PHOTO, AppFactory, card_of, check_answer
 
-from service.settings import DEFAULT_MODEL, DEFAULT_MODEL_NAME
+from service.core.paths import DEFAULT_MODEL, DEFAULT_MODEL_NAME
 
 DEFAULT = DEFAULT_MODEL_NAME
 SMALL = DEFAULT_MODEL  # served as DEFAULT

@@ -135,7 +135,7 @@ def test_same_camera_turns_portraits_of_the_camera_back_first(client: TestClient
 
 
 def test_a_model_without_corners_gives_no_pose(app_factory: AppFactory) -> None:
-    from service.settings import DEFAULT_MODEL_DIR
+    from service.core.paths import DEFAULT_MODEL_DIR
 
     spec = DEFAULT_MODEL_DIR / "chessboard-spec-160x120.onnx"
     with app_factory(model_path=spec) as c:

@@ -1,4 +1,5 @@
-"""service.sliding and service.predictor: window grid, working copy, NMS, batched prediction."""
+"""service.pipeline.sliding and service.pipeline.predictor: window grid, working copy, NMS,
+batched prediction."""
 
 from __future__ import annotations
 
@@ -6,17 +7,18 @@ import numpy as np
 import pytest
 from service_support import REAL
 
+from service.core.paths import DEFAULT_MODEL
 from service.core.preprocess import DecodedImage
-from service.model import PoseModel
-from service.predictor import Predictor
-from service.settings import DEFAULT_MODEL, Settings
-from service.sliding import (
+from service.pipeline.model import PoseModel
+from service.pipeline.predictor import Predictor
+from service.pipeline.sliding import (
     SlidingWindows,
     best_window,
     to_full_resolution,
     window_batch,
     working_copy,
 )
+from service.settings import Settings
 
 GRID = SlidingWindows(aspect=4 / 3, scales=(1.0, 0.8, 0.6), stride=20, max_windows=256)
 

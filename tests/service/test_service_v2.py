@@ -18,10 +18,10 @@ from server_process import live_server
 from service_support import CARD, OTHER_MODELS, REAL, SERVE, card_of
 from tritonclient.utils import InferenceServerException
 
+from service.core.paths import DEFAULT_MODEL, DEFAULT_MODEL_NAME
 from service.core.preprocess import load_image, to_network_input
-from service.model import PoseModel
-from service.settings import DEFAULT_MODEL, DEFAULT_MODEL_NAME
-from service.zoom import detail_decode_size
+from service.pipeline.model import PoseModel
+from service.pipeline.zoom import detail_decode_size
 
 PHOTOS = [(REAL / name).read_bytes() for name in ("left01.jpg", "right05.jpg", "left12.jpg")]
 SIZE = tuple(CARD["input"])  # the default model's (W, H)

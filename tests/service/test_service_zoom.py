@@ -1,4 +1,5 @@
-"""service.zoom: the tiles, their frame mapping, and the zoom pass on the shipped default."""
+"""service.pipeline.zoom: the tiles, their frame mapping, and the zoom pass on the shipped
+default."""
 
 from __future__ import annotations
 
@@ -9,11 +10,11 @@ import numpy as np
 import pytest
 from service_support import PHOTO
 
+from service.core.paths import DEFAULT_MODEL
 from service.core.preprocess import load_image, to_network_input
-from service.model import Answer, PoseModel
-from service.predictor import Predictor
-from service.settings import DEFAULT_MODEL, Settings
-from service.zoom import (
+from service.pipeline.model import Answer, PoseModel
+from service.pipeline.predictor import Predictor
+from service.pipeline.zoom import (
     FILL,
     LARGE,
     MAX_ZOOM,
@@ -24,6 +25,7 @@ from service.zoom import (
     view_input,
     zoomed,
 )
+from service.settings import Settings
 
 SIZE = (160, 120)
 

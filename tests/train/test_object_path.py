@@ -15,7 +15,8 @@ from fastapi.testclient import TestClient
 from typer.testing import CliRunner
 
 from service.app import create_app
-from service.settings import DEFAULT_MODEL, Settings
+from service.core.paths import DEFAULT_MODEL
+from service.settings import Settings
 from train.cli import app
 
 runner = CliRunner()

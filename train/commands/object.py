@@ -17,9 +17,9 @@ from typing import Annotated
 import cv2
 import typer
 
+from service.core.paths import DEFAULT_MODEL_DIR
 from service.core.profile import PROFILES_DIR, ProfileError, write_profile
 from service.core.regions import Z_SPLIT_CM
-from service.settings import DEFAULT_MODEL_DIR
 from train.commands.common import fail, guard, out, profile_or_exit
 
 app = typer.Typer(
@@ -27,7 +27,7 @@ app = typer.Typer(
     help="Your own planar object: a profile from its picture, then its whole training recipe.",
     no_args_is_help=True,
 )
-#: Profile names: usable in a folder, a file and a URL (`service.registry.NAME_PATTERN`).
+#: Profile names: usable in a folder, a file and a URL (`service.pipeline.registry.NAME_PATTERN`).
 NAME = re.compile(r"[a-z0-9][a-z0-9-]*")
 #: Renders in the sample sheet of `new`.
 SHEET_COUNT = 90

@@ -1,6 +1,6 @@
-"""Detection variants (SPEC section 9) through the service's own `service.predictor.Predictor`
+"""Detection variants (SPEC section 9) through the service's own `service.pipeline.Predictor`
 (image bytes in, like an HTTP call): whole image, sliding windows, and object proposals
-(`service.proposals.propose_boxes` as the predictor's box generator) on the service's working
+(`service.pipeline.propose_boxes` as the predictor's box generator) on the service's working
 copy and on a 4x larger one."""
 
 from __future__ import annotations
@@ -26,17 +26,14 @@ def detection_variants(
     subsets: dict[str, np.ndarray] | None = None,
     chunk: int = 16,
 ) -> dict[str, dict[str, dict[str, Any]]]:
-    """Metrics of whole / sliding / proposals modes through `service.predictor.Predictor`.
+    """Metrics of whole / sliding / proposals modes through `service.pipeline.Predictor`.
 
     Returns {subset name: {variant: metrics}}; `subsets` maps names to boolean masks [N]
     (default: one subset "all"). Images go in chunks of `chunk` (the service's default
     per-request limit); ms per image is the wall clock of the predictor calls over all images
     (decode + boxes + batched onnxruntime + decision).
     """
-    from service.model import PoseModel
-    from service.predictor import Predictor
-    from service.proposals import propose_boxes
-    from service.settings import Settings
+    from service.pipeline import PoseModel, Predictor, Settings, propose_boxes
 
     model = PoseModel.load(model_path)
     aspect = model.input_size[0] / model.input_size[1]

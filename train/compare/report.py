@@ -374,7 +374,7 @@ def detection_section(detections: dict[str, dict[str, dict[str, dict[str, Any]]]
     lines += [
         "Through the service's `Predictor` (image bytes in). `sliding`: the service's window "
         "grid on its working copy (largest window = 1.5 network inputs); `proposals@Sx`: "
-        f"`service.proposals.propose_boxes` (at most {PROPOSALS_MAX} boxes) as the box "
+        f"`service.pipeline.propose_boxes` (at most {PROPOSALS_MAX} boxes) as the box "
         "generator on a working copy where the largest window is S network inputs. "
         "Accuracy %, ms per image. A model trained or fine-tuned on real photos has seen "
         "the photos outside the test split (same split as `planar-pose realset`, seed 0): "

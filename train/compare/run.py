@@ -103,7 +103,7 @@ def load_models(paths: list[Path], given_fx: bool = False) -> Models:
     """The ONNX models by name (their card's name, else the file stem), as the service
     answers (`model_predictor`: with the zoom pass where the graph serves it); with
     `given_fx`, each model whose graph takes a focal length also as `<name> + fx`."""
-    from service.model import ModelLoadError, PoseModel
+    from service.pipeline import ModelLoadError, PoseModel
 
     loaded: Models = {}
     for path in paths:

@@ -13,7 +13,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from service.settings import DEFAULT_MODEL_NAME
+from service.core.paths import DEFAULT_MODEL_NAME
 from train.markdown import machine, pct, table
 from train.network.config import canonical_arch
 from train.network.report import framing_line, margin_line, source_table
@@ -130,7 +130,7 @@ def catalog_lines(models_dir: Path) -> list[str]:
     """The lines of models_dir/README.md from the cards there, but the "Written" stamp.
 
     Per-source tables (`source_sections`) only for the service's default model
-    (`service.settings.DEFAULT_MODEL_NAME`), or for every model when the folder has none;
+    (`service.core.paths.DEFAULT_MODEL_NAME`), or for every model when the folder has none;
     each model's notes as its card gives them.
     """
     cards = []

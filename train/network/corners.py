@@ -45,7 +45,7 @@ pixel aspect [N] (`camera_centre`; 1 where not given). Output of `forward`: log-
 [N, 9]; `answer` also gives the aligned corners in the object's order and the checker
 pattern's evidence of the board (the exported graph's outputs `corners` and `pattern`), and
 takes where the input lies in the camera's frame (`view`: a crop of the frame, enlarged, is
-answered with the frame's camera; the service's zoom pass, `service/zoom.py`) and the
+answered with the frame's camera; the service's zoom pass, `service/pipeline/zoom.py`) and the
 camera's focal length where the caller knows it (`focal`, 0: unknown).
 """
 

@@ -20,7 +20,7 @@ from service.core.preprocess import to_network_input
 from service.core.regions import NUM_CLASSES, is_far, quadrant_of_class
 
 if TYPE_CHECKING:
-    from service.model import PoseModel
+    from service.pipeline import PoseModel
 
 #: A classifier: RGB uint8 images [N, H, W, 3] at the network's size and their pixel aspect
 #: [N] (`service.core.preprocess.NetworkFrame.pixel_aspect`: 1 unless a photo was squashed) ->
@@ -192,10 +192,10 @@ def network_batch(images: np.ndarray, size: tuple[int, int]) -> np.ndarray:
 def onnx_predictor(
     path: Path, threads: int = 0, zoom: bool = True
 ) -> tuple[Predictor, tuple[int, int], dict[str, Any]]:
-    """Load an exported model as the service does (`service.model.PoseModel`, onnxruntime)
+    """Load an exported model as the service does (`service.pipeline.PoseModel`, onnxruntime)
     -> (predictor, input size (W, H), model card). `threads` 0 lets onnxruntime choose;
-    `zoom`: with the service's zoom pass (`service.zoom`) where the graph serves it."""
-    from service.model import ModelLoadError, PoseModel
+    `zoom`: with the service's zoom pass (`service.pipeline.zoom`) where the graph serves it."""
+    from service.pipeline import ModelLoadError, PoseModel
 
     try:
         model = PoseModel.load(path, intra_op_threads=threads)
@@ -205,11 +205,11 @@ def onnx_predictor(
 
 
 def model_predictor(model: PoseModel, zoom: bool = True, search: bool = True) -> Predictor:
-    """A `Predictor` on a `service.model.PoseModel`, as the service's whole mode answers:
+    """A `Predictor` on a `service.pipeline.PoseModel`, as the service's whole mode answers:
     the service's preprocessing, then the graph (with the zoom pass if `zoom`, its search of
     frames with no board found if `search`: POSE_ZOOM, POSE_ZOOM_SEARCH; its tiles cut from
-    images of at least twice the input size, `service.zoom.detail_of`)."""
-    from service.zoom import detail_of, zoomed
+    images of at least twice the input size, `service.pipeline.detail_of`)."""
+    from service.pipeline import detail_of, zoomed
 
     def predict(
         images: np.ndarray, pixel_aspect: np.ndarray, focal: np.ndarray | None = None

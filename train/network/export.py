@@ -9,7 +9,7 @@ says what a crop's view is) and `focal` float32 [N] (default [0]: unknown, self-
 else the camera's focal length in frame pixels of the input's width), and return `corners`
 float32 [N, 4, 2], the object's image corners in frame pixels in
 `service.core.frame.CORNER_ORDER`, and `pattern` float32 [N], P(present) from
-the checker pattern at the corners alone (`service.zoom` uses both). The model card (JSON)
+the checker pattern at the corners alone (`service.pipeline.zoom` uses both). The model card (JSON)
 is stored in the ONNX `metadata_props` under `model_card` and written next to it as
 `<name>.json`.
 """
@@ -359,8 +359,8 @@ def accuracy_on(predict: Any, datasets: list[Path], split: str) -> dict[str, dic
 
 def _graph_predictor(raw: bytes, card: dict[str, Any]) -> Any:
     """A `train.network.evaluate.Predictor` on ONNX bytes as the service answers with them
-    (`service.model.PoseModel`, the zoom pass where the graph serves it)."""
-    from service.model import PoseModel
+    (`service.pipeline.PoseModel`, the zoom pass where the graph serves it)."""
+    from service.pipeline import PoseModel
     from train.network.evaluate import model_predictor
 
     model = PoseModel.load(Path(f"{card['name']}.onnx"), intra_op_threads=0, graph=(raw, card))

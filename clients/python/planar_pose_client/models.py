@@ -218,7 +218,7 @@ class ModelList(_Answer):
 
 
 #: The bounds of a camera's intrinsics, the service's own (its docs/pose.md, "Stored cameras";
-#: `service/schemas.py`): fx, fy px; fy / fx; OpenCV's 4, 5 or 8 distortion coefficients
+#: `service/cameras/schema.py`): fx, fy px; fy / fx; OpenCV's 4, 5 or 8 distortion coefficients
 #: (k1, k2, p1, p2[, k3[, k4, k5, k6]]) with |p| and |k| at most these (the rational model's,
 #: 8 coefficients, larger); the principal point within the image.
 FX_BOUNDS_PX = (1.0, 100_000.0)

@@ -31,7 +31,7 @@ def _other_model() -> str:
     """A shipped model of the default's object besides the default that is another network
     (not a renamed copy)."""
     from service.core.preprocess import load_image, to_network_input
-    from service.model import PoseModel
+    from service.pipeline.model import PoseModel
 
     photo = (REAL / "left01.jpg").read_bytes()
 

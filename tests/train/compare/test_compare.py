@@ -10,9 +10,8 @@ import pytest
 from typer.testing import CliRunner
 
 from service.core.dataset import load_dataset
-from service.core.paths import ASSETS_DIR
-from service.model import PoseModel
-from service.settings import DEFAULT_MODEL
+from service.core.paths import ASSETS_DIR, DEFAULT_MODEL
+from service.pipeline.model import PoseModel
 from train.cli import app
 from train.compare.detection import detection_variants
 from train.compare.run import camera_focal

@@ -11,9 +11,8 @@ import pytest
 import torch
 from torch import nn
 
-from service.core.paths import REPO_ROOT
+from service.core.paths import DEFAULT_MODEL, REPO_ROOT
 from service.core.profile import load_profile
-from service.settings import DEFAULT_MODEL
 from train.network.fit import FitConfig, TrainingError, fit, load_network
 from train.network.onnx_weights import (
     OnnxWeightsError,

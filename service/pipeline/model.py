@@ -33,7 +33,7 @@ from service.core.onnx_contract import (
 from service.core.pose import FOCAL_PRIOR, is_focal_prior
 from service.core.refine import Texture
 from service.core.regions import NUM_CLASSES, Z_SPLIT_CM
-from service.onnx_file import OnnxFileError, read_metadata
+from service.pipeline.onnx_file import OnnxFileError, read_metadata
 
 #: Runs of more inputs than this give the memory onnxruntime's arena took for them back
 #: when they end (a batch of 16 images grows it by ~70 MB, of 144 by ~640 MB, held for good
@@ -61,7 +61,7 @@ class ModelLoadError(RuntimeError):
 
 def read_card(path: Path) -> dict[str, Any]:
     """The card of the ONNX file `path` without loading its graph: the `model_card` of its
-    metadata (`service.onnx_file`), else the `<name>.json` next to it; ModelLoadError when
+    metadata (`service.pipeline.onnx_file`), else the `<name>.json` next to it; ModelLoadError when
     the file is not ONNX, is missing or has no card."""
     try:
         text = read_metadata(path).get(CARD_KEY)
@@ -196,7 +196,8 @@ class PoseModel:
 
     @property
     def zooms(self) -> bool:
-        """Whether the graph serves the zoom pass (`service.zoom`): view in, pattern out."""
+        """Whether the graph serves the zoom pass (`service.pipeline.zoom`): view in, pattern
+        out."""
         return self.takes_view and self.pattern_name is not None and self.corners_name is not None
 
     @property

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from service.errors import ApiError, error_response
+from service.api.errors import ApiError, error_response
 
 
 def _too_large(limit: int) -> ApiError:

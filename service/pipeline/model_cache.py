@@ -2,7 +2,7 @@
 used are unloaded beyond a memory budget (`POSE_MODEL_MEMORY_MB`).
 
 What a loaded model costs is estimated from its file before it is loaded (`estimated_bytes`:
-its nodes and weights, `service.onnx_file.read_graph_size`), not measured on the process,
+its nodes and weights, `service.pipeline.onnx_file.read_graph_size`), not measured on the process,
 whose resident size other threads move at the same time (a decode of a large upload) and
 which does not shrink when a session is freed (glibc keeps the pages for the next one). A
 request holds the predictor it got: an unloaded model's session is freed once the last
@@ -26,9 +26,9 @@ from prometheus_client import Counter, Gauge, Histogram
 from prometheus_client.multiprocess import mark_process_dead
 
 from service.metrics import Metrics
-from service.model import ModelLoadError
-from service.onnx_file import OnnxFileError, read_graph_size
-from service.predictor import Predictor, give_back_memory
+from service.pipeline.model import ModelLoadError
+from service.pipeline.onnx_file import OnnxFileError, read_graph_size
+from service.pipeline.predictor import Predictor, give_back_memory
 from service.workers import alive
 
 log = logging.getLogger("uvicorn.error.pose")

@@ -8,9 +8,9 @@ from typing import Any
 import anyio
 from fastapi import APIRouter
 
-from service.deps import AUTHORISED, PredictorDep, SettingsDep, StateDep
-from service.model_cache import ModelFile
-from service.schemas import ERROR_RESPONSES, ModelInfo, ModelsResponse, ReloadResponse
+from service.api.deps import AUTHORISED, PredictorDep, SettingsDep, StateDep
+from service.api.schemas import ERROR_RESPONSES, ModelInfo, ModelsResponse, ReloadResponse
+from service.pipeline.model_cache import ModelFile
 
 router = APIRouter(tags=["models"], dependencies=AUTHORISED)
 

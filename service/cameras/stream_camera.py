@@ -16,10 +16,10 @@ from collections import deque
 import cv2
 import numpy as np
 
-from service.cameras import KnownFocal
 from service.core.calibration import fit_camera
 from service.core.frame import object_corners
 from service.core.pose import Camera, focal_prior, solve_pose
+from service.pipeline.focal import KnownFocal
 
 MIN_VIEWS = 5
 MAX_VIEWS = 30
@@ -39,7 +39,7 @@ class StreamCamera:
 
     def offer(self, corners: np.ndarray, size: tuple[int, int], kappa: float | None = None) -> None:
         """A frame's pinhole corners [4, 2] px of an image of `size` (W, H) and the radial
-        lens its refinement fitted (kappa px^-2, `service.predictor.Prediction.kappas`):
+        lens its refinement fitted (kappa px^-2, `service.pipeline.predictor.Prediction.kappas`):
         kept if the camera turned since the kept views, then the camera fitted again. Frames
         of another size start over (another camera, or another resolution)."""
         if size != self.size:

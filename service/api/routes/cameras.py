@@ -1,5 +1,5 @@
 """`/v1/cameras`: cameras the service learns, from their intrinsics or from photos of the object
-(docs/pose.md); stored in SQLite (`service/cameras.py`)."""
+(docs/pose.md); stored in SQLite (`service/cameras/store.py`)."""
 
 from __future__ import annotations
 
@@ -9,15 +9,7 @@ import anyio
 from fastapi import APIRouter, Query, Request, Response
 from pydantic import ValidationError
 
-from service.cameras import (
-    CameraCorrupt,
-    CameraNotFound,
-    CameraStore,
-    CameraStoreError,
-    CameraStoreFull,
-)
-from service.core.preprocess import ImageDecodeError, ImageTooLargeError
-from service.deps import (
+from service.api.deps import (
     AUTHORISED,
     CamerasDep,
     LimiterDep,
@@ -25,11 +17,19 @@ from service.deps import (
     StateDep,
     get_predictor,
 )
-from service.errors import ApiError
-from service.learning import MIN_PHOTOS, learn_camera
-from service.predictor import too_large_code
-from service.schemas import ERROR_RESPONSES, CameraIn, CameraList, CameraOut, ErrorResponse
-from service.uploads import read_images
+from service.api.errors import ApiError
+from service.api.schemas import ERROR_RESPONSES, CameraList, ErrorResponse
+from service.api.uploads import read_images
+from service.cameras.learning import MIN_PHOTOS, learn_into
+from service.cameras.schema import CameraIn, CameraOut
+from service.cameras.store import (
+    CameraCorrupt,
+    CameraNotFound,
+    CameraStoreError,
+    CameraStoreFull,
+)
+from service.core.preprocess import ImageDecodeError, ImageTooLargeError
+from service.pipeline.job import too_large_code
 
 router = APIRouter(tags=["cameras"], dependencies=AUTHORISED)
 
@@ -81,13 +81,6 @@ CAMERA_RESPONSES: dict[int | str, dict[str, Any]] = {
 }
 
 
-async def _stored(cameras: CameraStore, fields: dict[str, Any]) -> CameraOut:
-    try:
-        return await anyio.to_thread.run_sync(cameras.create, fields)
-    except (CameraStoreFull, CameraStoreError) as exc:
-        raise store_error(exc) from None
-
-
 @router.post(
     "/v1/cameras",
     response_model=CameraOut,
@@ -116,30 +109,34 @@ async def create_camera(
     corner model that finds the object (default: the default model). Intrinsics need no
     model: they are stored while the models load too."""
     kind = request.headers.get("content-type", "").split(";")[0].strip().lower()
-    if kind == "application/json":
-        try:
-            given = CameraIn.model_validate_json(await request.body())
-        except ValidationError as exc:
-            problems = "; ".join(
-                f"{'.'.join(str(p) for p in e['loc']) or 'body'}: {e['msg']}" for e in exc.errors()
-            )
-            raise ApiError(422, "invalid_camera", problems) from None
-        fields = given.model_dump()
-        fields["name"] = fields["name"] or name
-        return await _stored(
-            cameras, {**fields, "source": "intrinsics", "photos_used": 0, "residual_px": None}
-        )
-    predictor = await get_predictor(state, model)
-    images = await read_images(request, settings.max_images)
     try:
-        fields = await anyio.to_thread.run_sync(learn_camera, predictor, images, limiter=limiter)
+        if kind == "application/json":
+            given = _intrinsics(await request.body())
+            return await anyio.to_thread.run_sync(cameras.create_from, given, name)
+        predictor = await get_predictor(state, model)
+        images = await read_images(request, settings.max_images)
+        return await anyio.to_thread.run_sync(
+            learn_into, cameras, predictor, images, name, limiter=limiter
+        )
+    except (CameraStoreFull, CameraStoreError) as exc:
+        raise store_error(exc) from None
     except ImageTooLargeError as exc:
         raise ApiError(413, too_large_code(exc), str(exc)) from None
     except ImageDecodeError as exc:
         raise ApiError(400, "undecodable_image", str(exc)) from None
     except ValueError as exc:
         raise ApiError(422, "camera_not_learned", str(exc)) from None
-    return await _stored(cameras, {**fields, "name": name})
+
+
+def _intrinsics(body: bytes) -> CameraIn:
+    """The JSON body of a camera's intrinsics, or 422 `invalid_camera` saying what is wrong."""
+    try:
+        return CameraIn.model_validate_json(body)
+    except ValidationError as exc:
+        problems = "; ".join(
+            f"{'.'.join(str(p) for p in e['loc']) or 'body'}: {e['msg']}" for e in exc.errors()
+        )
+        raise ApiError(422, "invalid_camera", problems) from None
 
 
 @router.get(

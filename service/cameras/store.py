@@ -1,5 +1,5 @@
 """Cameras the service learns, kept in SQLite (`Settings.camera_db`), and the focal length a
-request knows.
+request knows from one (`known_focal`).
 
 The store is one table of JSON rows; every call opens its own connection (SQLite serialises
 the writers of all worker processes; WAL lets readers go on meanwhile), so cameras survive a
@@ -8,7 +8,8 @@ transaction: concurrent creators cannot pass `max_cameras` together.
 
 A camera's intrinsics are px of images `width` x `height`; it answers an image of another
 size with them scaled by the ratio of the longer sides (a portrait photo of a landscape
-camera is the same lens turned). A camera without a size uses its fx as is.
+camera is the same lens turned; `service.pipeline.focal.KnownFocal.camera`). A camera
+without a size uses its fx as is.
 """
 
 from __future__ import annotations
@@ -29,9 +30,9 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from service.core.pose import Camera
+from service.cameras.schema import CameraIn, CameraOut
 from service.metrics import Metrics
-from service.schemas import CameraOut, FocalSource
+from service.pipeline.focal import KnownFocal
 
 log = logging.getLogger("uvicorn.error.pose")  # printed by uvicorn's handlers
 
@@ -70,55 +71,12 @@ class CameraCorrupt(ValueError):
         self.camera_id, self.reason = camera_id, reason
 
 
-@dataclass(frozen=True)
-class KnownFocal:
-    """A focal length a request knows and where it came from: fx (and optionally fy, the
-    principal point, OpenCV's distortion) px of images `size` (W, H) (None: any size);
-    `lens_learned`: the distortion was learned from photos (`service.core.calibration`): each
-    image fits its own lens instead, which answered more of the ChArUco val frames."""
-
-    fx: float
-    source: FocalSource
-    size: tuple[int, int] | None = None
-    fy: float | None = None
-    cx: float | None = None
-    cy: float | None = None
-    dist: tuple[float, ...] | None = None
-    lens_learned: bool = False
-
-    @classmethod
-    def of(cls, camera: CameraOut) -> KnownFocal:
-        """A stored camera's intrinsics."""
-        size = None if camera.width is None or camera.height is None else (
-            camera.width, camera.height
-        )  # fmt: skip
-        dist = None if camera.dist is None else tuple(camera.dist)
-        learned = camera.source == "photos"
-        return cls(camera.fx, "camera", size, camera.fy, camera.cx, camera.cy, dist, learned)
-
-    @classmethod
-    def of_camera(cls, camera: Camera, source: FocalSource = "camera") -> KnownFocal:
-        """A calibrated camera (`service.core.pose.Camera`) as a request knows it."""
-        return cls(camera.fx, source, camera.size, camera.fy, camera.cx, camera.cy, camera.dist)
-
-    def scale(self, size: tuple[int, int]) -> float:
-        """Pixels of an image of `size` (W, H) per pixel of the camera's own images."""
-        return 1.0 if self.size is None else max(size) / max(self.size)
-
-    def camera(self, size: tuple[int, int]) -> Camera:
-        """The camera for an image of `size` (W, H): the intrinsics scaled to it (a principal
-        point given for the camera's own size moves with it; turned with a portrait photo of
-        a landscape camera, where it would be the wrong way round, it is the centre)."""
-        s = self.scale(size)
-        same_way = self.size is None or (size[0] >= size[1]) == (self.size[0] >= self.size[1])
-        return Camera(
-            self.fx * s,
-            size,
-            None if self.fy is None else self.fy * s,
-            None if self.cx is None or not same_way else self.cx * s,
-            None if self.cy is None or not same_way else self.cy * s,
-            self.dist,
-        )
+def known_focal(camera: CameraOut) -> KnownFocal:
+    """A stored camera's intrinsics as a request knows them (`camera=`)."""
+    size = None if camera.width is None or camera.height is None else (camera.width, camera.height)
+    dist = None if camera.dist is None else tuple(camera.dist)
+    learned = camera.source == "photos"
+    return KnownFocal(camera.fx, "camera", size, camera.fy, camera.cx, camera.cy, dist, learned)
 
 
 def new_id() -> str:
@@ -284,6 +242,14 @@ class CameraStore:
                 db.execute("ROLLBACK")
                 raise
         return camera
+
+    def create_from(self, given: CameraIn, name: str | None = None) -> CameraOut:
+        """Store a camera of the intrinsics `given` (named by its `name`, else `name`)."""
+        fields = given.model_dump()
+        fields["name"] = fields["name"] or name
+        return self.create(
+            {**fields, "source": "intrinsics", "photos_used": 0, "residual_px": None}
+        )
 
     def get(self, camera_id: str, operation: str = "get") -> CameraOut:
         """The camera `camera_id`; CameraNotFound when there is none, CameraCorrupt when its

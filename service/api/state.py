@@ -9,11 +9,11 @@ import time
 
 import anyio
 
-from service.cameras import CameraStore
-from service.drain import Drain
+from service.api.drain import Drain
+from service.cameras.store import CameraStore
 from service.metrics import Metrics
-from service.predictor import Predictor
-from service.registry import ModelRegistry, ReloadReport
+from service.pipeline.predictor import Predictor
+from service.pipeline.registry import ModelRegistry, ReloadReport
 from service.settings import Settings
 from service.workers import WorkerRuntime
 

@@ -21,7 +21,7 @@ from fastapi.openapi.docs import (
 from fastapi.responses import FileResponse, HTMLResponse
 from fastapi.staticfiles import StaticFiles
 
-STATIC = Path(__file__).resolve().parents[1] / "static"
+STATIC = Path(__file__).resolve().parents[2] / "static"
 DOCS_ASSETS = Path(fastapi_offline.__file__).resolve().parent / "static"
 PAGE_URL, DOCS_ASSETS_URL = "/static", "/docs-assets"
 #: The browser itself refuses anything from another host (ReDoc's bundle, for one, would

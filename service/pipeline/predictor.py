@@ -1,7 +1,7 @@
 """Bytes of one or many images -> per-image answers, the HTTP-free core of `/v1/predict`.
 
 Every image of a call goes through ONE batched onnxruntime run (whole mode: one input per
-image, then one more for the zoom pass's crops where it applies, `service.zoom`; sliding
+image, then one more for the zoom pass's crops where it applies, `service.pipeline.zoom`; sliding
 mode: all windows of all images). Thread-safe: the session is shared.
 """
 
@@ -16,18 +16,14 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from service.cameras import KnownFocal
 from service.core.calibration import fit_camera
 from service.core.cells import RegionGrid
 from service.core.frame import object_corners
 from service.core.preprocess import (
     DecodedImage,
     ImageDecodeError,
-    ImageTooLargeError,
     NetworkFrame,
     camera_pixels,
-    decoded_pixels,
-    image_header,
     load_grey,
     load_image,
     to_network_input,
@@ -46,14 +42,22 @@ from service.core.refine import (
     refine_corners,
 )
 from service.core.regions import pose_probabilities, region_of_class
-from service.exif import exif_focal
-from service.model import Answer, PoseModel
-from service.posing import cell_of, focal_of, pose_of
-from service.proposals import propose_boxes
-from service.schemas import Box, Detection, ImageResult, Mode, RefinementOut, RegionOut
-from service.schemas import Lens as LensName
-from service.settings import Settings
-from service.sliding import (
+from service.pipeline.exif import exif_focal
+from service.pipeline.focal import KnownFocal
+from service.pipeline.job import ImageInput, Job, Options, Upload, admit
+from service.pipeline.model import Answer, PoseModel
+from service.pipeline.posing import cell_of, focal_of, pose_of
+from service.pipeline.proposals import propose_boxes
+from service.pipeline.results import (
+    Box,
+    Detection,
+    ImageResult,
+    Mode,
+    RefinementReport,
+    Region,
+)
+from service.pipeline.results import Lens as LensName
+from service.pipeline.sliding import (
     BoxGenerator,
     SlidingWindows,
     best_window,
@@ -62,7 +66,8 @@ from service.sliding import (
     working_copy,
     working_min_size,
 )
-from service.zoom import detail_decode_size, detail_of, zoomed
+from service.pipeline.zoom import detail_decode_size, detail_of, zoomed
+from service.settings import Settings
 
 _LIBC = ctypes.CDLL(ctypes.util.find_library("c") or None)
 
@@ -75,31 +80,8 @@ def give_back_memory() -> None:
         trim(0)
 
 
-#: (filename or None, encoded image bytes)
-ImageInput = tuple[str | None, bytes]
-
-
-#: The range of a camera's focal length `fx` a request may give, in pixels of its images: a
-#: fisheye of 1 px per radian on a tiny image to a long lens on a large sensor (a 600 mm
-#: lens on a 24 mm wide 8000 px sensor is 200,000 px: 1e5 is f = 300 mm there). Outside,
-#: float32 would turn it to 0 (unknown) or inf.
-FX_MIN_PX, FX_MAX_PX = 1.0, 100_000.0
 #: Decoded pixels of a request beyond which the process hands freed memory back to the OS.
 TRIM_ABOVE_PIXELS = 8_000_000
-
-
-class PixelBudgetError(ImageTooLargeError):
-    """The images of one request would decode to more pixels than its budget
-    (`Settings.max_request_pixels`): refused from their headers, before any is decoded."""
-
-
-def too_large_code(exc: ImageTooLargeError) -> str:
-    """The error code of a refusal by size: the request's budget or one image's limit."""
-    return "pixel_budget_exceeded" if isinstance(exc, PixelBudgetError) else "image_too_large"
-
-
-def _name(index: int, image: ImageInput) -> str:
-    return f"image {index + 1}" + (f" ({image[0]})" if image[0] else "")
 
 
 @dataclass(frozen=True)
@@ -172,11 +154,11 @@ def _reduction(corners: np.ndarray) -> int:
     return max(1, int(extent(corners) / MAX_EXTENT_PX))
 
 
-def _refinement_out(ref: Refinement) -> RefinementOut:
+def _refinement_report(ref: Refinement) -> RefinementReport:
     def rounded(v: float) -> float | None:
         return round(v, 4) if math.isfinite(v) else None
 
-    return RefinementOut(
+    return RefinementReport(
         score=rounded(ref.score) if ref.refined else None,
         start_score=rounded(ref.start_score),
         half_turned=ref.turned,
@@ -213,7 +195,7 @@ def _result(
         filename=filename,
         image_size=list(size),
         class_id=class_id,
-        region=RegionOut(**region_of_class(class_id)),
+        region=Region(**region_of_class(class_id)),
         probabilities=probs.tolist(),
         confidence=float(probs[class_id]),
         box=None,
@@ -234,11 +216,11 @@ class Predictor:
             settings.sliding_max_windows,
         )
 
-    def _load(self, index: int, image: ImageInput, min_size: tuple[int, int]) -> DecodedImage:
-        try:
-            return load_image(image[1], max_pixels=self.settings.max_pixels, min_size=min_size)
+    def _load(self, upload: Upload, min_size: tuple[int, int]) -> DecodedImage:
+        try:  # its size was checked from its header (`admit`)
+            return load_image(upload.data, min_size=min_size, header=upload.header)
         except ImageDecodeError as exc:
-            raise type(exc)(f"{_name(index, image)}: {exc}") from None
+            raise type(exc)(f"{upload.name}: {exc}") from None
 
     def min_size(self, mode: Mode) -> tuple[int, int]:
         """The least size (W, H) `mode` decodes an image at (a large JPEG is decoded reduced
@@ -250,32 +232,13 @@ class Predictor:
             return working_min_size(size, self.settings.proposals_resolution)
         return detail_decode_size(size)
 
-    def check_pixels(self, images: Sequence[ImageInput], mode: Mode) -> int:
-        """The pixels the images of one request decode to in `mode`, read from their headers;
-        ImageDecodeError (naming the image) for a header that is not an image's,
-        ImageTooLargeError for an image above `max_pixels`, PixelBudgetError when all of
-        them are above `max_request_pixels`."""
-        cfg, min_size, total, largest = self.settings, self.min_size(mode), 0, (0, "")
-        for i, image in enumerate(images):
-            try:
-                header = image_header(image[1])
-            except ImageDecodeError as exc:
-                raise ImageDecodeError(f"{_name(i, image)}: {exc}") from None
-            stored = header.width * header.height
-            if stored > cfg.max_pixels:
-                raise ImageTooLargeError(
-                    f"{_name(i, image)}: image is {header.width}x{header.height} = {stored} "
-                    f"pixels, more than the limit of {cfg.max_pixels}"
-                )
-            pixels = decoded_pixels(header, min_size)
-            total += pixels
-            largest = max(largest, (pixels, f"{header.width}x{header.height}"))
-        if total > cfg.max_request_pixels:
-            raise PixelBudgetError(
-                f"{len(images)} image(s), the largest {largest[1]}, decode to {total} pixels, "
-                f"more than the budget of {cfg.max_request_pixels} pixels per request"
-            )
-        return total
+    def admit(self, images: Sequence[ImageInput], options: Options) -> Job:
+        """The request's images read from their headers, once, and refused by size before
+        any is decoded (`job.admit`: ImageDecodeError, ImageTooLargeError, PixelBudgetError,
+        each naming the image)."""
+        cfg = self.settings
+        min_size = self.min_size(options.mode)
+        return admit(images, options, min_size, cfg.max_pixels, cfg.max_request_pixels)
 
     def _infer(self, batch: np.ndarray) -> tuple[np.ndarray, float]:
         """Batch [N, 3, H, W] -> probabilities [N, 9], seconds."""
@@ -292,7 +255,8 @@ class Predictor:
         self, mode: Mode, focal: KnownFocal | None, same_camera: bool = False
     ) -> str | None:
         """Why the known focal length `focal` (or a `same_camera` fit) cannot be used with
-        `mode` and this model, or None when it can (or neither is asked for)."""
+        `mode` and this model, or None when it can (or neither is asked for); its range was
+        checked where it was made (`service.pipeline.focal`)."""
         if focal is None and not same_camera:
             return None
         what = (
@@ -302,26 +266,21 @@ class Predictor:
         )
         if focal is not None and same_camera:
             return f"same_camera: the focal length is known already ({what}); give one of them"
-        if focal is not None and not (
-            math.isfinite(focal.fx) and FX_MIN_PX <= focal.fx <= FX_MAX_PX
-        ):
-            return f"fx: must be {FX_MIN_PX:g} to {FX_MAX_PX:g} pixels, got {focal.fx}"
         if mode != "whole":
             return f"{what}: applies to mode=whole only, not mode={mode}"
         if not self.model.takes_focal:
             return f"{what}: model {self.model.name} does not take a focal length"
         return None
 
-    def predict(
+    def options(
         self,
-        images: Sequence[ImageInput],
         mode: Mode,
         focal: KnownFocal | None = None,
         same_camera: bool = False,
         grid: RegionGrid | None = None,
-    ) -> Prediction:
-        """Answer every image; raises ImageDecodeError/ImageTooLargeError naming the image,
-        ValueError for a `focal` / `same_camera` that `focal_problem` refuses.
+    ) -> Options:
+        """A request's options, checked once: ValueError for a `focal` / `same_camera` that
+        `focal_problem` refuses.
 
         whole: the image as one input; sliding: the window grid; proposals: object proposals.
         `focal`: the camera's focal length (px of the images, scaled to each one's size), which
@@ -332,44 +291,57 @@ class Predictor:
         problem = self.focal_problem(mode, focal, same_camera)
         if problem is not None:
             raise ValueError(problem)
-        pixels = self.check_pixels(images, mode)
-        try:
-            if mode == "sliding":
-                return self._detect(images, self.boxes, self.settings.sliding_resolution)
-            if mode == "proposals":
-                return self._detect(images, self._proposals, self.settings.proposals_resolution)
-            return self._whole(images, focal, same_camera, grid)
-        finally:
-            if pixels > TRIM_ABOVE_PIXELS:
-                give_back_memory()
+        return Options(mode, focal, same_camera, grid)
 
-    def _whole(
+    def predict(
         self,
         images: Sequence[ImageInput],
-        focal: KnownFocal | None,
-        same_camera: bool,
-        grid: RegionGrid | None,
+        mode: Mode,
+        focal: KnownFocal | None = None,
+        same_camera: bool = False,
+        grid: RegionGrid | None = None,
     ) -> Prediction:
+        """Answer every image (`options`, `admit`, then `run`); raises ValueError,
+        ImageDecodeError or ImageTooLargeError as they do."""
+        return self.run(self.admit(images, self.options(mode, focal, same_camera, grid)))
+
+    def run(self, job: Job) -> Prediction:
+        """Answer every image of an admitted request in one batched network call;
+        ImageDecodeError naming an image that does not decode."""
+        mode = job.options.mode
+        try:
+            if mode == "sliding":
+                return self._detect(job.uploads, self.boxes, self.settings.sliding_resolution)
+            if mode == "proposals":
+                res = self.settings.proposals_resolution
+                return self._detect(job.uploads, self._proposals, res)
+            return self._whole(job.uploads, job.options)
+        finally:
+            if job.pixels > TRIM_ABOVE_PIXELS:
+                give_back_memory()
+
+    def _whole(self, images: list[Upload], options: Options) -> Prediction:
         size, inputs, prep, frames, known = self.model.input_size, [], [], [], []
         zoom = self.settings.zoom and self.model.zooms
         detail: list[np.ndarray | None] = []  # the zoom pass's frames at 2x the input size
         # decoded the same with the pass off, so that the network input is made the same way
         decode = detail_decode_size(size)
-        for i, image in enumerate(images):
+        focal, grid = options.focal, options.grid
+        for image in images:
             t0 = time.perf_counter()
-            decoded = self._load(i, image, decode)
+            decoded = self._load(image, decode)
             inputs.append(to_network_input(decoded.rgb, size))
             if zoom:
                 detail.append(detail_of(decoded.rgb, size))
             frames.append(NetworkFrame((decoded.width, decoded.height), size))
-            known.append(focal or self._exif_focal(image[1], (decoded.width, decoded.height)))
+            known.append(focal or self._exif_focal(image.data, (decoded.width, decoded.height)))
             prep.append(time.perf_counter() - t0)
         t0 = time.perf_counter()
         answer = self._run(np.stack(inputs), frames, known, detail if zoom else None)
         infer_s = time.perf_counter() - t0
         share = infer_s / len(images)
         views = self._views(images, answer, frames, known, prep)
-        joint = self._joint_focal(views, frames) if same_camera else None
+        joint = self._joint_focal(views, frames) if options.same_camera else None
         if joint is not None:
             known = [joint] * len(images)
         results: list[ImageResult] = []
@@ -377,7 +349,7 @@ class Predictor:
             zip(images, answer.probabilities, known, views, strict=True)
         ):
             image_size = frames[i].image_size
-            result = _result(image[0], int(p.argmax()), p, prep[i] + share, image_size)
+            result = _result(image.filename, int(p.argmax()), p, prep[i] + share, image_size)
             if view is not None:
                 self._add_view(result, view, image_size, k, joint, grid)
             if k is not None:
@@ -418,7 +390,7 @@ class Predictor:
 
     def _views(
         self,
-        images: Sequence[ImageInput],
+        images: list[Upload],
         answer: Answer,
         frames: list[NetworkFrame],
         known: Sequence[KnownFocal | None],
@@ -446,17 +418,17 @@ class Predictor:
             view = ObjectView(seen, pinhole, kind)
             if texture is not None and max(size) >= MIN_PHOTO_SCALE * max(self.model.input_size):
                 t0 = time.perf_counter()
-                view = self._refined(images[i][1], view, texture, lens)
+                view = self._refined(images[i], view, texture, lens)
                 prep[i] += time.perf_counter() - t0
             views.append(view)
         return views
 
     def _refined(
-        self, data: bytes, view: ObjectView, texture: Texture, lens: Lens | None
+        self, image: Upload, view: ObjectView, texture: Texture, lens: Lens | None
     ) -> ObjectView:
         """`view` with its corners refined at the photo's own resolution (`refine_corners`),
         the photo decoded reduced as far as the object keeps `MAX_EXTENT_PX` of extent."""
-        grey, f, _ = load_grey(data, _reduction(view.pinhole))
+        grey, f, _ = load_grey(image.data, _reduction(view.pinhole), image.header)
         fit = view.lens != "camera"  # a lens not known is fitted with the alignment
         ref = refine_corners(
             grey,
@@ -510,7 +482,7 @@ class Predictor:
         result.corners = view.seen.tolist()
         result.corners_source = "refined" if ref is not None and ref.refined else "network"
         if ref is not None:
-            result.refinement = _refinement_out(ref)
+            result.refinement = _refinement_report(ref)
         size_cm = self.model.object_size_cm
         if size_cm is None:
             return
@@ -529,7 +501,7 @@ class Predictor:
         probs = pose_probabilities(pose.camera_cm, self.model.z_split_cm, present)
         class_id = int(probs.argmax())
         result.probabilities, result.confidence = probs.tolist(), float(probs[class_id])
-        result.class_id, result.region = class_id, RegionOut(**region_of_class(class_id))
+        result.class_id, result.region = class_id, Region(**region_of_class(class_id))
         if class_id != 0:
             result.pose, result.cell = pose, cell
         else:  # the pose's region is less likely than the object's absence
@@ -542,18 +514,21 @@ class Predictor:
         focal: KnownFocal | None = None,
         grid: RegionGrid | None = None,
     ) -> Prediction | None:
-        """One frame of a stream whose object the frame before showed at `last`: its corners
-        refined from there (no network, no feature search, the last frame's lens), or None
-        where the model carries no texture, refinement is off, the frame is small
-        (`MIN_PHOTO_SCALE`), or the alignment does not
-        hold at `TRACK_SCORE` (then the network answers the frame, `predict`); the errors of
-        `predict` for an image it refuses."""
+        """`follow` for a frame's bytes (its header read here, its size limits checked)."""
+        return self.follow(self.admit([(None, data)], Options("whole", focal, grid=grid)), last)
+
+    def follow(self, job: Job, last: Track) -> Prediction | None:
+        """The one frame of `job`, of a stream whose object the frame before showed at `last`:
+        its corners refined from there (no network, no feature search, the last frame's
+        lens), or None where the model carries no texture, refinement is off, the frame is small
+        (`MIN_PHOTO_SCALE`), or the alignment does not hold at `TRACK_SCORE` (then the
+        network answers the frame, `run`); ImageDecodeError for a frame that does not decode."""
         texture, size_cm = self.model.texture, self.model.object_size_cm
         if texture is None or size_cm is None or not self.settings.refine:
             return None
         t0 = time.perf_counter()
-        self.check_pixels([(None, data)], "whole")  # the size limits, from the header
-        grey, f, size = load_grey(data, _reduction(last.corners))
+        image, focal, grid = job.uploads[0], job.options.focal, job.options.grid
+        grey, f, size = load_grey(image.data, _reduction(last.corners), image.header)
         if max(size) < MIN_PHOTO_SCALE * max(self.model.input_size):
             return None
         lens: Lens | None = _camera_lens(focal, size)
@@ -593,16 +568,16 @@ class Predictor:
         return None
 
     def _detect(
-        self, images: Sequence[ImageInput], boxes_of: BoxGenerator, resolution: float
+        self, images: list[Upload], boxes_of: BoxGenerator, resolution: float
     ) -> Prediction:
         """Classify the boxes `boxes_of` finds in a working copy of each image (one batched
         call for all), keep the best window per image (NMS, class 0 windows dropped)."""
         size, cfg = self.model.input_size, self.settings
         min_size = working_min_size(size, resolution)
         staged, batches, prep = [], [], []
-        for i, image in enumerate(images):
+        for image in images:
             t0 = time.perf_counter()
-            decoded = self._load(i, image, min_size)
+            decoded = self._load(image, min_size)
             work, scale = working_copy(decoded, size, resolution)
             boxes = boxes_of(work)
             batches.append(window_batch(work, boxes, size))
@@ -613,7 +588,7 @@ class Predictor:
         for image, (boxes, scale, full), t in zip(images, staged, prep, strict=True):
             answer = best_window(boxes, probs[start : start + len(boxes)], cfg.sliding_nms_iou)
             result = _result(
-                image[0],
+                image.filename,
                 answer.class_id,
                 answer.probabilities,
                 t + infer_s * len(boxes) / total,

@@ -1,17 +1,32 @@
 """A camera learned from photos of the object (`POST /v1/cameras` multipart): the corners the
-predictor finds and refines in them, fitted by `service.core.calibration.fit_camera`."""
+predictor finds and refines in them, fitted by `service.core.calibration.fit_camera`, and
+stored (`learn_into`)."""
 
 from __future__ import annotations
 
 from typing import Any
 
+from service.cameras.schema import CameraOut
+from service.cameras.store import CameraStore
 from service.core.calibration import fit_camera
 from service.core.frame import object_corners
 from service.core.preprocess import camera_pixels
-from service.predictor import Predictor
+from service.pipeline.predictor import Predictor
 
 #: Photos of the object a camera is learned from, at least.
 MIN_PHOTOS = 3
+
+
+def learn_into(
+    store: CameraStore,
+    predictor: Predictor,
+    images: list[tuple[str | None, bytes]],
+    name: str | None = None,
+) -> CameraOut:
+    """Photos of the object by one camera -> the camera learned from them (`learn_camera`),
+    stored as `name`; ValueError why it cannot be learned, the store's errors
+    (CameraStoreFull, CameraStoreError) and the predictor's for an image it refuses."""
+    return store.create({**learn_camera(predictor, images), "name": name})
 
 
 def learn_camera(predictor: Predictor, images: list[tuple[str | None, bytes]]) -> dict[str, Any]:

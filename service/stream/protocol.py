@@ -11,7 +11,7 @@ socket closes, both tasks stop at once and the waiting frames are thrown away.
 
 `fx=F` gives the camera's focal length in pixels of the frames, `camera=ID` a stored camera
 (whole mode; see `Predictor.predict`); without either, the stream learns its camera from the
-frames it answers (`service.stream_camera`; `fx_source: "stream"` once it has).
+frames it answers (`service.cameras.stream_camera`; `fx_source: "stream"` once it has).
 `smooth=f` (0 <= f < 1, default 0 = off) smooths the probabilities
 exponentially over the frames: p_t = f * p_(t-1) + (1 - f) * q_t, with q_t the frame's own
 probabilities; class, confidence and region follow p_t, the box and detections stay the
@@ -29,7 +29,7 @@ import re
 import secrets
 from collections import deque
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from enum import IntEnum
 from typing import Any, get_args
 
@@ -39,14 +39,16 @@ from prometheus_client import Counter, Gauge
 from starlette.websockets import WebSocket, WebSocketDisconnect, WebSocketState
 
 from service import bounded_json
-from service.cameras import KnownFocal
+from service.api.schemas import image_result_out
+from service.cameras.stream_camera import StreamCamera
 from service.core.cells import RegionGrid
 from service.core.preprocess import ImageDecodeError, ImageTooLargeError
 from service.core.regions import region_of_class
 from service.metrics import Metrics
-from service.predictor import Prediction, Predictor, Track, too_large_code
-from service.schemas import ImageResult, Mode, RegionOut
-from service.stream_camera import StreamCamera
+from service.pipeline.focal import KnownFocal
+from service.pipeline.job import Job, Options, too_large_code
+from service.pipeline.predictor import Prediction, Predictor, Track
+from service.pipeline.results import ImageResult, Mode, Region
 
 #: Frames that may wait besides the one being answered; more and the oldest is dropped.
 QUEUE_DEPTH = 2
@@ -287,16 +289,15 @@ class Smoother:
             probs = self.factor * self._state + (1.0 - self.factor) * probs
         self._state = probs
         class_id = int(probs.argmax())
-        return result.model_copy(
-            update={
-                "class_id": class_id,
-                "region": RegionOut(**region_of_class(class_id)),
-                "probabilities": probs.tolist(),
-                "confidence": float(probs[class_id]),
-                "corners": result.corners if class_id != 0 else None,
-                "pose": result.pose if class_id != 0 else None,
-                "cell": result.cell if class_id != 0 else None,
-            }
+        return replace(
+            result,
+            class_id=class_id,
+            region=Region(**region_of_class(class_id)),
+            probabilities=probs.tolist(),
+            confidence=float(probs[class_id]),
+            corners=result.corners if class_id != 0 else None,
+            pose=result.pose if class_id != 0 else None,
+            cell=result.cell if class_id != 0 else None,
         )
 
 
@@ -435,18 +436,20 @@ class StreamSession:
         self.metrics.frames.labels(mode, "answered").inc()
         self.metrics.metrics.observe(mode, 1, prediction.inference_s)
         result = self.smoother.apply(prediction.results[0])
-        return json.dumps({**where, **result.model_dump(mode="json")})
+        return json.dumps({**where, **image_result_out(result).model_dump(mode="json")})
 
     def _predict(self, data: bytes) -> Prediction:
         """One frame's answer (with the learned camera once there is one): tracked from the
-        last frame's corners where it can be (`Predictor.track`), else the network's; its
+        last frame's corners where it can be (`Predictor.follow`), else the network's; its
         corners are then offered to the camera the stream learns."""
         known = self.focal or (self.camera.known if self.camera is not None else None)
-        prediction = self._tracked(data, known)
+        # the request's focal length was checked once, when the stream opened; the frame's
+        # header is read once, here
+        options = Options(self.options.mode, known, grid=self.options.grid)
+        job = self.predictor.admit([(None, data)], options)
+        prediction = self._tracked(job)
         if prediction is None:
-            prediction = self.predictor.predict(
-                [(None, data)], self.options.mode, known, grid=self.options.grid
-            )
+            prediction = self.predictor.run(job)
             self.tracked = 0
             if prediction.results[0].corners is not None:
                 prediction.results[0].tracked = False
@@ -460,14 +463,14 @@ class StreamSession:
             self.camera.offer(pinhole, (w, h), prediction.kappas[0])
         return prediction
 
-    def _tracked(self, data: bytes, known: KnownFocal | None) -> Prediction | None:
+    def _tracked(self, job: Job) -> Prediction | None:
         """The frame tracked from the last one, or None where the network answers it: no
         track, tracking off or due the network (`Settings.stream_track_every`), not whole
         mode, or the track lost."""
         every = self.predictor.settings.stream_track_every
         if self.track is None or self.options.mode != "whole" or self.tracked + 1 >= every:
             return None
-        prediction = self.predictor.track(data, self.track, known, self.options.grid)
+        prediction = self.predictor.follow(job, self.track)
         if prediction is not None:
             self.tracked += 1
         return prediction

@@ -1,6 +1,6 @@
 """The Open Inference Protocol (KServe v2 REST) under /v2, for KServe/Triton/Seldon clients.
 
-Errors here are the protocol's `{"error": "message"}` (service.errors picks the shape by path).
+Errors here are the protocol's `{"error": "message"}` (service.api.errors picks the shape by path).
 """
 
 from __future__ import annotations
@@ -13,9 +13,7 @@ import numpy as np
 from fastapi import APIRouter, Request
 from fastapi.responses import JSONResponse
 
-from service.core.preprocess import ImageDecodeError, ImageTooLargeError
-from service.core.regions import NUM_CLASSES
-from service.deps import (
+from service.api.deps import (
     AUTHORISED,
     LimiterDep,
     MetricsDep,
@@ -24,9 +22,12 @@ from service.deps import (
     StateDep,
     served_name,
 )
-from service.errors import ApiError
-from service.oip import InferRequest, ProtocolError, infer_response, parse_infer_request
-from service.predictor import ImageInput, Predictor, too_large_code
+from service.api.errors import ApiError
+from service.api.oip import InferRequest, ProtocolError, infer_response, parse_infer_request
+from service.core.preprocess import ImageDecodeError, ImageTooLargeError
+from service.core.regions import NUM_CLASSES
+from service.pipeline.job import Job, Options, too_large_code
+from service.pipeline.predictor import Predictor
 
 health = APIRouter(tags=["v2"])
 router = APIRouter(tags=["v2"], dependencies=AUTHORISED)
@@ -103,20 +104,21 @@ async def model_ready(
     return {"name": served_name(state, predictor), "ready": True}
 
 
-def _probabilities(predictor: Predictor, infer: InferRequest, max_pixels: int) -> np.ndarray:
-    """[N, 9] from the tensor as is, or from the images decoded as in whole mode."""
-    if infer.tensor is not None:
-        w, h = predictor.model.input_size
-        if infer.tensor.ndim != 4 or infer.tensor.shape[1:] != (3, h, w):
-            raise ProtocolError(
-                400, f"input {infer.input_name!r}: shape must be [N, 3, {h}, {w}] for this model"
-            )
-        if not np.isfinite(infer.tensor).all():
-            raise ProtocolError(400, f"input {infer.input_name!r}: values must be finite")
-        return predictor.model.predict(infer.tensor)
-    images: list[ImageInput] = [(None, data) for data in infer.images or []]
-    results = predictor.predict(images, "whole").results
-    return np.array([r.probabilities for r in results], dtype=np.float64)
+def _probabilities(predictor: Predictor, infer: InferRequest, job: Job | None) -> np.ndarray:
+    """[N, 9] from the images of `job` (admitted from their headers) decoded as in whole mode,
+    else from the tensor as is."""
+    if job is not None:
+        results = predictor.run(job).results
+        return np.array([r.probabilities for r in results], dtype=np.float64)
+    tensor = infer.tensor
+    w, h = predictor.model.input_size
+    if tensor is None or tensor.ndim != 4 or tensor.shape[1:] != (3, h, w):
+        raise ProtocolError(
+            400, f"input {infer.input_name!r}: shape must be [N, 3, {h}, {w}] for this model"
+        )
+    if not np.isfinite(tensor).all():
+        raise ProtocolError(400, f"input {infer.input_name!r}: values must be finite")
+    return predictor.model.predict(tensor)
 
 
 @router.post("/v2/models/{name}/infer")
@@ -145,10 +147,11 @@ async def infer(
         count = len(parsed.tensor) if parsed.tensor is not None else len(parsed.images or [])
         if not 0 < count <= settings.max_images:
             raise ProtocolError(400, f"batch of {count}: send 1 to {settings.max_images} items")
+        job = None
         if parsed.images is not None:  # from the headers, before waiting for a job slot
-            predictor.check_pixels([(None, data) for data in parsed.images], "whole")
+            job = predictor.admit([(None, data) for data in parsed.images], Options())
         probs = await anyio.to_thread.run_sync(
-            _probabilities, predictor, parsed, settings.max_pixels, limiter=limiter
+            _probabilities, predictor, parsed, job, limiter=limiter
         )
     except ProtocolError as exc:
         raise ApiError(exc.status, "bad_request", exc.message) from None

@@ -7,10 +7,7 @@ from typing import Annotated, Any
 import anyio
 from fastapi import APIRouter, Query, Request
 
-from service.cameras import KnownFocal
-from service.core.cells import RegionGrid
-from service.core.preprocess import ImageDecodeError, ImageTooLargeError
-from service.deps import (
+from service.api.deps import (
     AUTHORISED,
     FocalDep,
     GridDep,
@@ -22,10 +19,18 @@ from service.deps import (
     StateDep,
     served_name,
 )
-from service.errors import ApiError
-from service.predictor import Prediction, Predictor, too_large_code
-from service.schemas import ERROR_RESPONSES, Mode, PredictResponse
-from service.uploads import read_images
+from service.api.errors import ApiError
+from service.api.schemas import ERROR_RESPONSES, PredictResponse, image_result_out
+from service.api.state import ServiceState
+from service.api.uploads import read_images
+from service.core.cells import RegionGrid
+from service.core.preprocess import ImageDecodeError, ImageTooLargeError
+from service.metrics import Metrics
+from service.pipeline.focal import KnownFocal
+from service.pipeline.job import too_large_code
+from service.pipeline.predictor import Predictor
+from service.pipeline.results import Mode
+from service.settings import Settings
 
 router = APIRouter(tags=["predict"], dependencies=AUTHORISED)
 
@@ -69,32 +74,39 @@ SameCameraQuery = Annotated[
 ]
 
 
-async def run_prediction(
+async def answer(
     request: Request,
+    state: ServiceState,
     predictor: Predictor,
-    mode: Mode,
-    max_images: int,
+    settings: Settings,
     limiter: anyio.CapacityLimiter,
-    focal: KnownFocal | None = None,
-    same_camera: bool = False,
-    grid: RegionGrid | None = None,
-) -> Prediction:
-    """Read the request's images and classify them in a worker thread; errors as ApiError."""
-    problem = predictor.focal_problem(mode, focal, same_camera)
-    if problem is not None:
-        raise ApiError(422, "invalid_parameters", problem)
-    images = await read_images(request, max_images)
+    metrics: Metrics,
+    mode: Mode,
+    focal: KnownFocal | None,
+    same_camera: bool,
+    grid: RegionGrid | None,
+) -> PredictResponse:
+    """The one body of both predict routes: the request's images answered by `predictor` in
+    a worker thread, counted, in the API's words; errors as ApiError. The options are checked
+    before the body is read, the images' headers (their size limits) before the request
+    waits for a job slot: each once."""
+    try:
+        options = predictor.options(mode, focal, same_camera, grid)
+    except ValueError as exc:
+        raise ApiError(422, "invalid_parameters", str(exc)) from None
+    images = await read_images(request, settings.max_images)
     if same_camera and len(images) < 2:
         raise ApiError(422, "invalid_parameters", "same_camera: send 2 or more images")
     try:
-        predictor.check_pixels(images, mode)  # from the headers, before waiting for a job slot
-        return await anyio.to_thread.run_sync(
-            predictor.predict, images, mode, focal, same_camera, grid, limiter=limiter
-        )
+        job = predictor.admit(images, options)
+        prediction = await anyio.to_thread.run_sync(predictor.run, job, limiter=limiter)
     except ImageTooLargeError as exc:
         raise ApiError(413, too_large_code(exc), str(exc)) from None
     except ImageDecodeError as exc:
         raise ApiError(400, "undecodable_image", str(exc)) from None
+    metrics.observe(mode, len(prediction.results), prediction.inference_s)
+    results = [image_result_out(r) for r in prediction.results]
+    return PredictResponse(model=served_name(state, predictor), mode=mode, results=results)
 
 
 @router.post(
@@ -120,12 +132,9 @@ async def predict(
 
     All images of a request go through one batched network call.
     """
-    prediction = await run_prediction(
-        request, predictor, mode, settings.max_images, limiter, focal, same_camera, grid
+    return await answer(
+        request, state, predictor, settings, limiter, metrics, mode, focal, same_camera, grid
     )
-    metrics.observe(mode, len(prediction.results), prediction.inference_s)
-    name = served_name(state, predictor)
-    return PredictResponse(model=name, mode=mode, results=prediction.results)
 
 
 @router.post(
@@ -148,9 +157,6 @@ async def predict_with(
     same_camera: SameCameraQuery = False,
 ) -> PredictResponse:
     """As /v1/predict, answered by the served model `name` (see GET /v1/models)."""
-    prediction = await run_prediction(
-        request, predictor, mode, settings.max_images, limiter, focal, same_camera, grid
+    return await answer(
+        request, state, predictor, settings, limiter, metrics, mode, focal, same_camera, grid
     )
-    metrics.observe(mode, len(prediction.results), prediction.inference_s)
-    name = served_name(state, predictor)
-    return PredictResponse(model=name, mode=mode, results=prediction.results)

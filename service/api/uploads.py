@@ -7,9 +7,9 @@ from fastapi import Request
 from starlette.datastructures import UploadFile
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
+from service.api.errors import ApiError
 from service.core.preprocess import SUPPORTED_FORMATS
-from service.errors import ApiError
-from service.predictor import ImageInput
+from service.pipeline.job import ImageInput
 
 #: Raw-body content types accepted (the bytes are sniffed anyway).
 IMAGE_TYPES = frozenset(

@@ -5,10 +5,10 @@ from __future__ import annotations
 from fastapi import APIRouter
 from fastapi.responses import Response
 
-from service.deps import MetricsDep, StateDep, served_name
-from service.errors import ApiError
+from service.api.deps import MetricsDep, StateDep, served_name
+from service.api.errors import ApiError
+from service.api.schemas import ERROR_RESPONSES, Status
 from service.metrics import Metrics
-from service.schemas import ERROR_RESPONSES, Status
 
 router = APIRouter(tags=["health"])
 

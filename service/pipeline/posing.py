@@ -14,11 +14,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from service.cameras import KnownFocal
 from service.core.cells import RegionGrid
 from service.core.frame import object_corners
 from service.core.pose import FOCAL_PRIOR, Camera, corner_noise_px, estimate_focal, solve_pose
-from service.schemas import CellOut, CellShare, FocalSource, Lens, Pose
+from service.pipeline.focal import KnownFocal
+from service.pipeline.results import Cell, CellShare, FocalSource, Lens, Pose
 
 #: Poses sampled for a cell's probabilities: the corners' noise and the focal range drawn.
 CELL_SAMPLES = 64
@@ -99,7 +99,7 @@ def cell_of(
     corners: np.ndarray,
     size_cm: tuple[float, float],
     focal: Focal,
-) -> CellOut:
+) -> Cell:
     """The pose's cell of `grid` and the share of `CELL_SAMPLES` poses in it and its
     neighbours: the corners moved by their noise (`corner_noise_px`) and, where fx is
     estimated, fx drawn log-uniformly over its range (a fixed seed: the same image gets the
@@ -126,7 +126,7 @@ def cell_of(
         if i != index and p >= NEIGHBOUR_SHARE
     ]
     far = cell.distance_cm[1]
-    return CellOut(
+    return Cell(
         grid=str(grid),
         index=index,
         azimuth_deg=list(cell.azimuth_deg),

@@ -1,5 +1,5 @@
 """`WS /v1/stream?mode=whole|sliding|proposals&smooth=F&model=NAME&fx=F&camera=ID&regions=G`:
-live frames in, answers out (the protocol: `service/stream.py` and docs/live.md)."""
+live frames in, answers out (the protocol: `service/stream/protocol.py` and docs/live.md)."""
 
 from __future__ import annotations
 
@@ -10,14 +10,15 @@ import anyio
 from fastapi import APIRouter, WebSocket
 from starlette.websockets import WebSocketDisconnect
 
-from service.cameras import CameraCorrupt, CameraNotFound, CameraStoreError, KnownFocal
-from service.deps import served_name, unavailable
+from service.api.deps import served_name, unavailable
+from service.api.state import ServiceState
+from service.cameras.store import CameraCorrupt, CameraNotFound, CameraStoreError, known_focal
 from service.metrics import Metrics
-from service.model import ModelLoadError
-from service.predictor import Predictor
-from service.registry import UnknownModel
-from service.state import ServiceState
-from service.stream import (
+from service.pipeline.focal import KnownFocal, fx_problem
+from service.pipeline.model import ModelLoadError
+from service.pipeline.predictor import Predictor
+from service.pipeline.registry import UnknownModel
+from service.stream.protocol import (
     CloseCode,
     StreamMetrics,
     StreamOptions,
@@ -65,13 +66,19 @@ async def find_predictor(state: ServiceState, name: str | None) -> Predictor:
 
 
 async def stream_focal(state: ServiceState, options: StreamOptions) -> KnownFocal | None:
-    """The focal length of `fx=` or of the stored camera `camera=` (StreamRefused 4404 for an
-    unknown id, 4409 for a corrupt row, 1013 when the store cannot be read)."""
+    """The focal length of `fx=` or of the stored camera `camera=` (StreamRefused 4422 for an
+    fx out of its range, 4404 for an unknown id, 4409 for a corrupt row, 1013 when the store
+    cannot be read)."""
     if options.camera is None:
-        return None if options.fx is None else KnownFocal(options.fx, "query")
+        if options.fx is None:
+            return None
+        problem = fx_problem(options.fx)  # the range, checked once: here
+        if problem is not None:
+            raise StreamRefused(CloseCode.INVALID_PARAMETERS, "invalid_parameters", problem)
+        return KnownFocal(options.fx, "query")
     try:
         camera = await anyio.to_thread.run_sync(state.cameras.get, options.camera, "stream")
-        return KnownFocal.of(camera)
+        return known_focal(camera)
     except CameraNotFound as exc:
         raise StreamRefused(CloseCode.NOT_FOUND, "camera_not_found", str(exc)) from None
     except CameraCorrupt as exc:

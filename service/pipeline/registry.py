@@ -1,5 +1,5 @@
 """The served models: every `<name>.onnx` of the model folder, listed with its card at once,
-its graph loaded on first use (`service.model_cache`: least recently used unloaded beyond
+its graph loaded on first use (`service.pipeline.model_cache`: least recently used unloaded beyond
 `POSE_MODEL_MEMORY_MB`); the default model is loaded with the list and never unloaded.
 
 A reload reads the folder again and swaps the name -> file mapping in one assignment: a
@@ -32,9 +32,9 @@ from pathlib import Path
 from types import MappingProxyType
 
 from service.metrics import Metrics
-from service.model import ModelLoadError, PoseModel, read_card
-from service.model_cache import ModelCache, ModelFile, ModelMetrics, Signature
-from service.predictor import Predictor
+from service.pipeline.model import ModelLoadError, PoseModel, read_card
+from service.pipeline.model_cache import ModelCache, ModelFile, ModelMetrics, Signature
+from service.pipeline.predictor import Predictor
 from service.settings import Settings
 
 log = logging.getLogger("uvicorn.error.pose")

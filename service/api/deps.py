@@ -10,21 +10,22 @@ from typing import Annotated
 import anyio
 from fastapi import Depends, Query, Request
 
-from service.cameras import (
+from service.api.errors import ApiError
+from service.api.state import ServiceState
+from service.cameras.store import (
     CameraCorrupt,
     CameraNotFound,
     CameraStore,
     CameraStoreError,
-    KnownFocal,
+    known_focal,
 )
 from service.core.cells import RegionGrid
-from service.errors import ApiError
 from service.metrics import Metrics
-from service.model import ModelLoadError
-from service.predictor import FX_MAX_PX, FX_MIN_PX, Predictor
-from service.registry import ModelRegistry, UnknownModel
+from service.pipeline.focal import FX_MAX_PX, FX_MIN_PX, KnownFocal
+from service.pipeline.model import ModelLoadError
+from service.pipeline.predictor import Predictor
+from service.pipeline.registry import ModelRegistry, UnknownModel
 from service.settings import Settings
-from service.state import ServiceState
 
 
 async def get_state(request: Request) -> ServiceState:
@@ -119,7 +120,7 @@ async def stored_camera(cameras: CameraStore, camera_id: str) -> KnownFocal:
     """The stored camera `camera_id`'s intrinsics (read in a worker thread); 404 unknown,
     409 `camera_corrupt` its row unusable, 503 store unavailable."""
     try:
-        return KnownFocal.of(await anyio.to_thread.run_sync(cameras.get, camera_id, "predict"))
+        return known_focal(await anyio.to_thread.run_sync(cameras.get, camera_id, "predict"))
     except CameraNotFound as exc:
         raise ApiError(404, "camera_not_found", str(exc)) from None
     except CameraCorrupt as exc:

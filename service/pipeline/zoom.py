@@ -37,7 +37,7 @@ import cv2
 import numpy as np
 
 from service.core.preprocess import NetworkFrame, to_network_input
-from service.model import Answer, PoseModel
+from service.pipeline.model import Answer, PoseModel
 
 GRID = 3  # search tiles per axis, half the input's size each, overlapping by half
 FILL = 0.85  # a found board's extent over its crop's width or height (the larger)

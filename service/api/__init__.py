@@ -1,0 +1,1 @@
+"""The HTTP layer: routes, their dependencies, the answers' schemas, errors and limits."""
