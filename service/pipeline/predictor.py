@@ -29,9 +29,9 @@ from service.core.preprocess import (
     to_network_input,
 )
 from service.core.refine import (
+    GOOD_SCORE,
     MAX_EXTENT_PX,
     REFINED_NOISE_PX,
-    GOOD_SCORE,
     CameraLens,
     Lens,
     RadialLens,
