@@ -10,7 +10,7 @@ from pydantic import BaseModel, Field
 
 from service.cameras.schema import CameraOut
 from service.pipeline import results
-from service.pipeline.results import CornersSource, FocalSource, Lens, Mode
+from service.pipeline.results import CornersSource, FocalSource, Lens, Mode, Training
 
 
 class RegionOut(BaseModel):
@@ -233,6 +233,11 @@ class ModelInfo(BaseModel):
     profile: str | None = Field(default=None, description="The object the model knows.")
     input: list[int] = Field(description="Network input (W, H) in pixels.")
     accuracy: dict[str, Any] = Field(default_factory=dict, description="Measured, per data set.")
+    training: Training = Field(
+        description="How it knows its object: `zero-shot` (the generic corner network with the "
+        "object's picture, not trained on it; its card's `zero_shot` says what it measured), "
+        "`fine-tuned` (trained from that network) or `trained`."
+    )
 
 
 class ModelsResponse(BaseModel):

@@ -34,6 +34,7 @@ from service.core.pose import FOCAL_PRIOR, is_focal_prior
 from service.core.refine import Texture
 from service.core.regions import NUM_CLASSES, Z_SPLIT_CM
 from service.pipeline.onnx_file import OnnxFileError, read_metadata
+from service.pipeline.results import Training
 
 #: Runs of more inputs than this give the memory onnxruntime's arena took for them back
 #: when they end (a batch of 16 images grows it by ~70 MB, of 144 by ~640 MB, held for good
@@ -83,10 +84,21 @@ def read_card(path: Path) -> dict[str, Any]:
     return card
 
 
-def _read_texture(path: Path) -> Texture | None:
-    """The object's texture from the ONNX file's metadata (`TEXTURE_KEY`: a base64 PNG,
-    read without loading the graph), or None where the model carries none; ModelLoadError
-    where it is not a readable image."""
+def training_of(card: dict[str, Any]) -> Training:
+    """How a model came to know its object, from its card: `zero-shot` (the generic corner
+    network with the object's picture, not trained on it: the card's `zero_shot`),
+    `fine-tuned` (trained from that network: architecture `corners-any`) or `trained`."""
+    if "zero_shot" in card:
+        return "zero-shot"
+    if str(card.get("architecture", "")).startswith("corners-any"):
+        return "fine-tuned"
+    return "trained"
+
+
+def read_texture_png(path: Path) -> tuple[bytes, np.ndarray] | None:
+    """The object's front-on picture in the ONNX file's metadata (`TEXTURE_KEY`: a base64
+    PNG, read without loading the graph) -> (the PNG's bytes, RGB uint8 [h, w, 3]), or None
+    where the model carries none; ModelLoadError where it is not a readable image."""
     try:
         text = read_metadata(path).get(TEXTURE_KEY)
     except (OnnxFileError, OSError) as exc:
@@ -94,13 +106,20 @@ def _read_texture(path: Path) -> Texture | None:
     if text is None:
         return None
     try:
-        data = np.frombuffer(base64.b64decode(text, validate=True), np.uint8)
+        png = base64.b64decode(text, validate=True)
+        data = np.frombuffer(png, np.uint8)
         rgb = cv2.imdecode(data, cv2.IMREAD_COLOR_RGB) if data.size else None
     except (binascii.Error, cv2.error):
         rgb = None
-    if rgb is None or min(rgb.shape[:2]) < 8:
+    if rgb is None or min(rgb.shape[:2]) < 8 or not png.startswith(b"\x89PNG"):
         raise ModelLoadError(f"{path}: metadata {TEXTURE_KEY!r} is not a PNG of the texture")
-    return Texture.of_rgb(rgb)
+    return png, rgb
+
+
+def _read_texture(path: Path) -> Texture | None:
+    """The object's texture for the refinement (`read_texture_png`), or None."""
+    found = read_texture_png(path)
+    return None if found is None else Texture.of_rgb(found[1])
 
 
 _SHARED_ALLOCATOR = threading.Lock()

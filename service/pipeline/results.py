@@ -21,6 +21,8 @@ Lens = Literal["camera", "fitted", "network", "none"]
 #: Where an answer's corners come from: the texture aligned at the photo's own resolution
 #: (service/core/refine.py), or the corner network's as they are.
 CornersSource = Literal["refined", "network"]
+#: How a model came to know its object (`service.pipeline.model.training_of`).
+Training = Literal["zero-shot", "fine-tuned", "trained"]
 
 
 @dataclass(frozen=True)

@@ -16,7 +16,9 @@ function regionOf(classId) {
   return { present: true, depth, x, y, label: `${depth}, x${x}, y${y}` };
 }
 
-const state = { card: null, camera: null };
+// card: the chosen model's; models: GET /v1/models by name; picture: an object URL of the
+// chosen model's picture of its object (null: it has none, the diagrams draw a checkerboard).
+const state = { card: null, camera: null, models: { default: "", byName: {} }, picture: null };
 const poseViews = new WeakMap();  // result card -> its PoseView
 
 // --- errors in plain words -------------------------------------------------------------
@@ -104,9 +106,27 @@ async function loadModels() {
   if (!models.length) return;
   // the default model first, as "" (the requests then name no model)
   models.sort((a, b) => Number(b.default) - Number(a.default));
+  state.models = { default: models[0].default ? models[0].name : "",
+    byName: Object.fromEntries(models.map((m) => [m.name, m])) };
   select.replaceChildren(...models.map((m) => new Option(
-    `${m.profile || "object"}: ${m.name}${m.default ? " (default)" : ""}`, m.default ? "" : m.name)));
+    `${m.profile || "object"}: ${m.name}${m.default ? " (default)" : ""}${m.training === "zero-shot" ? " — zero-shot" : ""}`,
+    m.default ? "" : m.name)));
   select.value = chosen;
+}
+
+// The chosen model's picture of its object (GET /v1/models/{name}/texture) as an object URL
+// in state.picture, for the diagrams; null where it has none or the request fails.
+async function loadPicture() {
+  const name = chosenModel() || state.models.default;
+  if (state.picture) URL.revokeObjectURL(state.picture);
+  state.picture = null;
+  if (!name) return;
+  try {
+    const response = await fetch(`v1/models/${encodeURIComponent(name)}/texture`, { headers: authHeaders() });
+    if (response.ok) state.picture = URL.createObjectURL(await response.blob());
+  } catch (_) {
+    // no picture: the diagrams draw a checkerboard
+  }
 }
 
 async function loadCard() {
@@ -185,6 +205,7 @@ function renderCard(card) {
   const rows = [
     ["model", `${card.name} ${card.version || ""}`.trim()],
     ["object", `${profile.name || "unknown"}${size}`],
+    ["training", trainingText(card)],
     ["input size", `${card.input[0]} × ${card.input[1]} px`],
     ["near / far split", profile.z_split_cm ? `${profile.z_split_cm} cm from the object` : "—"],
   ];
@@ -192,6 +213,23 @@ function renderCard(card) {
   for (const [term, value] of rows) addTerm(list, term, [value]);
   addTerm(list, "measured accuracy", [Object.keys(card.accuracy || {}).length ? accuracyTable(card.accuracy) : "—"]);
   list.hidden = false;
+}
+
+// How the model knows its object (service/pipeline/model.py `training_of`), with what its
+// zero-shot presence threshold measured.
+function trainingText(card) {
+  const z = card.zero_shot;
+  if (z) {
+    const pct = (v) => (typeof v === "number" ? `${(100 * v).toFixed(1)} %` : "—");
+    return "zero-shot: the generic corner network with this object's picture, not trained on it " +
+      `(presence threshold ${Number(z.presence_threshold).toFixed(2)} on ${z.threshold_renders} renders: ` +
+      `present right ${pct(z.present_right)}, absent right ${pct(z.absent_right)}); ` +
+      "planar-pose object train fine-tunes it";
+  }
+  if (String(card.architecture || "").startsWith("corners-any")) {
+    return "fine-tuned on this object from the generic corner network";
+  }
+  return "trained on this object";
 }
 
 function addTerm(list, term, values) {
@@ -309,7 +347,7 @@ function showPose(card, result) {
     view = new PoseView($(".scene", card));
     poseViews.set(card, view);
   }
-  view.show(result, (state.card && state.card.profile) || {});
+  view.show(result, (state.card && state.card.profile) || {}, state.picture);
 }
 
 function showResultError(card, text) {
@@ -350,11 +388,23 @@ function octantPanel(depth, left, classId) {
     g.append(cell);
     g.append(svg("text", { x: x === "+" ? 148 : 32, y: y === "+" ? 36 : 154, class: "octant-id" }, String(id)));
   }
-  g.append(board(70, 76, 40, 28));
+  // the object face on at the panel's centre (90, 90), 40 wide, as tall as its card says
+  const profile = (state.card && state.card.profile) || {};
+  const h = profile.width_cm ? Math.min(40, (40 * profile.height_cm) / profile.width_cm) : 28;
+  const w = profile.width_cm ? (h * profile.width_cm) / profile.height_cm : 40;
+  g.append((state.picture ? picture : board)(90 - w / 2, 90 - h / 2, w, h));
   g.append(svg("text", { x: 170, y: 94, class: "axis" }, "x+"));
   g.append(svg("text", { x: 10, y: 94, class: "axis" }, "x−"));
   g.append(svg("text", { x: 90, y: 31, class: "axis" }, "y+"));
   g.append(svg("text", { x: 90, y: 170, class: "axis" }, "y−"));
+  return g;
+}
+
+// The object's own picture, face on, in the box (x, y, w, h).
+function picture(x, y, w, h) {
+  const g = svg("g", { class: "board" });
+  g.append(svg("image", { x, y, width: w, height: h, href: state.picture, preserveAspectRatio: "none" }));
+  g.append(svg("rect", { x, y, width: w, height: h, class: "picture-frame" }));
   return g;
 }
 
@@ -573,8 +623,8 @@ function setUpCamera() {
 setUpDrop();
 setUpCamera();
 setUpFocal();
-$("#api-key").addEventListener("change", () => { loadModels(); loadCard(); loadCameras(); });
-$("#model-name").addEventListener("change", loadCard);
-loadModels();
+$("#api-key").addEventListener("change", () => { loadModels().then(loadPicture); loadCard(); loadCameras(); });
+$("#model-name").addEventListener("change", () => { loadCard(); loadPicture(); });
+loadModels().then(loadPicture);
 loadCard();
 loadCameras();

@@ -93,12 +93,17 @@ function boxEdges(lo, hi) {
 
 // --- the scene's parts -----------------------------------------------------------------------
 
-// The object: its rectangle (light front, +z; darker back), outline and a dot on corner 0,
-// the (-x, -y) one, as on the photo.
-function objectPart(width, height) {
+// The object: its rectangle (its picture on the front, +z, where the model has one (an
+// image URL), else light; darker back), outline and a dot on corner 0, the (-x, -y) one, as
+// on the photo.
+function objectPart(width, height, picture, redraw) {
   const group = new THREE.Group();
   const plane = new THREE.PlaneGeometry(width, height);
-  group.add(new THREE.Mesh(plane, new THREE.MeshBasicMaterial({ color: COLOURS.objectFront, side: THREE.FrontSide })));
+  const front = picture
+    ? { map: new THREE.TextureLoader().load(picture, redraw), side: THREE.FrontSide }
+    : { color: COLOURS.objectFront, side: THREE.FrontSide };
+  if (front.map) front.map.colorSpace = THREE.SRGBColorSpace;
+  group.add(new THREE.Mesh(plane, new THREE.MeshBasicMaterial(front)));
   group.add(new THREE.Mesh(plane, new THREE.MeshBasicMaterial({ color: COLOURS.objectBack, side: THREE.BackSide })));
   const [w, h] = [width / 2, height / 2];
   const rim = [[-w, -h], [w, -h], [w, h], [-w, h]].map(([x, y]) => vec([x, y, 0]));
@@ -187,6 +192,7 @@ function firstViewpoint(pose) {
 function disposeAll(object) {
   object.traverse((part) => {
     if (part.geometry) part.geometry.dispose();
+    if (part.material && part.material.map) part.material.map.dispose();
     if (part.material) part.material.dispose();
   });
 }
@@ -211,8 +217,9 @@ export class PoseView {
   }
 
   // Draw `result` (a /v1/predict result or a stream message) for a model whose card has
-  // `profile` (object size, near/far split; {}: defaults).
-  show(result, profile) {
+  // `profile` (object size, near/far split; {}: defaults) and whose object looks like
+  // `picture` (an image URL; null: a plain rectangle).
+  show(result, profile, picture = null) {
     const pose = result.pose || null;
     this.container.dataset.pose = pose ? "yes" : "no";
     if (!sharedRenderer()) {
@@ -224,7 +231,8 @@ export class PoseView {
     const zSplit = profile.z_split_cm || DEFAULT_Z_SPLIT_CM;
     const box = sceneBox(pose, Math.max(object.width, object.height), zSplit);
     this.clear();
-    this.scene.add(objectPart(object.width, object.height), regionsPart(box, zSplit, result.class_id));
+    this.scene.add(objectPart(object.width, object.height, picture, () => this.render()),
+      regionsPart(box, zSplit, result.class_id));
     this.tagRegions(object, box, zSplit);
     if (pose) {
       this.scene.add(cameraPart(pose, result.image_size || DEFAULT_IMAGE_PX));

@@ -197,6 +197,7 @@ def test_the_page_answers_a_dropped_photo_like_the_api(
     served = httpx.get(server.url + "/v1/model", timeout=30).json()
     assert card["input size"] == "{} × {} px".format(*served["input"])
     assert card["object"].startswith("chessboard")
+    assert card["training"] == "trained on this object"
     first = next(iter(served["accuracy"].values()))
     assert f"{100 * first['accuracy']:.1f} %" in card["measured accuracy"]
     Select(browser.find_element(By.ID, "mode")).select_by_value("proposals")
@@ -214,6 +215,9 @@ def test_the_page_answers_a_dropped_photo_like_the_api(
     ) == str(class_id)
     picture = result.find_element(By.CSS_SELECTOR, "svg.octant-picture")
     assert picture.get_attribute("data-lit") == str(class_id)
+    # the object drawn as its own picture (GET /v1/models/{name}/texture), in both panels
+    drawn = picture.find_elements(By.CSS_SELECTOR, "image")
+    assert len(drawn) == 2 and drawn[0].get_attribute("href").startswith("blob:")
     lit = result.find_elements(By.CSS_SELECTOR, "rect.octant.lit")
     assert [r.get_attribute("data-class") for r in lit] == ([str(class_id)] if class_id else [])
     if api["box"] is not None:

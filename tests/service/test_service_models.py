@@ -11,12 +11,14 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 from service_support import CARD, JPEG, OTHER_MODELS, PHOTO, AppFactory, card_of, check_answer
 
 from service.core.paths import DEFAULT_MODEL, DEFAULT_MODEL_NAME
+from service.pipeline.model import training_of
 
 DEFAULT = DEFAULT_MODEL_NAME
 SMALL = DEFAULT_MODEL  # served as DEFAULT
@@ -195,3 +197,37 @@ def test_the_folder_watcher_picks_up_a_new_file(app_factory: AppFactory, folder:
             time.sleep(0.02)
         else:
             pytest.fail("the watcher did not load late.onnx")
+
+
+def test_a_models_picture_is_served_as_its_graph_carries_it(
+    app_factory: AppFactory, folder: Path
+) -> None:
+    put(folder, "classifier", DEFAULT_MODEL.parent / "chessboard-spec-80x60.onnx")
+    with app_factory(model_dir=folder, api_key="reload-key") as c:
+        got = c.get(f"/v1/models/{DEFAULT}/texture", headers=KEY)
+        assert got.status_code == 200 and got.headers["content-type"] == "image/png"
+        picture = cv2.imdecode(np.frombuffer(got.content, np.uint8), cv2.IMREAD_COLOR)
+        width, height = CARD["profile"]["width_cm"], CARD["profile"]["height_cm"]
+        assert picture.shape[1] / picture.shape[0] == pytest.approx(width / height, rel=0.02)
+        none = c.get("/v1/models/classifier/texture", headers=KEY)
+        assert none.status_code == 404 and none.json()["error"]["code"] == "no_texture"
+        unknown = c.get("/v1/models/nope/texture", headers=KEY)
+        assert unknown.status_code == 404 and "served: " in unknown.json()["error"]["message"]
+        assert c.get(f"/v1/models/{DEFAULT}/texture").status_code == 401
+        listed = {
+            m["name"]: m["training"] for m in c.get("/v1/models", headers=KEY).json()["models"]
+        }
+        assert listed == {DEFAULT: "trained", "board-large": "trained", "classifier": "trained"}
+
+
+@pytest.mark.parametrize(
+    ("card", "training"),
+    [
+        ({"architecture": "corners: ...", "zero_shot": {"presence_threshold": 0.4}}, "zero-shot"),
+        ({"architecture": "corners-any: the generic corner network ..."}, "fine-tuned"),
+        ({"architecture": "corners: train/network/corners.py ..."}, "trained"),
+        ({}, "trained"),
+    ],
+)
+def test_a_cards_training_names_how_the_model_knows_its_object(card: dict, training: str) -> None:
+    assert training_of(card) == training

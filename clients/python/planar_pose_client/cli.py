@@ -552,16 +552,28 @@ def _cell_table(predictions: list[Prediction]) -> Table:
 
 def _models_table(listing: ModelList) -> Table:
     table = Table(title=f"{len(listing.models)} model(s), default {listing.default}")
-    for name in ("name", "input", "profile", "version", "default"):
+    # the name is what `--model` takes: whole on one line (the title names the default)
+    longest = max([len(m.name) for m in listing.models] + [len(n) for n in listing.problems])
+    table.add_column("name", no_wrap=True, min_width=longest)
+    for name in ("input", "object", "training", "right"):
         table.add_column(name)
     for m in listing.models:
-        table.add_row(
-            m.name, f"{m.input[0]}x{m.input[1]}", m.profile or "-", m.version or "-",
-            "yes" if m.default else "",
-        )  # fmt: skip
+        size, known = f"{m.input[0]}x{m.input[1]}", m.training or "-"
+        table.add_row(m.name, size, m.profile or "-", known, _measured(m.accuracy))
     for name, problem in listing.problems.items():
         table.add_row(name, "-", "-", "-", f"not loaded: {_short(problem)}")
     return table
+
+
+def _measured(accuracy: dict[str, Any]) -> str:
+    """A card's accuracies in one cell: right over all the images it measured ("-": none;
+    `model` shows them per data set)."""
+    cells = [a for a in accuracy.values() if isinstance(a, dict)]
+    counted = [(a["accuracy"], a["count"]) for a in cells if {"accuracy", "count"} <= set(a)]
+    images = sum(n for _, n in counted)
+    if not images:
+        return "-"
+    return f"{100 * sum(p * n for p, n in counted) / images:.1f} %"
 
 
 def _card_table(card: ModelCard) -> Table:

@@ -207,6 +207,12 @@ class ModelInfo(_Answer):
     profile: str | None = Field(None, description="the object the model knows")
     input: tuple[int, int] = Field(description="network input size (W, H) in pixels")
     accuracy: dict[str, Any] = Field(default_factory=dict, description="measured, per data set")
+    training: Literal["zero-shot", "fine-tuned", "trained"] | None = Field(
+        None,
+        description="how it knows its object: zero-shot (the generic corner network with the "
+        "object's picture, not trained on it), fine-tuned (from that network) or trained "
+        "(None: a server that does not say)",
+    )
 
 
 class ModelList(_Answer):

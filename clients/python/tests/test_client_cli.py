@@ -4,6 +4,7 @@ card, and one-line errors with their exit codes."""
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -158,6 +159,8 @@ def test_models_command_and_the_model_option(folder_url, photos):
     listing = invoke("models", "--url", folder_url)
     assert listing.exit_code == 0, listing.output
     assert DEFAULT_NAME in listing.stdout and OTHER_MODEL in listing.stdout
+    assert "training" in listing.stdout and "trained" in listing.stdout  # how each knows it
+    assert re.search(r"\d+\.\d %", listing.stdout)  # what its card measured
     as_json = json.loads(invoke("models", "--json", "--url", folder_url).stdout)
     assert as_json["default"] == DEFAULT_NAME
     large = OTHER_MODEL

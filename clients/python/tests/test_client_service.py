@@ -229,6 +229,7 @@ def test_models_and_choosing_one_per_request(folder_url, photos):
         assert listing.default == DEFAULT_NAME and {DEFAULT_NAME, OTHER_MODEL} <= names
         large = next(m for m in listing.models if m.name == OTHER_MODEL)
         assert len(large.input) == 2 and large.profile == "chessboard" and not large.default
+        assert large.training == "trained"
         default = client.predict(photos[0])
         other = client.predict(photos[0], model=OTHER_MODEL)
         check_prediction(other, photos[0].name)

@@ -6,10 +6,12 @@ from dataclasses import asdict
 from typing import Any
 
 import anyio
-from fastapi import APIRouter
+from fastapi import APIRouter, Response
 
 from service.api.deps import AUTHORISED, PredictorDep, SettingsDep, StateDep
+from service.api.errors import ApiError
 from service.api.schemas import ERROR_RESPONSES, ModelInfo, ModelsResponse, ReloadResponse
+from service.pipeline.model import ModelLoadError, read_texture_png, training_of
 from service.pipeline.model_cache import ModelFile
 
 router = APIRouter(tags=["models"], dependencies=AUTHORISED)
@@ -28,6 +30,7 @@ def model_info(file: ModelFile, default: bool, loaded: bool) -> ModelInfo:
         profile=profile.get("name") if isinstance(profile, dict) else profile,
         input=list(file.input_size or ()),
         accuracy=card.get("accuracy") or {},
+        training=training_of(card),
     )
 
 
@@ -60,3 +63,28 @@ async def reload_models(state: StateDep) -> ReloadResponse:
     """
     report = await anyio.to_thread.run_sync(state.reload_everywhere)
     return ReloadResponse(**asdict(report))
+
+
+@router.get(
+    "/v1/models/{name}/texture",
+    response_class=Response,
+    responses={
+        **ERROR_RESPONSES,
+        200: {"content": {"image/png": {}}, "description": "The object's front-on picture."},
+        404: {"description": "No model of that name, or it carries no picture."},
+    },
+)
+async def model_texture(name: str, state: StateDep) -> Response:
+    """The front-on picture of the served model `name`'s object (PNG, as embedded in its
+    graph; the web page draws it), read without loading the graph."""
+    file = state.models.entries().get(name)
+    if file is None:
+        known = ", ".join(state.models.entries()) or "none"
+        raise ApiError(404, "model_not_found", f"no model named {name!r}; served: {known}")
+    try:
+        found = await anyio.to_thread.run_sync(read_texture_png, file.path)
+    except ModelLoadError as exc:
+        raise ApiError(503, "model_unavailable", str(exc)) from None
+    if found is None:
+        raise ApiError(404, "no_texture", f"model {name!r} carries no picture of its object")
+    return Response(found[0], media_type="image/png", headers={"Cache-Control": "no-cache"})
