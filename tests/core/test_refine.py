@@ -98,6 +98,15 @@ def test_blur_a_hand_over_the_object_and_the_frames_edge_are_held() -> None:
     assert ref.refined and error(ref.corners, cut) < 0.5
 
 
+def test_a_heavily_blurred_photo_is_aligned_with_the_texture_blurred_alike() -> None:
+    """Blurred by 4 px, the ChArUco board's fine markers mislead an alignment with the sharp
+    texture (5.4 px off); with the texture blurred to the photo's blur it is within 2 px."""
+    tex = texture("charuco")
+    blurred = cv2.GaussianBlur(photo(tex), (0, 0), 4.0)
+    ref = refine_corners(blurred, START, tex)
+    assert ref.refined and error(ref.corners) < 2.0
+
+
 def test_a_texture_with_large_plain_areas_aligns() -> None:
     """A plain sheet with a logo in one corner and a line of text: most of it gives ECC
     nothing to hold on to."""
