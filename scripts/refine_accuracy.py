@@ -181,7 +181,8 @@ def learned(predictor: Predictor, photos: list[Photo]) -> tuple[KnownFocal | Non
         return None, list(range(len(photos)))
     dist = None if fields["dist"] is None else tuple(fields["dist"])
     size = (fields["width"], fields["height"])
-    return KnownFocal(fields["fx"], "camera", size, dist=dist, lens_learned=True), rest
+    cx, cy = fields.get("cx"), fields.get("cy")  # as the store keeps it (`known_focal`)
+    return KnownFocal(fields["fx"], "camera", size, None, cx, cy, dist, True), rest
 
 
 CONDITIONS = ("network", "refined")  # the refinement off, on

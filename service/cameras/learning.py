@@ -4,6 +4,7 @@ stored (`learn_into`)."""
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any
 
 from service.cameras.schema import CameraOut
@@ -38,9 +39,13 @@ def learn_camera(predictor: Predictor, images: list[tuple[str | None, bytes]]) -
         raise ValueError(f"model {predictor.model.name} gives no corners: pick a corner model")
     prediction = predictor.predict(images, "whole")
     found = [
-        ((r.image_size[0], r.image_size[1]), q, kappa)
-        for r, q, kappa in zip(
-            prediction.results, prediction.pinhole, prediction.kappas, strict=True
+        ((r.image_size[0], r.image_size[1]), q, kappa, points)
+        for r, q, kappa, points in zip(
+            prediction.results,
+            prediction.pinhole,
+            prediction.kappas,
+            prediction.features,
+            strict=True,
         )
         if q is not None and r.image_size is not None
     ]
@@ -50,7 +55,7 @@ def learn_camera(predictor: Predictor, images: list[tuple[str | None, bytes]]) -
             f"{MIN_PHOTOS} or more are needed"
         )
     w, h = max(found[0][0]), min(found[0][0])  # landscape: portraits are the camera turned
-    odd = sorted({size for size, _, _ in found if sorted(size) != [h, w]})
+    odd = sorted({size for size, _, _, _ in found if sorted(size) != [h, w]})
     if odd:
         raise ValueError(
             f"photos of {w}x{h} and of {', '.join(f'{a}x{b}' for a, b in odd)}: "
@@ -58,8 +63,13 @@ def learn_camera(predictor: Predictor, images: list[tuple[str | None, bytes]]) -
         )
     # a portrait is the camera turned: its corners turned back to landscape (fx and a centred
     # principal point stay)
-    views = [camera_pixels(q, size, (w, h)) for size, q, _ in found]
-    fit = fit_camera(views, [k for _, _, k in found], object_corners(*size_cm, z=True), (w, h))
+    views = [camera_pixels(q, size, (w, h)) for size, q, _, _ in found]
+    features = [
+        None if p is None else replace(p, seen=camera_pixels(p.seen, size, (w, h)))
+        for size, _, _, p in found
+    ]
+    kappas = [k for _, _, k, _ in found]
+    fit = fit_camera(views, kappas, object_corners(*size_cm, z=True), (w, h), features)
     used = int(fit.used.sum())
     if used < MIN_PHOTOS or not fit.pinned:
         raise ValueError(
@@ -67,8 +77,11 @@ def learn_camera(predictor: Predictor, images: list[tuple[str | None, bytes]]) -
             f"{fit.fx_range[1]:.0f} px: add photos that view the object obliquely "
             "(tilted 20-50 degrees), from several sides"
         )
+    cx, cy = (None, None) if fit.centre is None else (round(v, 3) for v in fit.centre)
     return {
         "fx": round(fit.fx, 3),
+        "cx": cx,
+        "cy": cy,
         "dist": None if fit.dist is None else [round(v, 6) for v in fit.dist],
         "width": w,
         "height": h,

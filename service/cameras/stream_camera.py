@@ -19,6 +19,7 @@ import numpy as np
 from service.core.calibration import fit_camera
 from service.core.frame import object_corners
 from service.core.pose import Camera, focal_prior, solve_pose
+from service.core.refine import Features
 from service.pipeline.focal import KnownFocal
 
 MIN_VIEWS = 5
@@ -34,18 +35,27 @@ class StreamCamera:
         self.size: tuple[int, int] | None = None
         self.views: deque[np.ndarray] = deque(maxlen=MAX_VIEWS)
         self.kappas: deque[float | None] = deque(maxlen=MAX_VIEWS)  # each view's fitted lens
+        self.features: deque[Features | None] = deque(maxlen=MAX_VIEWS)  # followed features
         self.turns: deque[np.ndarray] = deque(maxlen=MAX_VIEWS)  # each view's rotation
         self.known: KnownFocal | None = None
 
-    def offer(self, corners: np.ndarray, size: tuple[int, int], kappa: float | None = None) -> None:
-        """A frame's pinhole corners [4, 2] px of an image of `size` (W, H) and the radial
-        lens its refinement fitted (kappa px^-2, `service.pipeline.predictor.Prediction.kappas`):
-        kept if the camera turned since the kept views, then the camera fitted again. Frames
-        of another size start over (another camera, or another resolution)."""
+    def offer(
+        self,
+        corners: np.ndarray,
+        size: tuple[int, int],
+        kappa: float | None = None,
+        features: Features | None = None,
+    ) -> None:
+        """A frame's pinhole corners [4, 2] px of an image of `size` (W, H), the radial lens
+        its refinement fitted (kappa px^-2, `service.pipeline.predictor.Prediction.kappas`)
+        and the texture's features it followed (`Prediction.features`): kept if the camera
+        turned since the kept views, then the camera fitted again (`fit_camera`). Frames of
+        another size start over (another camera, or another resolution)."""
         if size != self.size:
             self.size, self.known = size, None
             self.views.clear()
             self.kappas.clear()
+            self.features.clear()
             self.turns.clear()
         q = np.asarray(corners, np.float64)
         try:
@@ -56,14 +66,16 @@ class StreamCamera:
             return
         self.views.append(q)
         self.kappas.append(kappa)
+        self.features.append(features)
         self.turns.append(R)
         if len(self.views) < MIN_VIEWS:
             return
         try:
-            fit = fit_camera(list(self.views), list(self.kappas), self.object, size)
+            views, kappas, seen = list(self.views), list(self.kappas), list(self.features)
+            fit = fit_camera(views, kappas, self.object, size, seen)
         except (ValueError, cv2.error):
             return
-        if fit.pinned:
+        if fit.pinned:  # fx and the lens: the answers state fx alone (`fx_source: stream`)
             self.known = KnownFocal(fit.fx, "stream", size, dist=fit.dist, lens_learned=True)
 
 

@@ -132,13 +132,24 @@ class Texture:
 
 
 @dataclass(frozen=True)
+class Features:
+    """Points of the texture and where the photo shows them: `uv` [K, 2] in units of the
+    texture's width and height from its top-left edge (x right, y down), `seen` [K, 2] px of
+    the photo (its lens not undone)."""
+
+    uv: np.ndarray
+    seen: np.ndarray
+
+
+@dataclass(frozen=True)
 class Refinement:
     """A refinement's answer: the corners [4, 2] px of the photo as seen and as a pinhole
     camera sees them (the same where no lens is known; the start's, unchanged, where not
     refined), the alignment's correlation at the start and at the end (-1..1; the start's
     where not refined), whether the start's order was half turned, and why it was not
-    refined (None where it was); and the lens the pinhole corners undo: the one given, or
-    (`fit_lens`) the radial lens the alignment fitted."""
+    refined (None where it was); the lens the pinhole corners undo: the one given, or
+    (`fit_lens`) the radial lens the alignment fitted; and (`fit_lens`) the texture's
+    features it followed into the photo (`Features`), which calibrate a camera."""
 
     corners: np.ndarray
     pinhole: np.ndarray
@@ -148,6 +159,7 @@ class Refinement:
     reason: str | None
     elapsed_ms: float
     lens: Lens | None = None
+    features: Features | None = None
 
     @property
     def refined(self) -> bool:
@@ -523,16 +535,13 @@ def _realigned(
     return _Aligned(crop.to_image(moved), score, nan, False, None, crop)
 
 
-def _tracked_points(
-    aligned: _Aligned, lens: RadialLens, texture: Texture
-) -> tuple[np.ndarray, np.ndarray] | None:
+def _tracked_points(aligned: _Aligned, lens: RadialLens, texture: Texture) -> Features | None:
     """Where the texture's own corner features lie in the photo, around an alignment
     (pinhole corners under `lens`, in its crop): the crop warped onto the texture by the
     alignment's homography, its brightness and contrast matched to the texture's, and the
     texture's `TRACK_POINTS` strongest features (Shi-Tomasi) followed into it (Lucas-Kanade,
-    kept where they follow back to within `TRACK_RETURN_PX`) -> (texture points [K, 2] px of
-    the texture at the crop's scale, photo points [K, 2] px as the photo shows them), or None
-    where fewer than `MIN_TRACKED` are followed."""
+    kept where they follow back to within `TRACK_RETURN_PX`) -> `Features`, or None where
+    fewer than `MIN_TRACKED` are followed."""
     crop = aligned.crop
     if crop is None:
         return None
@@ -567,47 +576,51 @@ def _tracked_points(
     if np.count_nonzero(keep) < MIN_TRACKED:
         return None
     in_crop = cv2.perspectiveTransform(dst[keep].reshape(-1, 1, 2), H).reshape(-1, 2)
-    return src[keep], lens.distort(crop.to_image(in_crop))
+    return Features((src[keep] + 0.5) / [w, h], lens.distort(crop.to_image(in_crop)))
 
 
-def _homography_fit(
-    texture_pts: np.ndarray, seen: np.ndarray, lens: RadialLens
-) -> tuple[np.ndarray, float]:
-    """The least-squares homography of the texture points [K, 2] onto the photo points `seen`
-    [K, 2] undone by `lens`, and their mean squared distance px^2 from it."""
-    pinhole = lens.undistort(seen)
-    H, _ = cv2.findHomography(texture_pts, pinhole, 0)
+def _homography_fit(features: Features, lens: RadialLens) -> tuple[np.ndarray, float]:
+    """The least-squares homography of the features' texture points (`uv`) onto where the
+    photo shows them undone by `lens`, and their mean squared distance px^2 from it."""
+    pinhole = lens.undistort(features.seen)
+    H, _ = cv2.findHomography(features.uv, pinhole, 0)
     if H is None:
         return np.eye(3), math.inf
-    fit = cv2.perspectiveTransform(texture_pts.reshape(-1, 1, 2), H).reshape(-1, 2)
+    fit = cv2.perspectiveTransform(features.uv.reshape(-1, 1, 2), H).reshape(-1, 2)
     return H, float(((fit - pinhole) ** 2).sum(1).mean())
 
 
 def fit_radial_lens(
-    grey: np.ndarray, aligned: _Aligned, lens: RadialLens, texture: Texture, deadline: float
+    grey: np.ndarray,
+    aligned: _Aligned,
+    lens: RadialLens,
+    texture: Texture,
+    deadline: float,
+    points: Features | None,
 ) -> tuple[_Aligned, RadialLens]:
-    """The radial lens about `lens.centre` under which the texture's features, followed into
-    the photo `grey` uint8 [H, W] (`_tracked_points`), lie on one homography best: kappa
+    """The radial lens about `lens.centre` under which the texture's features `points`,
+    followed into the photo `grey` uint8 [H, W] (`_tracked_points`), lie on one homography
+    best: kappa
     (W/2)^2 (W the photo's longer side) on a grid of `LENS_GRID` values over `LENS_RANGE`,
     then the vertex of the parabola through the best and its neighbours; the alignment is
     then repeated through it from that homography's corners, and kept where it correlates
     better than `aligned` by `LENS_MIN_GAIN` -> (alignment, lens). Where too few features are
     followed, or time runs out, `aligned` and `lens` stay."""
-    points = _tracked_points(aligned, lens, texture)
-    if points is None or aligned.crop is None or time.perf_counter() > deadline:
+    if points is None or time.perf_counter() > deadline:
         return aligned, lens
     unit = (0.5 * max(grey.shape)) ** 2
     grid = np.linspace(*LENS_RANGE, LENS_GRID)
-    costs = [_homography_fit(*points, RadialLens(lens.centre, k / unit))[1] for k in grid]
+    costs = [_homography_fit(points, RadialLens(lens.centre, k / unit))[1] for k in grid]
     best = int(np.clip(np.argmin(costs), 1, LENS_GRID - 2))
     c0, c1, c2 = costs[best - 1 : best + 2]
     curve = c0 - 2 * c1 + c2
     step = grid[1] - grid[0]
     offset = 0.5 * (c0 - c2) / curve if curve > 0 else 0.0
     fitted = RadialLens(lens.centre, (grid[best] + step * float(np.clip(offset, -1, 1))) / unit)
-    H, _ = _homography_fit(*points, fitted)
-    template = texture.at_extent(extent(aligned.pinhole) * aligned.crop.scale)
-    start = cv2.perspectiveTransform(Texture(template).corners.reshape(-1, 1, 2), H)
+    H, _ = _homography_fit(points, fitted)
+    h, w = texture.grey.shape
+    edges = (texture.corners + 0.5) / [w, h]  # the texture's corners in units of uv
+    start = cv2.perspectiveTransform(edges.reshape(-1, 1, 2), H)
     found = _realigned(grey, start.reshape(4, 2), fitted, texture, deadline)
     if found.refused is not None or found.score < aligned.score + LENS_MIN_GAIN:
         return aligned, lens
@@ -635,6 +648,7 @@ def refine_corners(
     (`fit_radial_lens`)."""
     t0 = time.perf_counter()
     deadline = t0 + budget_ms / 1000.0
+    points: Features | None = None
     seen = np.asarray(corners, np.float64).reshape(4, 2)
     pinhole = seen if lens is None else lens.undistort(seen)
     best = _aligned_from(grey, pinhole, texture, lens, deadline)
@@ -651,7 +665,8 @@ def refine_corners(
         guess = lens if isinstance(lens, RadialLens) else RadialLens(centre, 0.0)
         if lens is None:  # the alignment's corners under the guess: the same, kappa 0
             best = replace(best, pinhole=guess.undistort(best.pinhole))
-        best, lens = fit_radial_lens(grey, best, guess, texture, deadline)
+        points = _tracked_points(best, guess, texture)
+        best, lens = fit_radial_lens(grey, best, guess, texture, deadline, points)
     ms = 1000.0 * (time.perf_counter() - t0)
     if best.refused is not None:
         start_score = best.start_score
@@ -659,4 +674,6 @@ def refine_corners(
             seen, pinhole, start_score, start_score, best.turned, best.refused, ms, lens
         )
     out = best.pinhole if lens is None else lens.distort(best.pinhole)
-    return Refinement(out, best.pinhole, best.start_score, best.score, best.turned, None, ms, lens)
+    return Refinement(
+        out, best.pinhole, best.start_score, best.score, best.turned, None, ms, lens, points
+    )

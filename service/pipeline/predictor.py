@@ -33,6 +33,7 @@ from service.core.refine import (
     MAX_EXTENT_PX,
     REFINED_NOISE_PX,
     CameraLens,
+    Features,
     Lens,
     RadialLens,
     Refinement,
@@ -129,14 +130,16 @@ class Track:
 class ObjectView:
     """Where an image shows the object: its corners [4, 2] px of the uploaded image as seen,
     as a pinhole camera sees them with `lens` undone, the refinement that made them (None:
-    not run) and the radial lens it fitted (kappa px^-2 of the uploaded image about its
-    centre, `service.core.refine.RadialLens`; None: none fitted)."""
+    not run), the radial lens it fitted (kappa px^-2 of the uploaded image about its
+    centre, `service.core.refine.RadialLens`; None: none fitted) and the texture's features
+    it followed (px of the uploaded image; None: none)."""
 
     seen: np.ndarray
     pinhole: np.ndarray
     lens: LensName
     refinement: Refinement | None = None
     kappa: float | None = None
+    features: Features | None = None
 
 
 def _camera_lens(known: KnownFocal | None, size: tuple[int, int]) -> CameraLens | None:
@@ -177,6 +180,8 @@ class Prediction:
     #: per image, the radial lens its refinement fitted (kappa px^-2 about the image's
     #: centre, `ObjectView.kappa`), else None
     kappas: list[float | None]
+    #: per image, the texture's features its refinement followed (`ObjectView.features`)
+    features: list[Features | None]
 
 
 def _box(box: tuple[int, int, int, int], scale: tuple[float, float], size: tuple[int, int]) -> Box:
@@ -357,9 +362,12 @@ class Predictor:
                 result.fx_source = k.source
             results.append(result)
         found = [v if r.class_id else None for v, r in zip(views, results, strict=True)]
-        pinhole = [None if v is None else v.pinhole for v in found]
         return Prediction(
-            results, infer_s, pinhole, [None if v is None else v.kappa for v in found]
+            results,
+            infer_s,
+            [None if v is None else v.pinhole for v in found],
+            [None if v is None else v.kappa for v in found],
+            [None if v is None else v.features for v in found],
         )
 
     def _run(
@@ -442,7 +450,10 @@ class Predictor:
             return replace(view, refinement=ref)
         seen, pinhole = ((q + 0.5) * f - 0.5 for q in (ref.corners, ref.pinhole))
         kappa = ref.lens.kappa / f**2 if isinstance(ref.lens, RadialLens) else None
-        return ObjectView(seen, pinhole, "fitted" if fit else view.lens, ref, kappa)
+        points = ref.features
+        if points is not None:  # px of the uploaded image
+            points = replace(points, seen=(points.seen + 0.5) * f - 0.5)
+        return ObjectView(seen, pinhole, "fitted" if fit else view.lens, ref, kappa, points)
 
     def _joint_focal(
         self, views: list[ObjectView | None], frames: list[NetworkFrame]
@@ -461,7 +472,12 @@ class Predictor:
             None if v.kappa is None else v.kappa * (max(image_size) / max(size)) ** 2
             for v, image_size in found
         ]
-        fit = fit_camera(corners, kappas, object_corners(*size_cm, z=True), size)
+        features = [
+            None if v.features is None
+            else replace(v.features, seen=camera_pixels(v.features.seen, image_size, size))
+            for v, image_size in found
+        ]  # fmt: skip
+        fit = fit_camera(corners, kappas, object_corners(*size_cm, z=True), size, features)
         return _JointFocal(fit.fx, "estimated", size, interval=fit.fx_range)
 
     def _add_view(
@@ -556,7 +572,9 @@ class Predictor:
             result.fx, result.fx_source = focal.camera(size).fx, focal.source
         result.elapsed_ms = 1000.0 * (time.perf_counter() - t0)
         found = result.class_id != 0
-        return Prediction([result], 0.0, [pinhole if found else None], [kappa if found else None])
+        return Prediction(
+            [result], 0.0, [pinhole if found else None], [kappa if found else None], [None]
+        )
 
     def _exif_focal(self, data: bytes, size: tuple[int, int]) -> KnownFocal | None:
         """The focal length of the photo's EXIF (`exif_focal`), px of its `size` (W, H), or
@@ -602,4 +620,5 @@ class Predictor:
             ]
             results.append(result)
             start += len(boxes)
-        return Prediction(results, infer_s, [None] * len(results), [None] * len(results))
+        n = len(results)
+        return Prediction(results, infer_s, [None] * n, [None] * n, [None] * n)

@@ -460,7 +460,7 @@ class StreamSession:
             self.track = Track(np.array(result.corners), prediction.kappas[0], present)
         if self.camera is not None and pinhole is not None and result.image_size:
             w, h = result.image_size
-            self.camera.offer(pinhole, (w, h), prediction.kappas[0])
+            self.camera.offer(pinhole, (w, h), prediction.kappas[0], prediction.features[0])
         return prediction
 
     def _tracked(self, job: Job) -> Prediction | None:
