@@ -39,6 +39,8 @@ import cv2
 import numpy as np
 
 from service.cameras.learning import learn_camera
+from service.cameras.schema import CameraOut
+from service.cameras.store import known_focal
 from service.core.dataset import camera_of_row, corners_of_row
 from service.core.paths import REPO_ROOT
 from service.core.profile import load_profile
@@ -179,10 +181,8 @@ def learned(predictor: Predictor, photos: list[Photo]) -> tuple[KnownFocal | Non
         fields = learn_camera(predictor, [(None, photos[i].data) for i in chosen])
     except ValueError:
         return None, list(range(len(photos)))
-    dist = None if fields["dist"] is None else tuple(fields["dist"])
-    size = (fields["width"], fields["height"])
-    cx, cy = fields.get("cx"), fields.get("cy")  # as the store keeps it (`known_focal`)
-    return KnownFocal(fields["fx"], "camera", size, None, cx, cy, dist, True), rest
+    stored = CameraOut(**fields, id="learned", created="now")  # as the store answers it
+    return known_focal(stored), rest
 
 
 CONDITIONS = ("network", "refined")  # the refinement off, on

@@ -72,10 +72,13 @@ class CameraCorrupt(ValueError):
 
 
 def known_focal(camera: CameraOut) -> KnownFocal:
-    """A stored camera's intrinsics as a request knows them (`camera=`)."""
+    """A stored camera's intrinsics as a request knows them (`camera=`). A lens learned from
+    photos by their corners alone (no principal point: `service.core.calibration`) is
+    `lens_learned`, each image fitting its own; one calibrated from their features is used
+    as a registered camera's."""
     size = None if camera.width is None or camera.height is None else (camera.width, camera.height)
     dist = None if camera.dist is None else tuple(camera.dist)
-    learned = camera.source == "photos"
+    learned = camera.source == "photos" and camera.cx is None
     return KnownFocal(camera.fx, "camera", size, camera.fy, camera.cx, camera.cy, dist, learned)
 
 
