@@ -33,6 +33,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from service.core.pose import FOCAL_PRIOR
+from service.core.regions import Z_SPLIT_CM
 from train.network.base import conv_block
 from train.network.corners import PATTERN_CORR, SIZE, CornerNet
 from train.network.pattern import Pattern
@@ -67,13 +69,12 @@ class AnyCornerNet(CornerNet):
         self,
         size: tuple[int, int] = SIZE,
         board_cm: tuple[float, float] | None = None,
-        z_split_cm: float | None = None,
-        focal_scale: float | None = None,
+        z_split_cm: float = Z_SPLIT_CM,
+        focal_scale: float = FOCAL_PRIOR,
         pattern: Pattern | None = None,
         texture: np.ndarray | None = None,
     ) -> None:
-        extra = {k: v for k, v in (("z_split_cm", z_split_cm), ("focal_scale", focal_scale)) if v}
-        super().__init__(size, board_cm, stride=2, pattern=pattern, **extra)
+        super().__init__(size, board_cm, z_split_cm, focal_scale, stride=2, pattern=pattern)
         self.tex_stem = conv_block(3, 16, 3, 2)  # 32 x 32
         self.tex_blocks = nn.Sequential(
             conv_block(16, 32), nn.MaxPool2d(2), conv_block(32, 64), nn.MaxPool2d(2),
@@ -160,4 +161,3 @@ def grown_from(parent: CornerNet, net: AnyCornerNet) -> AnyCornerNet:
     }
     net.load_state_dict(state, strict=False)
     return net
-

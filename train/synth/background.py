@@ -63,7 +63,9 @@ def _grey_for_matching(rgb: np.ndarray) -> np.ndarray:
     """RGB uint8 [h, w, 3] -> grey uint8, the longer side brought to `MATCH_SIDE` px."""
     grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
     f = MATCH_SIDE / max(grey.shape)
-    return cv2.resize(grey, None, fx=f, fy=f, interpolation=cv2.INTER_AREA if f < 1 else cv2.INTER_LINEAR)
+    return cv2.resize(
+        grey, None, fx=f, fy=f, interpolation=cv2.INTER_AREA if f < 1 else cv2.INTER_LINEAR
+    )
 
 
 class TextureMatcher:
@@ -75,10 +77,10 @@ class TextureMatcher:
     pins both)."""
 
     def __init__(self, texture: np.ndarray) -> None:
-        self.orb = cv2.ORB_create(MATCH_FEATURES)
-        self.keys, self.descriptors = self.orb.detectAndCompute(_grey_for_matching(texture), None)
-        self.matcher = cv2.BFMatcher(cv2.NORM_HAMMING)
+        self.orb = cv2.ORB.create(MATCH_FEATURES)
         grey = _grey_for_matching(texture)
+        self.keys, self.descriptors = self.orb.detectAndCompute(grey, None)
+        self.matcher = cv2.BFMatcher(cv2.NORM_HAMMING)
         self.area = float(grey.shape[0] * grey.shape[1])
 
     def inliers(self, background: np.ndarray) -> int:
@@ -91,8 +93,8 @@ class TextureMatcher:
         good = [p[0] for p in pairs if len(p) == 2 and p[0].distance < MATCH_RATIO * p[1].distance]
         if len(good) < MATCH_INLIERS:
             return len(good)
-        src = np.float32([self.keys[m.queryIdx].pt for m in good])
-        dst = np.float32([kb[m.trainIdx].pt for m in good])
+        src = np.array([self.keys[m.queryIdx].pt for m in good], np.float32)
+        dst = np.array([kb[m.trainIdx].pt for m in good], np.float32)
         _, mask = cv2.findHomography(src, dst, cv2.RANSAC, MATCH_RANSAC_PX)
         if mask is None:
             return 0

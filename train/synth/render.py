@@ -248,7 +248,8 @@ class Renderer:
 
     `jitter` switches the photometric jitter; `backgrounds` defaults to the shipped pool.
     Border variants (`borders` of them: margin / frame widths and grey) are drawn from the
-    profile's ranges with `seed`, so a renderer is deterministic given its seed and the per-image rng.
+    profile's ranges with `seed`, so a renderer is deterministic given its seed and the
+    per-image rng.
     """
 
     def __init__(

@@ -66,10 +66,22 @@ def _shapes(img: np.ndarray, rng: np.random.Generator) -> None:
         kind = rng.integers(3)
         if kind == 0:
             d = rng.integers(5, max(6, w // 3), 2)
-            cv2.rectangle(img, (int(c[0]), int(c[1])), (int(c[0] + d[0]), int(c[1] + d[1])), colour, thick)
+            cv2.rectangle(
+                img, (int(c[0]), int(c[1])), (int(c[0] + d[0]), int(c[1] + d[1])), colour, thick
+            )
         elif kind == 1:
             axes = (int(rng.integers(4, w // 4)), int(rng.integers(4, h // 4)))
-            cv2.ellipse(img, (int(c[0]), int(c[1])), axes, float(rng.uniform(0, 180)), 0, 360, colour, thick, cv2.LINE_AA)
+            cv2.ellipse(
+                img,
+                (int(c[0]), int(c[1])),
+                axes,
+                float(rng.uniform(0, 180)),
+                0,
+                360,
+                colour,
+                thick,
+                cv2.LINE_AA,
+            )
         else:
             pts = (c + rng.normal(0, w / 8, (int(rng.integers(3, 7)), 2))).astype(np.int32)
             if thick < 0:
@@ -87,7 +99,16 @@ def _text(img: np.ndarray, rng: np.random.Generator) -> None:
     while y < h:
         words = " ".join(str(rng.choice(_WORDS)) for _ in range(int(rng.integers(1, 5))))
         font = int(rng.choice([0, 1, 2, 3, 4, 6, 7]))
-        cv2.putText(img, words, (int(rng.integers(0, w // 3)), y), font, scale, colour, int(rng.integers(1, 4)), cv2.LINE_AA)
+        cv2.putText(
+            img,
+            words,
+            (int(rng.integers(0, w // 3)), y),
+            font,
+            scale,
+            colour,
+            int(rng.integers(1, 4)),
+            cv2.LINE_AA,
+        )
         y += int(30 * scale + rng.integers(0, 30))
         if rng.random() < 0.2:
             colour = _colour(rng)
@@ -96,8 +117,8 @@ def _text(img: np.ndarray, rng: np.random.Generator) -> None:
 def _stripes(rng: np.random.Generator, w: int, h: int) -> np.ndarray:
     """Sine or square stripes between two colours at a random angle and period, float [h, w, 3]."""
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
-    a, period = rng.uniform(0, np.pi), rng.uniform(8, 80)
-    t = np.sin(2 * np.pi * (np.cos(a) * xx + np.sin(a) * yy) / period)
+    angle, period = rng.uniform(0, np.pi), rng.uniform(8, 80)
+    t = np.sin(2 * np.pi * (np.cos(angle) * xx + np.sin(angle) * yy) / period)
     t = (t > 0).astype(np.float32) if rng.random() < 0.5 else 0.5 + 0.5 * t
     a, b = np.array(_colour(rng), np.float32), np.array(_colour(rng), np.float32)
     return a * (1 - t[..., None]) + b * t[..., None]
@@ -124,7 +145,9 @@ def _markers(img: np.ndarray, rng: np.random.Generator) -> None:
         for j in range(int(np.ceil(h / side))):
             if rng.random() < 0.3:
                 continue
-            marker = cv2.aruco.generateImageMarker(dictionary, int(rng.integers(250)), side * 3 // 4)
+            marker = cv2.aruco.generateImageMarker(
+                dictionary, int(rng.integers(250)), side * 3 // 4
+            )
             x, y = i * side + side // 8, j * side + side // 8
             patch = img[y : y + marker.shape[0], x : x + marker.shape[1]]
             patch[:] = marker[: patch.shape[0], : patch.shape[1], None]
@@ -193,7 +216,9 @@ def photo_texture(name: str, photo: np.ndarray, rng: np.random.Generator) -> Tex
     x0, y0 = int(rng.integers(w - cw + 1)), int(rng.integers(h - ch + 1))
     crop = photo[y0 : y0 + ch, x0 : x0 + cw]
     f = min(1.0, LONG_SIDE / max(cw, ch))
-    crop = cv2.resize(crop, (max(8, int(cw * f)), max(8, int(ch * f))), interpolation=cv2.INTER_AREA)
+    crop = cv2.resize(
+        crop, (max(8, int(cw * f)), max(8, int(ch * f))), interpolation=cv2.INTER_AREA
+    )
     long_cm = float(rng.uniform(*LONG_CM))
     scale = long_cm / max(cw, ch)
     return Texture(np.ascontiguousarray(crop), cw * scale, ch * scale, f"photo:{name}")
