@@ -183,14 +183,17 @@ def _payload(net: AnyCornerNet, config: GenericConfig, state: dict[str, Any]) ->
     }  # fmt: skip
 
 
-def train_generic(config: GenericConfig, say: Any = print) -> dict[str, Any]:
-    """Train (or continue) the generic network as `config` says (module doc) -> the state
-    (step, best, history)."""
+def train_generic(
+    config: GenericConfig, say: Any = print, stream: TextureStream | None = None
+) -> dict[str, Any]:
+    """Train (or continue) the generic network as `config` says (module doc) on `stream`
+    (default: the texture bank on the shipped backgrounds) -> the state (step, best,
+    history)."""
     if config.threads:
         torch.set_num_threads(config.threads)
     torch.manual_seed(config.seed)
     config.out.mkdir(parents=True, exist_ok=True)
-    stream = TextureStream(SIZES[2])
+    stream = stream if stream is not None else TextureStream(SIZES[2])
     device = training_device(config.device)
     last = config.out / "last.pt"
     saved = torch.load(last, map_location="cpu", weights_only=False) if last.is_file() else None

@@ -1,0 +1,100 @@
+"""The generic corner network: starts as the CornerNet it is grown from, reads the picture,
+trains and resumes, and becomes one object's network with a measured presence threshold."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from service.core.profile import load_profile
+from train.commands.object import GENERIC_WEIGHTS as COMMAND_GENERIC
+from train.network.anyfit import GenericConfig, train_generic
+from train.network.anynet import AnyCornerNet, grown_from, texture_tensor
+from train.network.corners import CornerNet
+from train.network.fit import load_network
+from train.network.model import arch_of
+from train.network.zeroshot import (
+    GENERIC_WEIGHTS,
+    load_generic,
+    object_checkpoint,
+    object_network,
+    presence_threshold,
+    save_generic,
+)
+from train.synth.background import BackgroundPool
+from train.synth.stream import TextureStream
+
+SIZE = (160, 120)
+
+
+def test_grown_network_starts_as_its_parent_whatever_the_picture() -> None:
+    torch.manual_seed(0)
+    parent = CornerNet(SIZE, stride=2).eval()
+    net = grown_from(parent, AnyCornerNet(SIZE)).eval()
+    x = torch.rand(2, 3, 120, 160)
+    xn = (x - net.mean) / net.std
+    expected = parent._encode(xn)
+    for seed in (1, 2):
+        picture = torch.rand(1, 3, 64, 64, generator=torch.Generator().manual_seed(seed))
+        got = net.encode_with(xn, picture, torch.ones(1))
+        for a, b in zip(got, expected, strict=True):
+            assert torch.allclose(a, b, atol=1e-5)
+    # once its new layers are not zero, the picture changes the answer
+    torch.nn.init.normal_(net.inject.weight)
+    a = net.encode_with(xn, torch.zeros(1, 3, 64, 64), torch.ones(1))[0]
+    b = net.encode_with(xn, torch.ones(1, 3, 64, 64), torch.ones(1))[0]
+    assert not torch.allclose(a, b)
+
+
+def test_texture_tensor_shape_and_range() -> None:
+    t = texture_tensor(np.full((30, 50, 3), 255, np.uint8))
+    assert t.shape == (3, 64, 64) and float(t.min()) == 1.0
+
+
+def test_presence_threshold_separates_scores() -> None:
+    score = np.array([0.1, 0.2, 0.25, 0.6, 0.7, 0.9])
+    present = np.array([False, False, False, True, True, True])
+    t, rates = presence_threshold(score, np.zeros(6), present)
+    assert 0.25 < t < 0.6 and rates == {"present_right": 1.0, "absent_right": 1.0}
+    # a presence logit that says "present" everywhere wins over any threshold
+    _, rates = presence_threshold(score, np.ones(6), present)
+    assert rates["absent_right"] == 0.0
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    sources = [np.random.default_rng(i).integers(0, 255, (120, 160, 3), np.uint8) for i in range(2)]
+    stream = TextureStream(SIZE, backgrounds=BackgroundPool(SIZE, sources))
+    out = tmp_path_factory.mktemp("any")
+    config = GenericConfig(out, steps=2, batch_size=4, eval_every=1, val_count=6, threads=1)
+    train_generic(config, say=lambda s: None, stream=stream)
+    config.steps = 3  # run again: continues
+    state = train_generic(config, say=lambda s: None, stream=stream)
+    assert state["step"] == 3 and [r["step"] for r in state["history"]] == [1, 2, 3]
+    return out
+
+
+def test_generic_run_checkpoints_load_and_become_one_objects(run: Path, tmp_path: Path) -> None:
+    net, saved = load_network(run / "best.pt")
+    assert arch_of(net) == "corners-any" and saved["epoch"] >= 1
+    save_generic(run / "best.pt", tmp_path / "g.npz")
+    generic, card = load_generic(tmp_path / "g.npz")
+    assert card["steps"] == saved["epoch"]
+    book = load_profile("book")
+    mine = object_network(book, generic)
+    assert not torch.equal(mine.texture_input, generic.texture_input)  # the book's picture
+    assert torch.equal(mine.heat.weight, generic.heat.weight)
+    mine.presence_corr.fill_(0.3)
+    path = object_checkpoint(mine, book, card, tmp_path / "book.pt")
+    again, ck = load_network(path)
+    assert isinstance(again, AnyCornerNet) and float(again.presence_corr) == pytest.approx(0.3)
+    assert ck["profile"]["name"] == "book"
+    x = torch.rand(2, 3, 120, 160)
+    assert torch.allclose(again.eval()(x), mine.eval()(x), atol=1e-5)
+
+
+def test_the_command_names_the_weights_the_network_reads() -> None:
+    assert COMMAND_GENERIC == GENERIC_WEIGHTS
