@@ -1,0 +1,108 @@
+"""Measure the generic corner network zero-shot on objects no network saw; write the page.
+
+Per object (the held-back test textures and the shipped book and ChArUco board): accuracy and
+class-0 accuracy of the zero-shot graph on independent renders at each blur level (160 x 120),
+against the object's shipped model (book, ChArUco) and the feature-matching peer
+(`train/compare/anyobject.py` says how). Writes docs/any_object.md (default) with the date and
+the machine.
+
+    python scripts/any_eval.py models/generic/corners-any-160x120.npz --run runs/any-eval
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from service.core.blur import BLUR_LEVELS
+from service.core.paths import REPO_ROOT
+from service.core.profile import load_profile
+from train.compare.anyobject import evaluate_object, mean_of, test_profiles
+from train.markdown import pct, table, written_by
+from train.network.export import repo_path
+
+
+def page(rows: list[dict[str, Any]], generic: Path, card: dict[str, Any], command: str) -> str:
+    """The Markdown page of the measured `rows` (`evaluate_object`)."""
+    blur_cols = [f"blur {b}" for b in BLUR_LEVELS]
+    lines = [
+        "# Any object: the generic corner network, zero-shot",
+        "",
+        written_by(command),
+        "",
+        f"Generic network: `{repo_path(generic)}`"
+        f" ({card.get('steps')} training steps; its card beside it). Each object: its "
+        "presence threshold measured on its own renders, then independent renders (other "
+        f"cameras and backgrounds, {rows[0]['count']} per blur level, classes 0-8 balanced) "
+        "answered by the exported graph as the service answers. `shipped`: the object's own "
+        "trained model; `peer`: feature matching (SIFT, RANSAC, PnP), no training.",
+        "",
+        "## Class accuracy (class 0 accuracy) per blur level",
+        "",
+    ]
+    body = []
+    for r in rows:
+        for key in ("zero_shot", "shipped", "peer"):
+            if key in r:
+                cells = [f"{pct(v['accuracy'])} ({pct(v['class0'], 0)})" for v in r[key]]
+                body.append([r["object"], key.replace("_", "-"), *cells])
+    lines += table(["object", "answered by", *blur_cols], body)
+    test = [r for r in rows if r["object"].startswith("test-")]
+    lines += ["", "## Held-back test textures, mean", ""]
+    lines += table(
+        ["answered by", *blur_cols],
+        [[k, *(pct(mean_of(test, k, b)) for b in BLUR_LEVELS)] for k in ("zero_shot", "peer")],
+    )
+    lines += ["", "## Presence threshold per object (on its own renders)", ""]
+    lines += table(
+        ["object", "threshold", "present right", "absent right", "backgrounds left out"],
+        [
+            [
+                r["object"],
+                f"{r['threshold']['presence_threshold']:.2f}",
+                pct(r["threshold"]["present_right"]),
+                pct(r["threshold"]["absent_right"]),
+                ", ".join(r["threshold"]["backgrounds_excluded"]) or "none",
+            ]
+            for r in rows
+        ],  # fmt: skip
+    )
+    return "\n".join(lines) + "\n"
+
+
+def main() -> None:
+    """Parse the options, measure every object, write the page and the JSON beside it."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("generic", type=Path, help="generic weights (.npz) or a run's .pt")
+    parser.add_argument("--run", type=Path, default=Path("runs/any-eval"))
+    parser.add_argument("--count", type=int, default=90, help="renders per blur level")
+    parser.add_argument("--objects", nargs="*", default=["book", "charuco"])
+    parser.add_argument("--no-peer", action="store_true")
+    parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--out", type=Path, default=REPO_ROOT / "docs" / "any_object.md")
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    from train.network.zeroshot import load_generic
+
+    _, card = load_generic(args.generic)
+    profiles = test_profiles(args.run / "profiles") + [load_profile(n) for n in args.objects]
+    rows = []
+    for profile in profiles:
+        row = evaluate_object(
+            profile, args.generic, args.run / profile.name, args.count, not args.no_peer
+        )
+        print(json.dumps(row), flush=True)
+        rows.append(row)
+    command = "python scripts/any_eval.py " + " ".join(sys.argv[1:])
+    args.out.write_text(page(rows, args.generic, card, command))
+    args.out.with_suffix(".json").write_text(json.dumps(rows, indent=1) + "\n")
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
