@@ -104,19 +104,20 @@ def step_loss(
     predicted = (q * net.px_to_unit - 1.0).reshape(-1, 8)
     present = torch.from_numpy(np.isfinite(corners).all(1).astype(np.float32)).to(x.device)
     loss = config.corner_weight * _corner_loss(
-        predicted, corners, w, h, config.corner_beta, "upper"
+        predicted, corners, w, h, config.corner_beta, net.corner_order
     ) + F.binary_cross_entropy_with_logits(presence, present)
     return loss, q, presence
 
 
 def corner_error(q: torch.Tensor, corners: np.ndarray) -> np.ndarray:
     """Mean distance px [M] of predicted corners [N, 4, 2] to the known ones [N, 8] (nan:
-    absent, left out), the better of the two orders a half turn apart."""
+    absent, left out), the best of the four cyclic orders (the quarter and half turns are
+    read from the texture afterwards, `AnyCornerNet.observe`)."""
     known = np.isfinite(corners).all(1)
     truth = torch.from_numpy(corners[known].reshape(-1, 4, 2))
     pred = q.detach().cpu()[torch.from_numpy(known)]
-    errors = [(pred - t).norm(dim=2).mean(1) for t in (truth, torch.roll(truth, 2, 1))]
-    return torch.minimum(*errors).numpy()
+    errors = torch.stack([(pred - torch.roll(truth, k, 1)).norm(dim=2).mean(1) for k in range(4)])
+    return errors.amin(0).numpy()
 
 
 @torch.no_grad()

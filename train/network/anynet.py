@@ -35,8 +35,9 @@ from torch import nn
 
 from service.core.pose import FOCAL_PRIOR
 from service.core.regions import Z_SPLIT_CM
+from train.network.align import square_homography
 from train.network.base import conv_block
-from train.network.corners import PATTERN_CORR, SIZE, CornerNet
+from train.network.corners import PATTERN_CORR, PATTERN_SLOPE, SIZE, CornerNet, Observation
 from train.network.pattern import Pattern
 
 #: The picture's size at the network's input (W, H) px.
@@ -61,6 +62,7 @@ class AnyCornerNet(CornerNet):
     """`CornerNet` (stride 2) conditioned on the object's picture (module doc); `texture` RGB
     uint8 [h, w, 3] of the object (None: mid grey, the generic network's placeholder)."""
 
+    corner_order = "top"  # `fit._corner_loss`: the quarter turn is read from the texture
     texture_input: torch.Tensor  # [1, 3, 64, 64] in [0, 1]
     texture_aspect: torch.Tensor  # [1] height / width (cm)
     presence_corr: torch.Tensor  # [] the object's threshold on |corr| (`pattern_threshold`)
@@ -143,6 +145,28 @@ class AnyCornerNet(CornerNet):
         conditioned = torch.cat([embed.expand(x.shape[0], -1), matched], 1)
         presence = self.presence(pooled)[:, 0] + self.presence_any(conditioned)[:, 0]
         return self.heat(u), self.offset(u), presence
+
+    def observe(
+        self,
+        x: torch.Tensor,
+        pixel_aspect: torch.Tensor | None = None,
+        view: torch.Tensor | None = None,
+    ) -> Observation:
+        """`CornerNet.observe` with the quarter turn read from the texture: the heat maps give
+        the corners in the "top" cyclic order (`corner_order`), which may be the object's
+        order turned by a quarter; the texture is aligned in that order and turned by a quarter
+        (each also half turned, `TextureAlign`) and the better correlation kept."""
+        heat, offset, presence = self._encode((x - self.mean) / self.std)
+        lens = self.lens(self._aspect(x[:, 0, 0, 0], pixel_aspect), view)
+        q0 = self._soft_argmax(heat, offset)
+        a, b = self.align(x, q0, lens), self.align(x, torch.roll(q0, 1, 1), lens)
+        pick = b[1] > a[1]
+        q = torch.where(pick[:, None, None], b[0], a[0])
+        corr, k1 = torch.where(pick, b[1], a[1]), torch.where(pick, b[2], a[2])
+        parity = self.parity(x, square_homography(q))
+        pattern = torch.sigmoid(PATTERN_SLOPE * (corr.abs() - self.pattern_threshold()))
+        present = 1 - (1 - torch.sigmoid(presence)) * (1 - pattern)
+        return Observation(q, parity, present, pattern, k1)
 
     def _encode(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """`encode_with` the object's own picture (the buffers)."""

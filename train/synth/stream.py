@@ -47,7 +47,7 @@ class TextureStream:
         bank: TextureBank | None = None,
         backgrounds: BackgroundPool | None = None,
         p_absent: float = 1 / 9,
-        p_distractor: float = 0.3,
+        p_distractor: float = 0.15,
         base: str = BASE_PROFILE,
     ) -> None:
         self.size = size
