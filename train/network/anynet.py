@@ -160,7 +160,7 @@ class AnyCornerNet(CornerNet):
         lens = self.lens(self._aspect(x[:, 0, 0, 0], pixel_aspect), view)
         q0 = self._soft_argmax(heat, offset)
         a, b = self.align(x, q0, lens), self.align(x, torch.roll(q0, 1, 1), lens)
-        pick = b[1] > a[1]
+        pick = b[1].abs() > a[1].abs()  # the sign says the half turn, read by the parity
         q = torch.where(pick[:, None, None], b[0], a[0])
         corr, k1 = torch.where(pick, b[1], a[1]), torch.where(pick, b[2], a[2])
         parity = self.parity(x, square_homography(q))

@@ -98,3 +98,36 @@ def test_generic_run_checkpoints_load_and_become_one_objects(run: Path, tmp_path
 
 def test_the_command_names_the_weights_the_network_reads() -> None:
     assert COMMAND_GENERIC == GENERIC_WEIGHTS
+
+
+def test_top_order_loss_is_zero_for_any_roll_of_the_corners() -> None:
+    from train.network.fit import _corner_loss
+
+    corners = np.array([[10, 50, 100, 20, 120, 90, 20, 110]], np.float32)  # corner 1 highest
+    unit = np.tile([2 / 160, 2 / 120], 4)
+    top = torch.tensor(np.roll(corners, -2, 1) * unit - 1, dtype=torch.float32)
+    assert float(_corner_loss(top, corners, 160, 120, 0.01, "top")) < 1e-9
+    given = torch.tensor(corners * unit - 1, dtype=torch.float32)
+    assert float(_corner_loss(given, corners, 160, 120, 0.01, "top")) > 0.1
+
+
+def test_the_quarter_turn_is_read_from_the_texture() -> None:
+    from train.synth.render import View, render_view
+
+    book = load_profile("book")
+    net = any_corner_net_for(book)
+    centre, target = np.array([8.0, -12.0, 45.0]), np.array([1.0, 0.5, 0.0])
+    image = render_view(book, SIZE, centre, target, roll_deg=20.0)
+    truth = View(centre, target, 20.0).object_corners(book, SIZE)
+    x = torch.from_numpy(image).permute(2, 0, 1)[None].float() / 255
+    for k in (1, 2, 3):  # the heat maps' corners, turned by k quarters
+        turned = torch.tensor(np.roll(truth, k, 0), dtype=torch.float32)[None]
+        net._soft_argmax = lambda heat, offset, q=turned: q  # type: ignore[method-assign]
+        corners = net.answer(x)[1][0].detach().numpy()
+        assert np.abs(corners - truth).max() < 1.5, k
+
+
+def any_corner_net_for(profile) -> AnyCornerNet:  # type: ignore[no-untyped-def]
+    from train.network.model import any_corner_net
+
+    return any_corner_net(SIZE, profile.manifest_entry()).eval()
