@@ -54,6 +54,9 @@ def new(
         Path, typer.Option(help="The generic corner network's weights (corners-any).")
     ] = GENERIC_WEIGHTS,
     models: Annotated[Path, typer.Option(help="Served model folder.")] = DEFAULT_MODEL_DIR,
+    run: Annotated[
+        Path | None, typer.Option(help="Folder of the zero-shot renders (default runs/NAME).")
+    ] = None,
 ) -> None:
     """Write a validated profile (profile.toml + texture.png), a sheet of sample renders and
     (with the generic network) a zero-shot model in the model folder."""
@@ -82,17 +85,17 @@ def new(
         guard(lambda: contact_sheet(samples, sheet, per_class=8, scale=1))
     out.print(f"[green]wrote[/] {folder / 'profile.toml'} and {sheet} (look at the renders)")
     if zero_shot and generic.is_file():
-        _zero_shot(profile, generic, models, start)
+        _zero_shot(profile, generic, models, run or Path("runs") / profile.name, start)
     elif zero_shot:
         out.print(f"[yellow]no generic network at {generic}[/]: no zero-shot model")
     out.print(f"next: planar-pose object train {name}")
 
 
-def _zero_shot(profile: Profile, generic: Path, models: Path, start: float) -> None:
-    """Serve the object at once: the generic network with its picture (`zero_shot_model`)."""
+def _zero_shot(profile: Profile, generic: Path, models: Path, run: Path, start: float) -> None:
+    """Serve the object at once: the generic network with its picture (`zero_shot_model`),
+    its renders in `run`."""
     from train.network.pipeline import zero_shot_model
 
-    run = Path("runs") / profile.name
     path, card = guard(lambda: zero_shot_model(profile, run, models, generic, out.print))
     info = card["zero_shot"]
     if info["backgrounds_excluded"]:
