@@ -21,11 +21,14 @@ Every new layer starts at zero (its output adds nothing), so the network starts 
 corner graph per object (`service/core/onnx_contract.py` unchanged). Training on many
 textures feeds them per image instead (`encode_with`, `train.network.anyfit`).
 
-The presence threshold on the texture's alignment score (`pattern_threshold`) is a buffer
-measured per object (`train.network.anyfit.presence_threshold`), not the chessboard's 0.4.
+The presence threshold on the texture's alignment score (`pattern_threshold`) and a bias of
+the presence logit are buffers measured per object (`train.network.zeroshot.presence_threshold`),
+not the chessboard's 0.4 and none.
 """
 
 from __future__ import annotations
+
+from typing import Any
 
 import cv2
 import numpy as np
@@ -66,6 +69,7 @@ class AnyCornerNet(CornerNet):
     texture_input: torch.Tensor  # [1, 3, 64, 64] in [0, 1]
     texture_aspect: torch.Tensor  # [1] height / width (cm)
     presence_corr: torch.Tensor  # [] the object's threshold on |corr| (`pattern_threshold`)
+    presence_bias: torch.Tensor  # [] added to the presence logit in `observe`, per object
 
     def __init__(
         self,
@@ -99,6 +103,14 @@ class AnyCornerNet(CornerNet):
         )
         self.register_buffer("texture_aspect", torch.tensor([board_cm[1] / board_cm[0]]))
         self.register_buffer("presence_corr", torch.tensor(PATTERN_CORR))
+        self.register_buffer("presence_bias", torch.tensor(0.0))
+
+    def _load_from_state_dict(
+        self, state_dict: dict[str, Any], prefix: str, *args: Any, **kwargs: Any
+    ) -> None:
+        # checkpoints of the first generic runs have no per-object presence bias: none
+        state_dict.setdefault(prefix + "presence_bias", torch.tensor(0.0))
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
     def pattern_threshold(self) -> torch.Tensor:
         """The object's own threshold on the alignment score (module doc)."""
@@ -165,7 +177,7 @@ class AnyCornerNet(CornerNet):
         corr, k1 = torch.where(pick, b[1], a[1]), torch.where(pick, b[2], a[2])
         parity = self.parity(x, square_homography(q))
         pattern = torch.sigmoid(PATTERN_SLOPE * (corr.abs() - self.pattern_threshold()))
-        present = 1 - (1 - torch.sigmoid(presence)) * (1 - pattern)
+        present = 1 - (1 - torch.sigmoid(presence + self.presence_bias)) * (1 - pattern)
         return Observation(q, parity, present, pattern, k1)
 
     def _encode(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -177,7 +189,7 @@ def grown_from(parent: CornerNet, net: AnyCornerNet) -> AnyCornerNet:
     """`net` with every parameter and buffer of `parent` (a trained `CornerNet`, stride 2)
     of the same name and shape, except the object's own buffers: it starts as `parent`."""
     own = net.state_dict()
-    keep = {"texture_input", "texture_aspect", "presence_corr", "to_unit"}
+    keep = {"texture_input", "texture_aspect", "presence_corr", "presence_bias", "to_unit"}
     state = {
         k: v
         for k, v in parent.state_dict().items()

@@ -218,13 +218,15 @@ def zero_shot_checkpoint(
         images.append(im)
         classes.append(k)
     score, p_logit = alignment_scores(net, np.concatenate(images))
-    threshold, rates = presence_threshold(score, p_logit, np.concatenate(classes) > 0)
+    threshold, bias, rates = presence_threshold(score, p_logit, np.concatenate(classes) > 0)
     net.presence_corr.fill_(threshold)
+    net.presence_bias.fill_(bias)
     checkpoint = object_checkpoint(net, profile, generic_card, run / "zero-shot.pt")
     info = {
         "generic": repo_path(generic),
         "generic_steps": generic_card.get("steps"),
         "presence_threshold": threshold,
+        "presence_logit_bias": bias,
         "threshold_renders": int(len(score)),
         **rates,
         "backgrounds_excluded": list(excluded),

@@ -34,6 +34,9 @@ from train.network.model import any_corner_net
 GENERIC_WEIGHTS = REPO_ROOT / "models" / "generic" / "corners-any-160x120.npz"
 #: Thresholds tried on the alignment score (`presence_threshold`).
 THRESHOLDS = np.round(np.arange(0.10, 0.96, 0.01), 2)
+#: Biases of the presence logit tried, from none to "the alignment score alone" (decreasing:
+#: a tie keeps the lower).
+BIASES = (0.0, -1.0, -2.0, -3.0, -5.0, -8.0, -30.0)
 
 
 def save_generic(checkpoint: Path, out: Path = GENERIC_WEIGHTS) -> dict[str, Any]:
@@ -97,20 +100,23 @@ def alignment_scores(net: AnyCornerNet, images: np.ndarray) -> tuple[np.ndarray,
 
 def presence_threshold(
     score: np.ndarray, p_logit: np.ndarray, present: np.ndarray
-) -> tuple[float, dict[str, float]]:
-    """The threshold on the alignment score [N] (with P(present) of the logit [N] or'ed in,
-    as `CornerNet.observe` does) that tells `present` [N] bool best: highest balanced
-    accuracy, the higher threshold on a tie -> (threshold, its accuracy on the present and
-    the absent renders)."""
-    best: tuple[float, float, dict[str, float]] = (-1.0, 0.0, {})
-    for t in THRESHOLDS:
-        pattern = 1 / (1 + np.exp(-PATTERN_SLOPE * (score - t)))
-        said = 1 - (1 - p_logit) * (1 - pattern) > 0.5
-        on = float((said[present]).mean()) if present.any() else 1.0
-        off = float((~said[~present]).mean()) if (~present).any() else 1.0
-        if (on + off) / 2 >= best[0]:
-            best = ((on + off) / 2, float(t), {"present_right": on, "absent_right": off})
-    return best[1], best[2]
+) -> tuple[float, float, dict[str, float]]:
+    """The threshold on the alignment score [N] and the bias of the presence logit (P(present)
+    of the logit alone [N]; or'ed in as `CornerNet.observe` does) that tell `present` [N] bool
+    best: highest balanced accuracy, on a tie the higher threshold and the lower bias ->
+    (threshold, bias, their accuracy on the present and the absent renders)."""
+    logit = np.log(np.clip(p_logit, 1e-7, 1 - 1e-7)) - np.log(np.clip(1 - p_logit, 1e-7, 1))
+    best: tuple[float, float, float, dict[str, float]] = (-1.0, 0.0, 0.0, {})
+    for bias in BIASES:
+        p = 1 / (1 + np.exp(-(logit + bias)))
+        for t in THRESHOLDS:
+            pattern = 1 / (1 + np.exp(-PATTERN_SLOPE * (score - t)))
+            said = 1 - (1 - p) * (1 - pattern) > 0.5
+            on = float((said[present]).mean()) if present.any() else 1.0
+            off = float((~said[~present]).mean()) if (~present).any() else 1.0
+            if (on + off) / 2 >= best[0]:
+                best = ((on + off) / 2, float(t), bias, {"present_right": on, "absent_right": off})
+    return best[1], best[2], best[3]
 
 
 def object_checkpoint(

@@ -57,11 +57,12 @@ def test_texture_tensor_shape_and_range() -> None:
 def test_presence_threshold_separates_scores() -> None:
     score = np.array([0.1, 0.2, 0.25, 0.6, 0.7, 0.9])
     present = np.array([False, False, False, True, True, True])
-    t, rates = presence_threshold(score, np.zeros(6), present)
-    assert 0.25 < t < 0.6 and rates == {"present_right": 1.0, "absent_right": 1.0}
-    # a presence logit that says "present" everywhere wins over any threshold
-    _, rates = presence_threshold(score, np.ones(6), present)
-    assert rates["absent_right"] == 0.0
+    t, bias, rates = presence_threshold(score, np.full(6, 0.01), present)
+    assert 0.25 < t <= 0.6 and rates == {"present_right": 1.0, "absent_right": 1.0}
+    assert bias == 0.0
+    # a presence logit that says "present" everywhere is biased away
+    t, bias, rates = presence_threshold(score, np.full(6, 0.99), present)
+    assert rates["absent_right"] == 1.0 and bias < -4.0
 
 
 @pytest.fixture(scope="module")
