@@ -59,7 +59,7 @@ def test_presence_threshold_separates_scores() -> None:
     present = np.array([False, False, False, True, True, True])
     t, bias, rates = presence_threshold(score, np.full(6, 0.01), present)
     assert 0.25 < t <= 0.6 and rates == {"present_right": 1.0, "absent_right": 1.0}
-    assert bias == 0.0
+    assert bias == -30.0  # a tie: the alignment score alone
     # a presence logit that says "present" everywhere is biased away
     t, bias, rates = presence_threshold(score, np.full(6, 0.99), present)
     assert rates["absent_right"] == 1.0 and bias < -4.0
