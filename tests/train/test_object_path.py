@@ -37,11 +37,12 @@ def _picture(path: Path) -> Path:
     return path
 
 
+@pytest.mark.timeout(900)  # zero-shot, fine-tuning and serving: minutes on a loaded machine
 def test_from_a_picture_to_a_served_model(tmp_path: Path) -> None:
     picture = _picture(tmp_path / "poster.jpg")
     profiles, models = tmp_path / "profiles", tmp_path / "models"
     args = ["object", "new", "poster", "--texture", str(picture), "--profiles", str(profiles)]
-    args += ["--models", str(models), "--run", str(tmp_path / "run")]
+    args += ["--models", str(models), "--run", str(tmp_path / "run"), "--eval-count", "18"]
     result = runner.invoke(app, [*args, "--size", "30", "20"])
     assert result.exit_code == 0, result.output
     assert (profiles / "poster" / "profile.toml").is_file()

@@ -57,6 +57,9 @@ def new(
     run: Annotated[
         Path | None, typer.Option(help="Folder of the zero-shot renders (default runs/NAME).")
     ] = None,
+    eval_count: Annotated[
+        int, typer.Option(min=9, help="Renders per blur level the zero-shot model is measured on.")
+    ] = 90,
 ) -> None:
     """Write a validated profile (profile.toml + texture.png), a sheet of sample renders and
     (with the generic network) a zero-shot model in the model folder."""
@@ -85,18 +88,23 @@ def new(
         guard(lambda: contact_sheet(samples, sheet, per_class=8, scale=1))
     out.print(f"[green]wrote[/] {folder / 'profile.toml'} and {sheet} (look at the renders)")
     if zero_shot and generic.is_file():
-        _zero_shot(profile, generic, models, run or Path("runs") / profile.name, start)
+        folder = run or Path("runs") / profile.name
+        _zero_shot(profile, generic, models, folder, eval_count, start)
     elif zero_shot:
         out.print(f"[yellow]no generic network at {generic}[/]: no zero-shot model")
     out.print(f"next: planar-pose object train {name}")
 
 
-def _zero_shot(profile: Profile, generic: Path, models: Path, run: Path, start: float) -> None:
+def _zero_shot(
+    profile: Profile, generic: Path, models: Path, run: Path, eval_count: int, start: float
+) -> None:
     """Serve the object at once: the generic network with its picture (`zero_shot_model`),
-    its renders in `run`."""
+    its renders in `run`, measured on `eval_count` renders per blur level."""
     from train.network.pipeline import zero_shot_model
 
-    path, card = guard(lambda: zero_shot_model(profile, run, models, generic, out.print))
+    path, card = guard(
+        lambda: zero_shot_model(profile, run, models, generic, out.print, eval_count)
+    )
     info = card["zero_shot"]
     if info["backgrounds_excluded"]:
         shown = ", ".join(info["backgrounds_excluded"])

@@ -240,14 +240,15 @@ def zero_shot_model(
     models: Path,
     generic: Path,
     say: Callable[[str], None] = print,
+    eval_count: int = ZERO_SHOT_EVAL_COUNT,
 ) -> tuple[Path, dict[str, Any]]:
     """The object's model from the generic network, no training (`zero_shot_checkpoint`),
     exported to `models` with a card that says it is zero-shot and what it measured on other
-    renders (one small set per blur level) -> (ONNX path, card)."""
+    renders (`eval_count` per blur level) -> (ONNX path, card)."""
     checkpoint, generic_card, info = zero_shot_checkpoint(profile, run, generic)
     evals = [run / "data" / f"zero-shot-b{b}" for b in BLUR_LEVELS]
     jobs = [
-        (DatasetSpec("free", 2, b, ZERO_SHOT_EVAL_COUNT, ZERO_SHOT_EVAL_SEED + b, profile), path)
+        (DatasetSpec("free", 2, b, eval_count, ZERO_SHOT_EVAL_SEED + b, profile), path)
         for b, path in zip(BLUR_LEVELS, evals, strict=True)
     ]
     make_datasets([(s, p) for s, p in jobs if not (p / MANIFEST_FILE).is_file()], overwrite=True)
