@@ -36,6 +36,7 @@ import torch.nn.functional as F
 
 from service.core.inputs import SIZES
 from train.network.anynet import AnyCornerNet, grown_from, texture_tensor
+from train.network.export import repo_path
 from train.network.fit import (
     CHECKPOINT_FORMAT,
     Augmenter,
@@ -161,8 +162,20 @@ def _initial(config: GenericConfig, stream: TextureStream) -> tuple[AnyCornerNet
         first = stream.batch(256, np.random.default_rng([config.seed, 1]))
         recalibrate_batch_norm(parent, to_input(first.images))
     else:
-        parent, record = load_network(config.init)
+        parent, saved = load_network(config.init)
+        record = {"checkpoint": str(config.init), "steps": saved.get("epoch")}
+        record["parent"] = lineage(saved.get("parent"))
     return grown_from(parent, net), record  # type: ignore[arg-type]
+
+
+def lineage(parent: dict[str, Any] | None) -> dict[str, Any] | None:
+    """A checkpoint's parent record without weights: where each ancestor came from (ONNX
+    graph or checkpoint) and its steps, oldest last."""
+    if not parent:
+        return None
+    keep = {k: parent[k] for k in ("steps", "epoch") if k in parent}
+    keep |= {k: repo_path(Path(parent[k])) for k in ("onnx", "checkpoint") if k in parent}
+    return keep | {"parent": lineage(parent.get("parent"))}
 
 
 def _payload(net: AnyCornerNet, config: GenericConfig, state: dict[str, Any]) -> dict[str, Any]:

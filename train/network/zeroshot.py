@@ -26,6 +26,7 @@ import torch
 
 from service.core.paths import REPO_ROOT
 from service.core.profile import Profile
+from train.network.anyfit import lineage
 from train.network.anynet import AnyCornerNet, grown_from
 from train.network.corners import PATTERN_SLOPE
 from train.network.fit import CHECKPOINT_FORMAT, _save, load_network, to_input
@@ -52,7 +53,7 @@ def save_generic(checkpoint: Path, out: Path = GENERIC_WEIGHTS) -> dict[str, Any
         "best": saved["best"],
         "config": saved["config"],
         "data": saved["data"],
-        "initialised_from": (saved.get("parent") or {}).get("onnx"),
+        "initialised_from": lineage(saved.get("parent")),
         "history": saved["history"][-5:],
     }
     out.with_suffix(".json").write_text(json.dumps(card, indent=1, default=str) + "\n")
