@@ -52,9 +52,14 @@ def page(rows: list[dict[str, Any]], generic: Path, card: dict[str, Any], comman
     for r in rows:
         for key in ("zero_shot", "shipped", "peer"):
             if key in r:
-                cells = [f"{pct(v['accuracy'])} ({pct(v['class0'], 0)})" for v in r[key]]
+                cells = [
+                    f"{pct(v['accuracy'])} ({pct(v['class0'], 0)}){' *' if 'note' in v else ''}"
+                    for v in r[key]
+                ]
                 body.append([r["object"], key.replace("_", "-"), *cells])
     lines += table(["object", "answered by", *blur_cols], body)
+    lines += ["", "\\* the peer cannot match this texture (too few SIFT features): it answers "
+              "\"no object\" on every image."]  # fmt: skip
     test = [r for r in rows if r["object"].startswith("test-")]
     if test:
         lines += ["", f"## The {len(test)} held-back test textures, mean", ""]
@@ -87,7 +92,13 @@ def _evaluate(job: tuple[Path, Path, Path, int, bool]) -> dict[str, Any]:
     """`evaluate_object` in a worker process (one torch thread), its row printed."""
     torch.set_num_threads(1)
     profile, generic, run, count, peer = job
+    done = run / "row.json"  # measured already with these options: kept (run again resumes)
+    if done.is_file():
+        row: dict[str, Any] = json.loads(done.read_text())
+        if row["count"] == count and row["threshold"]["generic"] == repo_path(generic):
+            return row
     row = evaluate_object(load_profile(profile), generic, run, count, peer)
+    done.write_text(json.dumps(row) + "\n")
     print(json.dumps(row), flush=True)
     return row
 
