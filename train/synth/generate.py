@@ -166,9 +166,11 @@ _BACKGROUNDS: dict[tuple[tuple[int, int], Path], BackgroundPool] = {}
 def backgrounds_for(profile: Profile, size: tuple[int, int]) -> BackgroundPool:
     """The background pool of the object's renders at `size` (W, H): the default pool
     without the sources that show the object's texture (`BackgroundPool.default`; checked by
-    matching, their names in its `excluded`); one per (size, texture) and process."""
+    matching, their names in its `excluded`); the last one asked for is kept per process."""
     key = (size, profile.texture)
     if key not in _BACKGROUNDS:
+        _BACKGROUNDS.clear()  # one pool at a time (a pool at 640x480 is GBs), and so
+        _RENDERERS.clear()  # no renderer that holds another
         _BACKGROUNDS[key] = BackgroundPool.default(size, texture=profile.texture_rgb())
     return _BACKGROUNDS[key]
 
