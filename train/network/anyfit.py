@@ -173,7 +173,7 @@ def lineage(parent: dict[str, Any] | None) -> dict[str, Any] | None:
     graph or checkpoint) and its steps, oldest last."""
     if not parent:
         return None
-    keep = {k: parent[k] for k in ("steps", "epoch") if k in parent}
+    keep: dict[str, Any] = {k: parent[k] for k in ("steps", "epoch") if k in parent}
     keep |= {k: repo_path(Path(parent[k])) for k in ("onnx", "checkpoint") if k in parent}
     return keep | {"parent": lineage(parent.get("parent"))}
 
