@@ -18,6 +18,7 @@ from service.app import create_app
 from service.core.paths import DEFAULT_MODEL
 from service.settings import Settings
 from train.cli import app
+from train.network.zeroshot import GENERIC_WEIGHTS
 
 runner = CliRunner()
 
@@ -37,14 +38,20 @@ def _picture(path: Path) -> Path:
     return path
 
 
+@pytest.mark.timeout(900)  # zero-shot, fine-tuning and serving: minutes on a loaded machine
 def test_from_a_picture_to_a_served_model(tmp_path: Path) -> None:
     picture = _picture(tmp_path / "poster.jpg")
     profiles, models = tmp_path / "profiles", tmp_path / "models"
     args = ["object", "new", "poster", "--texture", str(picture), "--profiles", str(profiles)]
+    args += ["--models", str(models), "--run", str(tmp_path / "run"), "--eval-count", "18"]
     result = runner.invoke(app, [*args, "--size", "30", "20"])
     assert result.exit_code == 0, result.output
     assert (profiles / "poster" / "profile.toml").is_file()
     assert cv2.imread(str(profiles / "poster" / "samples.jpg")) is not None
+    if GENERIC_WEIGHTS.is_file():  # served at once: the generic network with its picture
+        zero_shot = json.loads((models / "poster-corners-160x120.json").read_text())
+        assert zero_shot["zero_shot"]["threshold_renders"] > 0, result.output
+        assert set(zero_shot["accuracy"]) == {f"zero-shot-b{b}" for b in range(4)}
     again = runner.invoke(app, [*args, "--size", "30", "20"])
     assert again.exit_code == 1 and "exists" in again.output
 

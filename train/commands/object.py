@@ -17,8 +17,8 @@ from typing import Annotated
 import cv2
 import typer
 
-from service.core.paths import DEFAULT_MODEL_DIR
-from service.core.profile import PROFILES_DIR, ProfileError, write_profile
+from service.core.paths import DEFAULT_MODEL_DIR, REPO_ROOT
+from service.core.profile import PROFILES_DIR, Profile, ProfileError, write_profile
 from service.core.regions import Z_SPLIT_CM
 from train.commands.common import fail, guard, out, profile_or_exit
 
@@ -29,6 +29,9 @@ app = typer.Typer(
 )
 #: Profile names: usable in a folder, a file and a URL (`service.pipeline.registry.NAME_PATTERN`).
 NAME = re.compile(r"[a-z0-9][a-z0-9-]*")
+#: The generic corner network's weights (`train.network.zeroshot.GENERIC_WEIGHTS`: not
+#: imported here, the command modules import no torch).
+GENERIC_WEIGHTS = REPO_ROOT / "models" / "generic" / "corners-any-160x120.npz"
 #: Renders in the sample sheet of `new`.
 SHEET_COUNT = 90
 
@@ -43,10 +46,26 @@ def new(
     profiles: Annotated[Path, typer.Option(help="Folder of profiles.")] = PROFILES_DIR,
     z_split: Annotated[float, typer.Option(help="Near / far split, cm.")] = Z_SPLIT_CM,
     overwrite: Annotated[bool, typer.Option(help="Replace an existing profile.")] = False,
+    zero_shot: Annotated[
+        bool, typer.Option(help="Serve it at once: the generic network with its picture.")
+    ] = True,
+    generic: Annotated[
+        Path, typer.Option(help="The generic corner network's weights (corners-any).")
+    ] = GENERIC_WEIGHTS,
+    models: Annotated[Path, typer.Option(help="Served model folder.")] = DEFAULT_MODEL_DIR,
+    run: Annotated[
+        Path | None, typer.Option(help="Folder of the zero-shot renders (default runs/NAME).")
+    ] = None,
+    eval_count: Annotated[
+        int, typer.Option(min=9, help="Renders per blur level the zero-shot model is measured on.")
+    ] = 90,
 ) -> None:
-    """Write a validated profile (profile.toml + texture.png) and a sheet of sample renders."""
+    """Write a validated profile (profile.toml + texture.png), a sheet of sample renders and
+    (with the generic network) a zero-shot model in the model folder."""
     from train.synth.generate import DatasetSpec, make_dataset
     from train.synth.sheet import contact_sheet
+
+    start = time.monotonic()
 
     if not NAME.fullmatch(name):
         raise fail(f"name {name!r}: use lower-case letters, digits and '-'", code=2)
@@ -67,7 +86,35 @@ def new(
         guard(lambda: make_dataset(samples, DatasetSpec("free", 2, 0, SHEET_COUNT, 0, profile)))
         guard(lambda: contact_sheet(samples, sheet, per_class=8, scale=1))
     out.print(f"[green]wrote[/] {folder / 'profile.toml'} and {sheet} (look at the renders)")
+    if zero_shot and generic.is_file():
+        folder = run or Path("runs") / profile.name
+        _zero_shot(profile, generic, models, folder, eval_count, start)
+    elif zero_shot:
+        out.print(f"[yellow]no generic network at {generic}[/]: no zero-shot model")
     out.print(f"next: planar-pose object train {name}")
+
+
+def _zero_shot(
+    profile: Profile, generic: Path, models: Path, run: Path, eval_count: int, start: float
+) -> None:
+    """Serve the object at once: the generic network with its picture (`zero_shot_model`),
+    its renders in `run`, measured on `eval_count` renders per blur level."""
+    from train.network.pipeline import zero_shot_model
+
+    path, card = guard(
+        lambda: zero_shot_model(profile, run, models, generic, out.print, eval_count)
+    )
+    info = card["zero_shot"]
+    if info["backgrounds_excluded"]:
+        shown = ", ".join(info["backgrounds_excluded"])
+        out.print(f"left out of its renders (they show its texture, by matching): {shown}")
+    seconds = time.monotonic() - start
+    out.print(f"[green]wrote[/] {path} (zero-shot, {seconds:.0f} s); served as ?model={path.stem}")
+    for ds, acc in card["accuracy"].items():
+        out.print(
+            f"  {ds} ({acc['count']} renders): {100 * acc['accuracy']:.1f} % right, "
+            f"class 0 {100 * acc['class0_accuracy']:.1f} %"
+        )
 
 
 @app.command("train")
@@ -82,9 +129,19 @@ def train_command(
             "their val split, fine-tune on their train split."
         ),
     ] = None,  # fmt: skip
-    count: Annotated[int, typer.Option(min=90, help="Training renders.")] = 20000,
+    count: Annotated[
+        int | None, typer.Option(min=90, help="Training renders (default 6000; scratch 20000).")
+    ] = None,
     eval_count: Annotated[int, typer.Option(min=45, help="Renders per evaluation set.")] = 1000,
-    epochs: Annotated[int, typer.Option(min=1, help="Epochs on the renders.")] = 10,
+    epochs: Annotated[
+        int | None, typer.Option(min=1, help="Epochs on the renders (default 4; scratch 10).")
+    ] = None,
+    generic: Annotated[
+        Path, typer.Option(help="The generic corner network to fine-tune from.")
+    ] = GENERIC_WEIGHTS,
+    scratch: Annotated[
+        bool, typer.Option(help="Train the corner network from scratch, not the generic one.")
+    ] = False,
     fine_tune_epochs: Annotated[int, typer.Option(min=1, help="Epochs on real data.")] = 6,
     batch_size: Annotated[int, typer.Option(min=2, help="Images per batch.")] = 64,
     threads: Annotated[int, typer.Option(min=0, help="Torch threads, 0 = default.")] = 0,
@@ -108,8 +165,14 @@ def train_command(
     for path in real or []:
         if not (path / "labels.csv").is_file():
             raise fail(f"not a data set (no labels.csv): {path}")
+    start_from = None if scratch else generic
+    if start_from is not None and not start_from.is_file():
+        out.print(f"[yellow]no generic network at {generic}[/]: training from scratch")
+        start_from = None
+    fine = start_from is not None
     recipe = ObjectRecipe(
-        train_count=count, eval_count=eval_count, epochs=epochs,
+        train_count=count or (6000 if fine else 20000), eval_count=eval_count,
+        epochs=epochs or (4 if fine else 10), generic=start_from, lr=0.0005 if fine else 0.002,
         fine_tune_epochs=fine_tune_epochs, batch_size=batch_size, threads=threads,
         bf16=native_bf16(device) if bf16 is None else bf16, workers=workers, device=device,
     )  # fmt: skip

@@ -20,10 +20,11 @@ from pydantic import TypeAdapter, ValidationError
 
 Optimizer = Literal["sgd", "adam"]
 Schedule = Literal["cosine", "step", "constant"]
-Arch = Literal["spec", "convnet", "corners-coarse", "corners"]
+Arch = Literal["spec", "convnet", "corners-coarse", "corners", "corners-any"]
 Device = Literal["auto", "cpu", "cuda"]
-#: The corner networks (`train.network.corners`): heat maps at stride 4 (coarse) or 2.
-CORNER_ARCHS = ("corners-coarse", "corners")
+#: The corner networks (`train.network.corners`): heat maps at stride 4 (coarse) or 2, and
+#: the generic one that reads the object's picture (`train.network.anynet`, stride 2).
+CORNER_ARCHS = ("corners-coarse", "corners", "corners-any")
 #: Names the corner networks had before 2026-12-05, still read in recipes and checkpoints.
 LEGACY_ARCHS = {"keypoint": "corners-coarse", "keypoint-s2": "corners"}
 
@@ -51,8 +52,10 @@ class FitConfig:
     arch: Arch = _opt(
         "spec",
         "Network: spec (SPEC section 8), convnet (train.network.convnet), corners-coarse "
-        "(train.network.corners, corner heat maps at stride 4) or corners (heat maps at "
-        "stride 2; with `init` a corners-coarse checkpoint, it starts from its weights).",
+        "(train.network.corners, corner heat maps at stride 4), corners (heat maps at "
+        "stride 2; with `init` a corners-coarse checkpoint, it starts from its weights) or "
+        "corners-any (train.network.anynet: reads the object's picture; fine-tuned from the "
+        "generic network).",
     )
     optimizer: Optimizer = _opt("sgd", "sgd (with momentum) or adam.")
     lr: float = _opt(0.001, "Learning rate.", min=0.0)

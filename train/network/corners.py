@@ -284,6 +284,11 @@ class CornerNet(NormalisedNet):
             # +1 on white squares; the square at corner 0 (-X, -Y) is black
             self.register_buffer("checker", (((i + j) % 2) * 2 - 1).reshape(-1).float())
 
+    def pattern_threshold(self) -> torch.Tensor | float:
+        """|corr(image, texture)| at the aligned corners above which the object is taken as
+        present (`observe`): `PATTERN_CORR` here; measured per object for `corners-any`."""
+        return PATTERN_CORR
+
     # -- network -------------------------------------------------------------------------------
     def _encode(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Normalised RGB [N, 3, 120, 160] -> heat-map logits [N, 4, 30, 40] (stride 2:
@@ -558,7 +563,7 @@ class CornerNet(NormalisedNet):
         q, corr, k1 = self.align(x, self._soft_argmax(heat, offset), lens)
         parity = self.parity(x, square_homography(q))
         # the checker pattern found at the corners is evidence of the board on its own
-        pattern = torch.sigmoid(PATTERN_SLOPE * (corr.abs() - PATTERN_CORR))
+        pattern = torch.sigmoid(PATTERN_SLOPE * (corr.abs() - self.pattern_threshold()))
         present = 1 - (1 - torch.sigmoid(presence)) * (1 - pattern)
         return Observation(q, parity, present, pattern, k1)
 

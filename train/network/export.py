@@ -56,6 +56,9 @@ ARCHITECTURES = {
     "and the texture's half turn)",
     "corners": "corners: train/network/corners.py with corner heat maps at 80x60 "
     "(stride 2), corners aligned to the object's texture (train/network/align.py)",
+    "corners-any": "corners-any: train/network/anynet.py, the corner network (stride 2) "
+    "conditioned on the object's picture, baked into the graph; one set of weights for any "
+    "object, trained on many textures",
 }
 
 

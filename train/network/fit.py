@@ -549,7 +549,10 @@ def _corner_loss(
     says which of the two orders a half turn apart is the target: "either" takes the better
     of the two for each image (the class head learns the parity); "upper" takes the one whose
     corner 0 is higher in the image than corner 2, a rule a heat map can follow (with "either",
-    a soft-argmax that cannot decide averages two opposite corners).
+    a soft-argmax that cannot decide averages two opposite corners). "top" takes, of the four
+    cyclic orders, the one whose corner 0 is the highest in the image: a rule for an object
+    whose picture does not say which of its sides is the width (a near-square one), the
+    quarter turn then read from the texture (`train.network.anynet.AnyCornerNet.observe`).
     """
     known = torch.from_numpy(np.isfinite(corners).all(axis=1)).to(predicted.device)
     if not bool(known.any()):
@@ -558,6 +561,11 @@ def _corner_loss(
     target = torch.from_numpy(np.nan_to_num(corners) * scale - 1.0).to(predicted.device)[known]
     turned = torch.roll(target, shifts=4, dims=1)  # corners 2, 3, 0, 1
     pred = predicted[known]
+    if order == "top":  # the cyclic order (of four) whose corner 0 is the highest in the image
+        rolls = torch.stack([torch.roll(target, shifts=2 * k, dims=1) for k in range(4)], 1)
+        first = rolls[:, :, 1].argmin(1)  # [M]: the roll with the smallest v of corner 0
+        chosen = rolls[torch.arange(len(first), device=rolls.device), first]
+        return F.smooth_l1_loss(pred, chosen, beta=beta)
     if order == "upper":
         upper = (target[:, 1] <= target[:, 5])[:, None]
         return F.smooth_l1_loss(pred, torch.where(upper, target, turned), beta=beta)

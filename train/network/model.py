@@ -24,11 +24,12 @@ from torch import nn
 from service.core.inputs import SIZES
 from service.core.profile import focal_prior_of
 from service.core.regions import NUM_CLASSES
+from train.network.anynet import AnyCornerNet
 from train.network.base import NormalisedNet
 from train.network.config import CORNER_ARCHS, Arch, canonical_arch
 from train.network.convnet import ConvNet
 from train.network.corners import CornerNet
-from train.network.pattern import pattern_of
+from train.network.pattern import pattern_of, texture_of
 
 #: Supported input sizes (W, H) -> hidden width of the classifier (SPEC section 8 table).
 HIDDEN_UNITS: dict[tuple[int, int], int] = {SIZES[1]: 128, SIZES[2]: 1024}
@@ -179,6 +180,8 @@ def build_network(
     if arch == "convnet":
         return ConvNet(size)
     arch = canonical_arch(arch)
+    if arch == "corners-any":
+        return any_corner_net(size, profile)
     if arch in CORNER_ARCHS:
         stride = 2 if arch == "corners" else 4
         if not profile:
@@ -195,12 +198,30 @@ def build_network(
     raise ValueError(f"unknown architecture {arch!r}; known: {', '.join(ARCHS)}")
 
 
+def any_corner_net(size: tuple[int, int], profile: dict[str, Any] | None) -> AnyCornerNet:
+    """The generic corner network (`train.network.anynet`) for the object of a data set
+    manifest's `profile` (its size, region split, focal prior, texture and picture); None: the
+    generic network with no object (the chessboard's geometry, a grey placeholder picture)."""
+    if not profile:
+        return AnyCornerNet(size)
+    return AnyCornerNet(
+        size,
+        board_cm=(float(profile["width_cm"]), float(profile["height_cm"])),
+        z_split_cm=float(profile["z_split_cm"]),
+        focal_scale=focal_prior_of(profile),
+        pattern=pattern_of(profile),
+        texture=texture_of(profile),
+    )
+
+
 def arch_of(net: NormalisedNet) -> str:
     """The architecture name of a network built by `build_network`."""
     if isinstance(net, PoseNet):
         return "spec"
     if isinstance(net, ConvNet):
         return "convnet"
+    if isinstance(net, AnyCornerNet):
+        return "corners-any"
     return "corners" if getattr(net, "stride", 4) == 2 else "corners-coarse"
 
 

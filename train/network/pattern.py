@@ -98,15 +98,22 @@ def pattern_from_texture(rgb: np.ndarray, width_cm: float, height_cm: float) -> 
     return Pattern(grey, cells, False)
 
 
-def pattern_of(profile: dict[str, Any] | None) -> Pattern | None:
-    """The pattern of a data set manifest's profile (`texture` repo-relative or absolute,
-    `width_cm`, `height_cm`); None without a profile or a texture (the network's default,
-    the chessboard)."""
+def texture_of(profile: dict[str, Any] | None) -> np.ndarray | None:
+    """The picture RGB uint8 [h, w, 3] of a data set manifest's profile (`texture`
+    repo-relative or absolute); None without a profile or a texture."""
     if not profile or not profile.get("texture"):
         return None
     path = REPO_ROOT / str(profile["texture"])
     bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if bgr is None:
         raise ValueError(f"cannot read the profile's texture {path}")
-    rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+    return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+
+
+def pattern_of(profile: dict[str, Any] | None) -> Pattern | None:
+    """The pattern of a data set manifest's profile (`texture`, `width_cm`, `height_cm`);
+    None without a profile or a texture (the network's default, the chessboard)."""
+    rgb = texture_of(profile)
+    if rgb is None or profile is None:
+        return None
     return pattern_from_texture(rgb, float(profile["width_cm"]), float(profile["height_cm"]))

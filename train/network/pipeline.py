@@ -17,17 +17,20 @@ stopped midway continues from its last epoch: running it again resumes.
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from service.core.blur import BLUR_LEVELS
 from service.core.dataset import MANIFEST_FILE
 from service.core.inputs import SIZES
 from service.core.profile import Profile
 from train.network.config import FitConfig
-from train.network.export import export
+from train.network.export import export, repo_path, with_card
 from train.network.fit import fit
 from train.synth.generate import DatasetSpec, make_datasets
 
@@ -48,6 +51,10 @@ class ObjectRecipe:
     bf16: bool = False
     workers: int = 1
     device: str = "auto"
+    #: the generic corner network's weights to fine-tune from (`zero_shot_checkpoint`);
+    #: None: the corner network from scratch
+    generic: Path | None = None
+    lr: float = 0.002
 
 
 def model_name(profile: Profile) -> str:
@@ -86,19 +93,20 @@ def train_object(
         "bf16": recipe.bf16, "corner_weight": 5.0, "corner_beta": 0.01, "squash": 0.25,
         "extra": {"rebuild": [f"planar-pose object train {profile.name}"]},
     }  # fmt: skip
-    stage1 = run / "runs" / "renders"
-    best = _stage(
-        FitConfig(
-            datasets=[train_set],
-            out=stage1,
-            epochs=recipe.epochs,
-            lr=0.002,
-            seed=41,
-            select=real,
-            **common,
-        ),  # fmt: skip
-        say,
-    )
+    init = None
+    if recipe.generic is not None:
+        init = run / "zero-shot.pt"
+        if not init.is_file():
+            say(f"from the generic network {recipe.generic}: {init}")
+            zero_shot_checkpoint(profile, run, recipe.generic)
+        common |= {"arch": "corners-any"}
+    stage1 = FitConfig(
+        datasets=[train_set], out=run / "runs" / "renders", epochs=recipe.epochs, lr=recipe.lr,
+        seed=41, select=real, init=init, **common,
+    )  # fmt: skip
+    if not (stage1.out / "done").is_file():
+        say(expected_duration(stage1, recipe))
+    best = _stage(stage1, say)
     if real:
         best = _stage(
             FitConfig(
@@ -116,13 +124,54 @@ def train_object(
         )
     name = model_name(profile)
     say(f"export: {models / name}.onnx, measured on {', '.join(p.name for p in evals + real)}")
+    start = "fine-tuned from the generic network (corners-any), " if init else ""
     notes = (
         f"The corner network of profile {profile.name}, made by `planar-pose object train` "
-        f"({recipe.epochs} epochs on {recipe.train_count} renders"
+        f"({start}{recipe.epochs} epochs on {recipe.train_count} renders"
         + (f", then {recipe.fine_tune_epochs} on the real train frames)" if real else ")")
         + "; the half turn is read from the texture (train/network/pattern.py)."
     )
     return export(best, name, models, [*evals, *real], "test", "1.0.0", notes, real or None)
+
+
+def expected_duration(config: FitConfig, recipe: ObjectRecipe, steps: int = 4) -> str:
+    """What the stage will take on this machine, measured from its first steps: `steps`
+    training steps of the stage's network on a batch of its images (the first one not
+    counted) times the batches of its epochs -> a sentence that says so, and how to make it
+    shorter."""
+    import time
+
+    import torch
+
+    from train.network.fit import Augmenter, _initial_network, load_split
+
+    if config.threads:
+        torch.set_num_threads(config.threads)
+    train, info = load_split(config.datasets, "train")
+    size = (train.images.shape[2], train.images.shape[1])
+    net, _ = _initial_network(config, train, size, info[0].get("profile"))
+    net.train()
+    opt = torch.optim.Adam(net.parameters(), lr=0.0)  # timing only: the weights stay
+    rng = np.random.default_rng(0)
+    n = min(config.batch_size, len(train.labels))
+    times = []
+    for _ in range(steps):
+        t0 = time.perf_counter()
+        x, _ = Augmenter(size)(train.images[:n], train.blur[:n], rng, train.corners[:n])
+        out = net(x)
+        loss = out[0].sum() if isinstance(out, tuple) else out.sum()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        times.append((time.perf_counter() - t0) / n)
+    per_image = float(np.mean(times[1:]))
+    minutes = per_image * len(train.labels) * config.epochs / 60
+    return (
+        f"expected: about {minutes:.0f} min of training on this machine ({config.epochs} "
+        f"epochs x {len(train.labels)} images at {1000 * per_image:.0f} ms / image, measured "
+        f"on {steps - 1} steps; plus the evaluation after each epoch); shorter: fewer --epochs "
+        f"or --count (now {recipe.train_count})"
+    )
 
 
 def _stage(config: FitConfig, say: Callable[[str], None]) -> Path:
@@ -136,3 +185,85 @@ def _stage(config: FitConfig, say: Callable[[str], None]) -> Path:
         say(f"  best epoch {best['epoch']}: val {100 * best['val_accuracy']:.1f} %")
         done.write_text("done\n")
     return config.out / "best.pt"
+
+
+#: Seeds and sizes of `zero_shot_model`'s renders: the threshold set (classes 0-8, blur 0-3
+#: mixed by set), and one evaluation set per blur level (other cameras and backgrounds).
+THRESHOLD_SEED, ZERO_SHOT_EVAL_SEED = 7001, 7100
+THRESHOLD_COUNT, ZERO_SHOT_EVAL_COUNT = 216, 90
+
+
+def zero_shot_checkpoint(
+    profile: Profile, run: Path, generic: Path
+) -> tuple[Path, dict[str, Any], dict[str, Any]]:
+    """The object's network from the generic one (`train.network.zeroshot`) with its presence
+    threshold measured on renders of it, written to run/zero-shot.pt -> (that checkpoint,
+    the generic network's card, what the threshold measured and the backgrounds left out)."""
+    from train.network.zeroshot import (
+        alignment_scores,
+        load_generic,
+        object_checkpoint,
+        object_network,
+        presence_threshold,
+    )
+    from train.synth.generate import backgrounds_for, render_in_memory
+
+    excluded = backgrounds_for(profile, SIZES[2]).excluded
+    net, generic_card = load_generic(generic)
+    net = object_network(profile, net)
+    images, classes = [], []
+    for b in BLUR_LEVELS:  # a quarter of the threshold renders at each blur level
+        spec = DatasetSpec("free", 2, b, THRESHOLD_COUNT // 4, THRESHOLD_SEED + b, profile)
+        im, k = render_in_memory(spec)
+        images.append(im)
+        classes.append(k)
+    score, p_logit = alignment_scores(net, np.concatenate(images))
+    threshold, bias, rates = presence_threshold(score, p_logit, np.concatenate(classes) > 0)
+    net.presence_corr.fill_(threshold)
+    net.presence_bias.fill_(bias)
+    checkpoint = object_checkpoint(net, profile, generic_card, run / "zero-shot.pt")
+    info = {
+        "generic": repo_path(generic),
+        "generic_steps": generic_card.get("steps"),
+        "presence_threshold": threshold,
+        "presence_logit_bias": bias,
+        "threshold_renders": int(len(score)),
+        **rates,
+        "backgrounds_excluded": list(excluded),
+    }
+    return checkpoint, generic_card, info
+
+
+def zero_shot_model(
+    profile: Profile,
+    run: Path,
+    models: Path,
+    generic: Path,
+    say: Callable[[str], None] = print,
+    eval_count: int = ZERO_SHOT_EVAL_COUNT,
+) -> tuple[Path, dict[str, Any]]:
+    """The object's model from the generic network, no training (`zero_shot_checkpoint`),
+    exported to `models` with a card that says it is zero-shot and what it measured on other
+    renders (`eval_count` per blur level) -> (ONNX path, card)."""
+    checkpoint, generic_card, info = zero_shot_checkpoint(profile, run, generic)
+    evals = [run / "data" / f"zero-shot-b{b}" for b in BLUR_LEVELS]
+    jobs = [
+        (DatasetSpec("free", 2, b, eval_count, ZERO_SHOT_EVAL_SEED + b, profile), path)
+        for b, path in zip(BLUR_LEVELS, evals, strict=True)
+    ]
+    make_datasets([(s, p) for s, p in jobs if not (p / MANIFEST_FILE).is_file()], overwrite=True)
+    notes = (
+        f"Zero-shot: the generic corner network (corners-any, {generic_card.get('steps')} "
+        f"training steps on renders of other textures) with the picture of {profile.name}; "
+        "not trained on this object. `planar-pose object train` fine-tunes it."
+    )
+    path, card = export(checkpoint, model_name(profile), models, evals, "all", "0.1.0", notes)
+    card["zero_shot"] = info
+    path.write_bytes(with_card(path.read_bytes(), card))
+    path.with_suffix(".json").write_text(json.dumps(card, indent=1) + "\n")
+    say(
+        f"presence threshold {info['presence_threshold']:.2f} on {info['threshold_renders']} "
+        f"renders: present right {100 * info['present_right']:.1f} %, "
+        f"absent right {100 * info['absent_right']:.1f} %"
+    )
+    return path, card

@@ -46,6 +46,76 @@ def shipped_backgrounds(folder: Path = BACKGROUNDS_DIR) -> list[np.ndarray]:
     return images
 
 
+def shipped_names(folder: Path = BACKGROUNDS_DIR) -> list[str]:
+    """The paths under `folder` of `shipped_backgrounds`'s images, in its order."""
+    paths = sorted(p for p in folder.rglob("*") if p.suffix.lower() in IMAGE_SUFFIXES)
+    return [p.relative_to(folder).as_posix() for p in paths]
+
+
+#: `shows_texture`: ORB features per image, Lowe's ratio, RANSAC reprojection threshold (px of
+#: images brought to `MATCH_SIDE` px along the longer side) and the inliers that say "shown"
+MATCH_FEATURES, MATCH_RATIO, MATCH_RANSAC_PX, MATCH_INLIERS, MATCH_SIDE = 1000, 0.75, 4.0, 25, 400
+#: ... and the share of the texture's area the inliers' convex hull covers at least
+MATCH_SPREAD = 0.04
+
+
+def _grey_for_matching(rgb: np.ndarray) -> np.ndarray:
+    """RGB uint8 [h, w, 3] -> grey uint8, the longer side brought to `MATCH_SIDE` px."""
+    grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+    f = MATCH_SIDE / max(grey.shape)
+    return cv2.resize(
+        grey, None, fx=f, fy=f, interpolation=cv2.INTER_AREA if f < 1 else cv2.INTER_LINEAR
+    )
+
+
+class TextureMatcher:
+    """Whether background images show an object's texture (RGB uint8 [h, w, 3]), by matching,
+    not by name: ORB features of the texture (computed once) matched to the image's with
+    Lowe's ratio test, and a homography fitted with RANSAC that keeps at least
+    `MATCH_INLIERS` of them. A background that is the texture, a crop of it or a view of it
+    passes; an unrelated photo keeps a few chance matches (tests/train/synth/test_textures.py
+    pins both)."""
+
+    def __init__(self, texture: np.ndarray) -> None:
+        self.orb = cv2.ORB.create(MATCH_FEATURES)
+        grey = _grey_for_matching(texture)
+        self.keys, self.descriptors = self.orb.detectAndCompute(grey, None)
+        self.matcher = cv2.BFMatcher(cv2.NORM_HAMMING)
+        self.area = float(grey.shape[0] * grey.shape[1])
+
+    def inliers(self, background: np.ndarray) -> int:
+        """The matches [0, ...] of the texture in `background` (RGB uint8) that one
+        homography explains."""
+        kb, db = self.orb.detectAndCompute(_grey_for_matching(background), None)
+        if db is None or self.descriptors is None or len(kb) < 4 or len(self.keys) < 4:
+            return 0
+        pairs = self.matcher.knnMatch(self.descriptors, db, k=2)
+        good = [p[0] for p in pairs if len(p) == 2 and p[0].distance < MATCH_RATIO * p[1].distance]
+        if len(good) < MATCH_INLIERS:
+            return len(good)
+        src = np.array([self.keys[m.queryIdx].pt for m in good], np.float32)
+        dst = np.array([kb[m.trainIdx].pt for m in good], np.float32)
+        _, mask = cv2.findHomography(src, dst, cv2.RANSAC, MATCH_RANSAC_PX)
+        if mask is None:
+            return 0
+        kept = mask.ravel() > 0
+        inside = src[kept]
+        # a view of the texture spreads over it and over distinct image features; chance
+        # matches bunch (many texture features onto a few of a plain image's)
+        spread = cv2.contourArea(cv2.convexHull(inside)) if len(inside) >= 3 else 0.0
+        distinct = len({m.trainIdx for m, k in zip(good, kept, strict=True) if k})
+        return distinct if spread >= MATCH_SPREAD * self.area else 0
+
+    def shown_in(self, background: np.ndarray) -> bool:
+        """Whether `background` shows the texture (`MATCH_INLIERS` or more inliers)."""
+        return self.inliers(background) >= MATCH_INLIERS
+
+
+def shows_texture(background: np.ndarray, texture: np.ndarray) -> bool:
+    """Whether a background image shows the texture (`TextureMatcher`), both RGB uint8."""
+    return TextureMatcher(texture).shown_in(background)
+
+
 def _value_noise(rng: np.random.Generator, size: tuple[int, int]) -> np.ndarray:
     """Multi-octave value noise, float32 [h, w, 3] in [0, 1]."""
     w, h = size
@@ -191,10 +261,14 @@ class BackgroundPool:
         size: tuple[int, int],
         sources: list[np.ndarray],
         scales: tuple[float, ...] = (1.0, 1.3, 1.6, 2.0),
+        excluded: tuple[str, ...] = (),
     ) -> None:
         if not sources:
             raise ValueError("no background images")
         self.size = size
+        self.per_source = len(scales)  # images kept per source: image i is source i // this
+        #: names of the sources left out because they show the object (`default`'s `texture`)
+        self.excluded = excluded
         w, h = size
         self.images: list[np.ndarray] = []
         for img in sources:
@@ -206,17 +280,30 @@ class BackgroundPool:
                 self.images.append(cv2.resize(img, out, interpolation=interp))
 
     @classmethod
-    def default(cls, size: tuple[int, int]) -> BackgroundPool:
+    def default(cls, size: tuple[int, int], texture: np.ndarray | None = None) -> BackgroundPool:
         """The shipped photographs and real-photo crops, the corpus's train sources and the
-        procedural textures."""
+        procedural textures; with the object's `texture` (RGB uint8), without the sources that
+        show it (`shows_texture`; their names in `excluded`)."""
         w, h = size
+        named = list(zip(shipped_names(), shipped_backgrounds(), strict=True))
+        named += [(f"corpus #{i}", im) for i, im in enumerate(corpus_backgrounds())]
         procedural = procedural_backgrounds(N_PROCEDURAL, (2 * w, 2 * h))
-        return cls(size, shipped_backgrounds() + corpus_backgrounds() + procedural)
+        named += [(f"procedural #{i}", im) for i, im in enumerate(procedural)]
+        if texture is None:
+            return cls(size, [im for _, im in named])
+        matcher = TextureMatcher(texture)
+        shown = [matcher.shown_in(im) for _, im in named]
+        kept = [im for (_, im), s in zip(named, shown, strict=True) if not s]
+        excluded = tuple(name for (name, _), s in zip(named, shown, strict=True) if s)
+        return cls(size, kept, excluded=excluded)
 
-    def sample(self, rng: np.random.Generator) -> np.ndarray:
-        """A random crop of the output size from a random scaled source, 50 % mirrored:
-        RGB uint8 [H, W, 3]."""
-        src = self.images[int(rng.integers(len(self.images)))]
+    def sample(self, rng: np.random.Generator, avoid: frozenset[int] = frozenset()) -> np.ndarray:
+        """A random crop of the output size from a random scaled source (not one of the
+        source indices `avoid`), 50 % mirrored: RGB uint8 [H, W, 3]."""
+        i = int(rng.integers(len(self.images)))
+        while avoid and i // self.per_source in avoid and len(avoid) < len(self.images):
+            i = int(rng.integers(len(self.images)))
+        src = self.images[i]
         w, h = self.size
         y0 = int(rng.integers(src.shape[0] - h + 1))
         x0 = int(rng.integers(src.shape[1] - w + 1))

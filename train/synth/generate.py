@@ -160,21 +160,30 @@ def image_name(index: int, width: int) -> str:
 
 _RENDERERS: dict[tuple[Any, ...], Renderer] = {}
 MAX_RENDERERS = 32
-_BACKGROUNDS: dict[tuple[int, int], BackgroundPool] = {}
+_BACKGROUNDS: dict[tuple[tuple[int, int], Path], BackgroundPool] = {}
+
+
+def backgrounds_for(profile: Profile, size: tuple[int, int]) -> BackgroundPool:
+    """The background pool of the object's renders at `size` (W, H): the default pool
+    without the sources that show the object's texture (`BackgroundPool.default`; checked by
+    matching, their names in its `excluded`); the last one asked for is kept per process."""
+    key = (size, profile.texture)
+    if key not in _BACKGROUNDS:
+        _BACKGROUNDS.clear()  # one pool at a time (a pool at 640x480 is GBs), and so
+        _RENDERERS.clear()  # no renderer that holds another
+        _BACKGROUNDS[key] = BackgroundPool.default(size, texture=profile.texture_rgb())
+    return _BACKGROUNDS[key]
 
 
 def _renderer(spec: DatasetSpec) -> Renderer:
     """One renderer per (profile, size, jitter, seed) and process; one background pool per
-    size and process."""
+    size, texture and process (`backgrounds_for`)."""
     key = (spec.profile, spec.wh, spec.jitter, spec.seed)
     if key not in _RENDERERS:
         if len(_RENDERERS) >= MAX_RENDERERS:  # forget the oldest
             del _RENDERERS[next(iter(_RENDERERS))]
-        if spec.wh not in _BACKGROUNDS:
-            _BACKGROUNDS[spec.wh] = BackgroundPool.default(spec.wh)
-        _RENDERERS[key] = Renderer(
-            spec.profile, spec.wh, spec.jitter, _BACKGROUNDS[spec.wh], seed=spec.seed
-        )
+        pool = backgrounds_for(spec.profile, spec.wh)
+        _RENDERERS[key] = Renderer(spec.profile, spec.wh, spec.jitter, pool, seed=spec.seed)
     return _RENDERERS[key]
 
 

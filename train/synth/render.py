@@ -247,8 +247,9 @@ class Renderer:
     """Renders views of one profile at one image `size` (W, H).
 
     `jitter` switches the photometric jitter; `backgrounds` defaults to the shipped pool.
-    Border variants (margin / frame widths and grey) are drawn from the profile's ranges with
-    `seed`, so a renderer is deterministic given its seed and the per-image rng.
+    Border variants (`borders` of them: margin / frame widths and grey) are drawn from the
+    profile's ranges with `seed`, so a renderer is deterministic given its seed and the
+    per-image rng.
     """
 
     def __init__(
@@ -258,10 +259,14 @@ class Renderer:
         jitter: bool = True,
         backgrounds: BackgroundPool | None = None,
         seed: int = 0,
+        texture: np.ndarray | None = None,
+        borders: int = N_BORDER_VARIANTS,
     ) -> None:
         self.profile, self.size, self.jitter = profile, (int(size[0]), int(size[1])), jitter
         self.backgrounds = backgrounds if backgrounds is not None else BackgroundPool.default(size)
-        texture = profile.texture_rgb()
+        # `texture` (RGB uint8, covering the profile's width x height): the object's picture
+        # where it is not the profile's file (the texture bank of `train.synth.stream`)
+        texture = profile.texture_rgb() if texture is None else texture
         rng = np.random.default_rng(seed)
         border = profile.border
         self.boards = [
@@ -272,7 +277,7 @@ class Renderer:
                 float(rng.uniform(*border.frame_cm)),
                 int(rng.integers(border.frame_grey[0], border.frame_grey[1] + 1)),
             )
-            for _ in range(N_BORDER_VARIANTS)
+            for _ in range(borders)
         ]
         self.noise = np.clip(rng.normal(128, 16, (2 * size[1], 2 * size[0], 3)), 0, 255).astype(
             np.uint8
@@ -321,10 +326,19 @@ class Renderer:
         out[y0:y1, x0:x1] = cv2.blendLinear(rgb, out[y0:y1, x0:x1], alpha, 1.0 - alpha)
         return out, quad
 
-    def render(self, view: View | None, blur: int, rng: np.random.Generator) -> np.ndarray:
-        """One data set image: background (+ the object unless `view` is None, class 0),
-        photometric jitter if enabled, then SPEC blur `blur` -> RGB uint8 [H, W, 3]."""
-        image = self.backgrounds.sample(rng)
+    def render(
+        self,
+        view: View | None,
+        blur: int,
+        rng: np.random.Generator,
+        avoid: frozenset[int] = frozenset(),
+        background: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """One data set image: background (`background`, else drawn from the pool, not
+        from its sources `avoid`, `BackgroundPool.sample`), + the object unless `view` is None
+        (class 0), photometric jitter if enabled, then SPEC blur `blur` -> RGB uint8
+        [H, W, 3]."""
+        image = self.backgrounds.sample(rng, avoid) if background is None else background
         if view is not None:
             board = self.boards[int(rng.integers(len(self.boards)))]
             image, quad = self._composite(image, view, board)
