@@ -43,7 +43,7 @@ def test_from_a_picture_to_a_served_model(tmp_path: Path) -> None:
     picture = _picture(tmp_path / "poster.jpg")
     profiles, models = tmp_path / "profiles", tmp_path / "models"
     args = ["object", "new", "poster", "--texture", str(picture), "--profiles", str(profiles)]
-    args += ["--models", str(models), "--run", str(tmp_path / "run"), "--eval-count", "18"]
+    args += ["--models", str(models), "--run", str(tmp_path / "run"), "--eval-count", "9"]
     result = runner.invoke(app, [*args, "--size", "30", "20"])
     assert result.exit_code == 0, result.output
     assert (profiles / "poster" / "profile.toml").is_file()
@@ -88,7 +88,11 @@ def test_from_a_picture_to_a_served_model(tmp_path: Path) -> None:
     assert r.status_code == 200, r.text
     assert r.json()["model"] == "poster-corners-160x120"
     assert unknown.status_code == 404 and "poster-corners-160x120" in unknown.text
-    assert {m["name"] for m in listing["models"]} >= {"poster-corners-160x120", DEFAULT_MODEL.stem}
+    training = {m["name"]: m["training"] for m in listing["models"]}
+    assert training[DEFAULT_MODEL.stem] == "trained"
+    assert training["poster-corners-160x120"] == (
+        "fine-tuned" if GENERIC_WEIGHTS.is_file() else "trained"
+    )
 
 
 @pytest.mark.parametrize(

@@ -19,6 +19,7 @@ from __future__ import annotations
 import csv
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -83,10 +84,11 @@ class TextureMatcher:
         self.matcher = cv2.BFMatcher(cv2.NORM_HAMMING)
         self.area = float(grey.shape[0] * grey.shape[1])
 
-    def inliers(self, background: np.ndarray) -> int:
+    def inliers(self, background: np.ndarray, name: str | None = None) -> int:
         """The matches [0, ...] of the texture in `background` (RGB uint8) that one
-        homography explains."""
-        kb, db = self.orb.detectAndCompute(_grey_for_matching(background), None)
+        homography explains; `name`: a source whose features are kept for the process
+        (`_source_features`: its pixels never change)."""
+        kb, db = _source_features(name, background) if name else self._features(background)
         if db is None or self.descriptors is None or len(kb) < 4 or len(self.keys) < 4:
             return 0
         pairs = self.matcher.knnMatch(self.descriptors, db, k=2)
@@ -106,9 +108,24 @@ class TextureMatcher:
         distinct = len({m.trainIdx for m, k in zip(good, kept, strict=True) if k})
         return distinct if spread >= MATCH_SPREAD * self.area else 0
 
-    def shown_in(self, background: np.ndarray) -> bool:
+    def shown_in(self, background: np.ndarray, name: str | None = None) -> bool:
         """Whether `background` shows the texture (`MATCH_INLIERS` or more inliers)."""
-        return self.inliers(background) >= MATCH_INLIERS
+        return self.inliers(background, name) >= MATCH_INLIERS
+
+    def _features(self, rgb: np.ndarray) -> tuple[Any, np.ndarray | None]:
+        return self.orb.detectAndCompute(_grey_for_matching(rgb), None)
+
+
+#: ORB keypoints and descriptors of the named background sources (shipped photographs,
+#: corpus crops), computed once per process: every object's pool matches the same ones.
+_SOURCE_FEATURES: dict[str, tuple[Any, np.ndarray | None]] = {}
+
+
+def _source_features(name: str, rgb: np.ndarray) -> tuple[Any, np.ndarray | None]:
+    if name not in _SOURCE_FEATURES:
+        orb = cv2.ORB.create(MATCH_FEATURES)
+        _SOURCE_FEATURES[name] = orb.detectAndCompute(_grey_for_matching(rgb), None)
+    return _SOURCE_FEATURES[name]
 
 
 def shows_texture(background: np.ndarray, texture: np.ndarray) -> bool:
@@ -292,7 +309,11 @@ class BackgroundPool:
         if texture is None:
             return cls(size, [im for _, im in named])
         matcher = TextureMatcher(texture)
-        shown = [matcher.shown_in(im) for _, im in named]
+        # the procedural textures are drawn per size: not kept by name
+        shown = [
+            matcher.shown_in(im, None if name.startswith("procedural") else name)
+            for name, im in named
+        ]
         kept = [im for (_, im), s in zip(named, shown, strict=True) if not s]
         excluded = tuple(name for (name, _), s in zip(named, shown, strict=True) if s)
         return cls(size, kept, excluded=excluded)
