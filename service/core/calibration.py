@@ -150,13 +150,15 @@ def fit_camera(
     error (1.4826 MAD / sqrt(n)) is within `MAX_K1_SE`. ValueError for fewer than 2 views,
     or fewer than 2 that agree (`fit_focal`)."""
     fit = fit_focal(views, object_points, size)
-    rich = np.array([f is not None and len(f.uv) >= MIN_FEATURES for f in features or []])
-    if len(rich) and np.count_nonzero(rich & fit.used) >= MIN_FEATURE_VIEWS:
-        assert features is not None
-        chosen = [f for f, ok in zip(features, rich & fit.used, strict=True) if f and ok]
+    rich = [
+        f if f is not None and used and len(f.uv) >= MIN_FEATURES else None
+        for f, used in zip(features or [None] * len(views), fit.used, strict=True)
+    ]
+    chosen = [f for f in rich if f is not None]
+    if len(chosen) >= MIN_FEATURE_VIEWS:
         calibrated = calibrate_features(chosen, object_points, size, fit.fx)
         if calibrated is not None:
-            return replace(calibrated, used=rich & fit.used)
+            return replace(calibrated, used=np.array([f is not None for f in rich]))
     lenses = np.array(
         [k for k, u in zip(kappas, fit.used, strict=True) if u and k is not None], np.float64
     )
