@@ -266,11 +266,11 @@ def corpus_backgrounds(corpus: Path = CORPUS_DIR) -> list[np.ndarray]:
 
 
 class BackgroundPool:
-    """Background sources pre-scaled for output images of `size` (W, H).
+    """Background sources scaled for output images of `size` (W, H).
 
-    Each source is kept at `scales` times the smallest size that covers the output (so a crop
-    shows 1/scale of the source's extent); `sample` takes a random integer crop of one of them,
-    mirrored half of the time: no resampling per image.
+    Each source is used at `scales` times the smallest size that covers the output (so a crop
+    shows 1/scale of the source's extent), scaled when first drawn and kept; `sample` takes a
+    random integer crop of one of them, mirrored half of the time: no resampling per image.
     """
 
     def __init__(
@@ -283,18 +283,23 @@ class BackgroundPool:
         if not sources:
             raise ValueError("no background images")
         self.size = size
-        self.per_source = len(scales)  # images kept per source: image i is source i // this
+        self.sources, self.scales = sources, scales
+        self.per_source = len(scales)  # images per source: image i is source i // this
+        self.count = len(sources) * len(scales)
         #: names of the sources left out because they show the object (`default`'s `texture`)
         self.excluded = excluded
-        w, h = size
-        self.images: list[np.ndarray] = []
-        for img in sources:
-            cover = max(w / img.shape[1], h / img.shape[0])
-            for scale in scales:
-                f = cover * scale
-                out = (max(w, int(round(img.shape[1] * f))), max(h, int(round(img.shape[0] * f))))
-                interp = cv2.INTER_AREA if f < 1 else cv2.INTER_LINEAR
-                self.images.append(cv2.resize(img, out, interpolation=interp))
+        self._scaled: dict[int, np.ndarray] = {}
+
+    def image(self, i: int) -> np.ndarray:
+        """Image i: source i // `per_source` at scale i % `per_source`, RGB uint8 (scaled
+        once, when first drawn)."""
+        if i not in self._scaled:
+            img, w, h = self.sources[i // self.per_source], *self.size
+            f = max(w / img.shape[1], h / img.shape[0]) * self.scales[i % self.per_source]
+            out = (max(w, int(round(img.shape[1] * f))), max(h, int(round(img.shape[0] * f))))
+            interp = cv2.INTER_AREA if f < 1 else cv2.INTER_LINEAR
+            self._scaled[i] = cv2.resize(img, out, interpolation=interp)
+        return self._scaled[i]
 
     @classmethod
     def default(cls, size: tuple[int, int], texture: np.ndarray | None = None) -> BackgroundPool:
@@ -321,10 +326,10 @@ class BackgroundPool:
     def sample(self, rng: np.random.Generator, avoid: frozenset[int] = frozenset()) -> np.ndarray:
         """A random crop of the output size from a random scaled source (not one of the
         source indices `avoid`), 50 % mirrored: RGB uint8 [H, W, 3]."""
-        i = int(rng.integers(len(self.images)))
-        while avoid and i // self.per_source in avoid and len(avoid) < len(self.images):
-            i = int(rng.integers(len(self.images)))
-        src = self.images[i]
+        i = int(rng.integers(self.count))
+        while avoid and i // self.per_source in avoid and len(avoid) < self.count:
+            i = int(rng.integers(self.count))
+        src = self.image(i)
         w, h = self.size
         y0 = int(rng.integers(src.shape[0] - h + 1))
         x0 = int(rng.integers(src.shape[1] - w + 1))
