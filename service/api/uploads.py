@@ -3,6 +3,8 @@ one raw body with an image content type."""
 
 from __future__ import annotations
 
+from typing import Any
+
 from fastapi import Request
 from starlette.datastructures import UploadFile
 from starlette.exceptions import HTTPException as StarletteHTTPException
@@ -77,3 +79,16 @@ async def read_images(request: Request, max_images: int) -> list[ImageInput]:
     if media in IMAGE_TYPES:
         return [(None, await request.body())]
     raise _unsupported("the request", media)
+
+
+def images_form(description: str) -> dict[str, Any]:
+    """The OpenAPI schema of a multipart body of one or many images in the field `image`
+    (`read_images` reads it), the field described by `description`."""
+    image = {"type": "array", "items": {"type": "string", "format": "binary"}}
+    return {
+        "schema": {
+            "type": "object",
+            "properties": {"image": {**image, "description": description}},
+            "required": ["image"],
+        }
+    }

@@ -19,7 +19,7 @@ from service.api.deps import (
 )
 from service.api.errors import ApiError
 from service.api.schemas import ERROR_RESPONSES, CameraList, ErrorResponse
-from service.api.uploads import read_images
+from service.api.uploads import images_form, read_images
 from service.cameras.learning import MIN_PHOTOS, learn_into
 from service.cameras.schema import CameraIn, CameraOut
 from service.cameras.store import (
@@ -39,20 +39,9 @@ CAMERA_BODY: dict[str, Any] = {
         "required": True,
         "content": {
             "application/json": {"schema": CameraIn.model_json_schema()},
-            "multipart/form-data": {
-                "schema": {
-                    "type": "object",
-                    "properties": {
-                        "image": {
-                            "type": "array",
-                            "items": {"type": "string", "format": "binary"},
-                            "description": f"{MIN_PHOTOS} or more photos of the object by the "
-                            "camera, all of one size.",
-                        }
-                    },
-                    "required": ["image"],
-                }
-            },
+            "multipart/form-data": images_form(
+                f"{MIN_PHOTOS} or more photos of the object by the camera, all of one size."
+            ),
         },
     }
 }

@@ -22,7 +22,7 @@ from service.api.deps import (
 from service.api.errors import ApiError
 from service.api.schemas import ERROR_RESPONSES, PredictResponse, image_result_out
 from service.api.state import ServiceState
-from service.api.uploads import read_images
+from service.api.uploads import images_form, read_images
 from service.core.cells import RegionGrid
 from service.core.preprocess import ImageDecodeError, ImageTooLargeError
 from service.metrics import Metrics
@@ -39,19 +39,7 @@ PREDICT_BODY: dict[str, Any] = {
     "requestBody": {
         "required": True,
         "content": {
-            "multipart/form-data": {
-                "schema": {
-                    "type": "object",
-                    "properties": {
-                        "image": {
-                            "type": "array",
-                            "items": {"type": "string", "format": "binary"},
-                            "description": "One or many images (JPEG, PNG, WebP, BMP, GIF).",
-                        }
-                    },
-                    "required": ["image"],
-                }
-            },
+            "multipart/form-data": images_form("One or many images (JPEG, PNG, WebP, BMP, GIF)."),
             "image/*": {"schema": {"type": "string", "format": "binary"}},
         },
     }
