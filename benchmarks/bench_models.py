@@ -12,8 +12,8 @@ folder, then a worker SIGKILLed under load.
    worker's resident MB after, and from /metrics the loads, cache hits, misses, evictions,
    models loaded and their estimated bytes (POSE_MODEL_MEMORY_MB, `--memory-mb`). The first
    models right after ready, while the background writes their optimized graphs (a graph
-   never loaded before takes its full load from ONNX), then `--used` others, later (the
-   copies share the 4 shipped graphs' optimized ones).
+   not optimized yet is loaded unoptimized and optimized in a thread meanwhile), then
+   `--used` others, later (the copies share the 4 shipped graphs' optimized ones).
 3. SIGKILL (the shipped folder): `--clients` keep-alive clients post the board photo to
    /v1/predict for `--seconds`; 5 s in, one worker is SIGKILLed and uvicorn's supervisor
    starts another: answers by status, 503 answers, failed requests (connection errors:

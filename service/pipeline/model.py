@@ -157,14 +157,20 @@ def session_options(intra_op_threads: int = 1, inter_op_threads: int = 1) -> ort
 
 
 def open_session(
-    source: Path | bytes, options: ort.SessionOptions, optimized: Path | None, path: Path
+    source: Path | bytes,
+    options: ort.SessionOptions,
+    optimized: Path | None,
+    path: Path,
+    optimize: bool = True,
 ) -> ort.InferenceSession:
     """A session of `source` (a file or ONNX bytes); with `optimized` (a file path): the
     graph as onnxruntime optimized it, in its ORT format, read from there when the file
     exists (4-5x faster than optimizing the ONNX graph again: 0.25 s of CPU against 1.2 s
     for the book's corner graph, `benchmarks/bench_models.py`), else written there by this
     load (atomically; a cached file that does not load is removed and the ONNX file loaded
-    instead). ModelLoadError naming `path` when onnxruntime refuses the graph."""
+    instead). `optimize=False` and no such file: the graph as it is, nothing written (the
+    book's corner graph: 0.4 s of CPU to load against 1.8 s, about 1.3x slower to run).
+    ModelLoadError naming `path` when onnxruntime refuses the graph."""
     if optimized is not None and optimized.is_file():
         options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_DISABLE_ALL
         try:
@@ -172,6 +178,9 @@ def open_session(
         except Exception:  # noqa: BLE001  # a stale or damaged cache: the ONNX file then
             optimized.unlink(missing_ok=True)
             options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+    if not optimize:
+        options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_DISABLE_ALL
+        optimized = None
     part = None
     if optimized is not None:
         part = optimized.with_name(f".{optimized.name}.{os.getpid()}.{threading.get_ident()}")
@@ -262,16 +271,19 @@ class PoseModel:
         graph: tuple[bytes, dict[str, Any]] | None = None,
         card: dict[str, Any] | None = None,
         optimized: Path | None = None,
+        optimize: bool = True,
     ) -> PoseModel:
         """Open `path`, check the I/O contract, read the input size from the input shape.
         `graph` = (ONNX bytes, card): that graph instead of the file, `path` only naming it
         (`train/network/export.py` measures a graph before it writes it); `card`: the file's
         card as already read (`read_card`), else it is read here; `optimized`: the file of
-        the optimized graph (`open_session`)."""
+        the optimized graph and `optimize` (`open_session`)."""
         if graph is None and not path.is_file():
             raise ModelLoadError(f"model file not found: {path}")
         options = session_options(intra_op_threads, inter_op_threads)
-        session = open_session(path if graph is None else graph[0], options, optimized, path)
+        session = open_session(
+            path if graph is None else graph[0], options, optimized, path, optimize
+        )
         inputs, outputs = session.get_inputs(), session.get_outputs()
         shape = inputs[0].shape if len(inputs) == 1 else None
         if (

@@ -11,12 +11,15 @@ request using it ends.
 
 from __future__ import annotations
 
+import fcntl
 import hashlib
 import logging
+import os
 import threading
 import time
 from collections import OrderedDict
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -146,6 +149,7 @@ def forget_dead_workers(folder: Path) -> None:
 class _Loaded:
     predictor: Predictor
     size: int  # estimated bytes
+    quick: bool = False  # its graph unoptimized, until `_optimize_loaded` replaces it
 
 
 def optimized_path(folder: Path, path: Path) -> Path:
@@ -155,17 +159,35 @@ def optimized_path(folder: Path, path: Path) -> Path:
     return folder / f"{digest}-onnxruntime-{ort.__version__}.ort"
 
 
+@contextmanager
+def writing(target: Path | None) -> Iterator[None]:
+    """Hold the lock on writing the optimized graph `target` (a file lock beside it, shared
+    by the threads and the worker processes): one optimizes a graph, the others then read
+    what it wrote. OSError when the lock file cannot be made."""
+    if target is None:
+        yield
+        return
+    with target.with_name(target.name + ".lock").open("w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        yield
+
+
 class ModelCache:
     """Predictors of model files by `ModelFile.key`, least recently used unloaded beyond
     `budget` bytes (never a pinned one, nor the one just loaded); a file that failed to load
     is not tried again until it changes. Thread-safe; different models load in parallel,
-    one model once. `load(file, optimized)` makes a predictor, `optimized` the file of its
-    optimized graph in `optimized_dir` (None: no such folder)."""
+    one model once. `load(file, optimized, optimize)` makes a predictor, `optimized` the file
+    of its optimized graph in `optimized_dir` (None: no such folder), `optimize` as in
+    `PoseModel.load`.
+
+    A model whose optimized graph is not written yet is loaded unoptimized (4x faster: a
+    cold model's first answer within a second) and optimized at once in a thread of the
+    lowest priority, which then puts the optimized graph in its place."""
 
     def __init__(
         self,
         budget: int,
-        load: Callable[[ModelFile, Path | None], Predictor],
+        load: Callable[[ModelFile, Path | None, bool], Predictor],
         metrics: ModelMetrics | None = None,
         optimized_dir: Path | None = None,
     ) -> None:
@@ -177,6 +199,7 @@ class ModelCache:
         self._locks: dict[tuple[str, str, Signature], threading.Lock] = {}
         self._lock = threading.Lock()
         self.pinned: set[tuple[str, str, Signature]] = set()
+        self._optimizers: list[threading.Thread] = []
 
     def peek(self, file: ModelFile, count: bool = True) -> Predictor | None:
         """The loaded predictor of `file` (now the most recent; `count`: a cache hit), else
@@ -216,7 +239,9 @@ class ModelCache:
         try:
             size = estimated_bytes(file.path)
             self._make_room(size, file.key)
-            predictor = self._load(file, self.optimized(file))
+            optimized = self.optimized(file)
+            quick = optimized is not None and not optimized.is_file()
+            predictor = self._load(file, optimized, not quick)
         except ModelLoadError as exc:
             with self._lock:
                 self._failed[file.key] = str(exc)
@@ -224,16 +249,46 @@ class ModelCache:
             log.error("model %s not loaded: %s", file.name, exc)
             raise
         with self._lock:
-            self._loaded[file.key] = _Loaded(predictor, size)
+            self._loaded[file.key] = _Loaded(predictor, size, quick)
+            if quick:
+                optimizer = threading.Thread(target=self._optimize_loaded, args=(file,))
+                self._optimizers = [t for t in self._optimizers if t.is_alive()] + [optimizer]
+                optimizer.start()
         self._count_load("ok", start)
         self._make_room(0, file.key)  # others may have loaded meanwhile
         log.info(
-            "model %s loaded (%.0f MB estimated) in %.2f s",
+            "model %s loaded%s (%.0f MB estimated) in %.2f s",
             file.name,
+            " unoptimized" if quick else "",
             size / 2**20,
             time.perf_counter() - start,
         )
         return predictor
+
+    def _optimize_loaded(self, file: ModelFile) -> None:
+        """Load `file` optimized (its optimized graph read, or written if it is still not
+        there) at the lowest priority, and put it in the place of its unoptimized load
+        unless that was unloaded meanwhile."""
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 19)  # this thread only
+        target = self.optimized(file)
+        try:
+            with writing(target):
+                predictor = self._load(file, target, True)
+        except (ModelLoadError, OSError) as exc:  # the unoptimized graph loaded: it stays
+            log.warning("model %s not optimized: %s", file.name, exc)
+            return
+        with self._lock:
+            loaded = self._loaded.get(file.key)
+            if loaded is None or not loaded.quick:
+                return
+            self._loaded[file.key] = _Loaded(predictor, loaded.size)
+        log.info("model %s now runs its optimized graph", file.name)
+
+    def join(self, timeout: float) -> None:
+        """Wait up to `timeout` seconds for each optimization under way (a thread inside
+        onnxruntime at the interpreter's exit aborts the process)."""
+        for thread in list(self._optimizers):
+            thread.join(timeout)
 
     def optimized(self, file: ModelFile) -> Path | None:
         """The file of `file`'s optimized graph (None: no folder for them, or unreadable);
@@ -259,8 +314,11 @@ class ModelCache:
         if target is None or target.exists() or self.failure(file) is not None:
             return False
         try:
-            self._load(file, target)
-        except ModelLoadError:
+            with writing(target):
+                if target.exists():  # written meanwhile
+                    return False
+                self._load(file, target, True)
+        except (ModelLoadError, OSError):
             return False
         return True
 

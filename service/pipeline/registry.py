@@ -18,7 +18,9 @@ the file is read while half written, refused, and only the next look loads it.
 
 from __future__ import annotations
 
+import atexit
 import fcntl
+import functools
 import logging
 import os
 import re
@@ -47,6 +49,16 @@ DEFAULT_ALIAS = "default"
 PREPARE_RETRY_S = 5.0
 #: Seconds a closing registry waits for the graph being optimized in the background.
 PREPARE_JOIN_S = 5.0
+
+
+@functools.cache
+def process_optimized_folder() -> Path:
+    """The optimized graphs' folder of a process served without a runtime folder (one
+    worker): shared by its registries (an app made again reads the graphs written before),
+    removed at the process's exit."""
+    folder = Path(tempfile.mkdtemp(prefix="planar-pose-optimized-"))
+    atexit.register(shutil.rmtree, folder, ignore_errors=True)
+    return folder
 
 
 @dataclass(frozen=True)
@@ -83,9 +95,8 @@ class ModelRegistry:
         self._lock = threading.Lock()
         self._problems: dict[str, str] = {}
         self._gone: dict[str, float] = {}  # name -> time.monotonic() its file was first missed
-        self._own_folder = settings.runtime_dir is None
         optimized = (
-            Path(tempfile.mkdtemp(prefix="planar-pose-optimized-"))
+            process_optimized_folder()
             if settings.runtime_dir is None
             else settings.runtime_dir / "optimized"
         )
@@ -201,10 +212,15 @@ class ModelRegistry:
             return None
         return min(self._gone.values()) + self.settings.model_grace_s
 
-    def _load(self, file: ModelFile, optimized: Path | None) -> Predictor:
+    def _load(self, file: ModelFile, optimized: Path | None, optimize: bool) -> Predictor:
         s = self.settings
         model = PoseModel.load(
-            file.path, s.intra_op_threads, s.inter_op_threads, card=file.card, optimized=optimized
+            file.path,
+            s.intra_op_threads,
+            s.inter_op_threads,
+            card=file.card,
+            optimized=optimized,
+            optimize=optimize,
         )
         return Predictor(model, s)
 
@@ -242,14 +258,12 @@ class ModelRegistry:
 
     def close(self) -> None:
         """Stop preparing (the graph being written is finished: a thread inside onnxruntime
-        at the interpreter's exit aborts it); remove the optimized graphs' folder if this
-        registry made it."""
+        at the interpreter's exit aborts it)."""
         self._closed.set()
         self._prepare.set()
         if self._preparer is not None:
             self._preparer.join(PREPARE_JOIN_S)
-        if self._own_folder and self.cache.optimized_dir is not None:
-            shutil.rmtree(self.cache.optimized_dir, ignore_errors=True)
+        self.cache.join(PREPARE_JOIN_S)
 
     @property
     def problems(self) -> dict[str, str]:

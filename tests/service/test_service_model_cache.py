@@ -184,3 +184,29 @@ def test_the_workers_write_one_optimized_graph_per_content(
         time.sleep(0.2)
         assert len(list(optimized.glob("*.ort"))) == 2  # the copy shares the default's
         assert predict(c, "small")["model"] == "small"  # the served name, its own graph
+
+
+def test_a_cold_model_answers_unoptimized_at_once_then_runs_its_optimized_graph(
+    app_factory: AppFactory, tmp_path: Path
+) -> None:
+    """No optimized graph written yet (no background preparation): the graph loads as it is
+    (a cold model's first answer within a second), is optimized in a thread meanwhile, and
+    the optimized one takes its place, answering the same."""
+    folder, runtime = tmp_path / "models", tmp_path / "runtime"
+    folder.mkdir()
+    put(folder, DEFAULT, SMALL)
+    with app_factory(model_dir=folder, runtime_dir=runtime, workers=1, model_prepare=False) as c:
+        models = c.app.state.pose.models  # type: ignore[attr-defined]
+        first = models.loaded(DEFAULT)
+        assert first is not None
+        want = predict(c, DEFAULT)
+        deadline = time.monotonic() + 60
+        while models.loaded(DEFAULT) is first:
+            assert time.monotonic() < deadline
+            time.sleep(0.05)
+        assert len(list((runtime / "optimized").glob("*.ort"))) == 1
+        got = predict(c, DEFAULT)
+        assert got["results"][0]["class_id"] == want["results"][0]["class_id"]
+        assert np.allclose(
+            got["results"][0]["probabilities"], want["results"][0]["probabilities"], atol=1e-3
+        )
