@@ -68,6 +68,13 @@ class Settings(BaseSettings):
         "priority, one worker): a model's first load then takes 0.1-0.3 s of CPU instead of "
         "0.3-0.4 s unoptimized, optimized after (service/pipeline/model_cache.py).",
     )
+    optimized_dir: Path | None = Field(
+        default=None,
+        description="Where the optimized graphs are kept (named by their model's content and "
+        "the onnxruntime version; servers may share it, and a persistent folder spares a "
+        "restarted server optimizing its models again). Default: the runtime folder's "
+        "`optimized`, or a temporary folder of the process.",
+    )
     workers: int = Field(
         default=0, ge=0, description="Server processes (planar-pose-serve), 0 = one per CPU."
     )

@@ -3,7 +3,7 @@ temporary folder, never the user's; under pytest-xdist (scripts/test.sh) the cor
 between the workers, and the longest test files first; in-process apps write no optimized
 graphs in the background (`POSE_MODEL_PREPARE`: the many short-lived apps would each optimize
 every shipped model; `test_service_model_cache.py` turns it on, and server processes get a
-clean environment).
+clean environment), and all of them, servers too, share one folder of optimized graphs.
 
 The corner graphs' optional inputs are overridable initializers (`service.core.onnx_contract`),
 about which onnxruntime warns at every load; the service sets the same level per session.
@@ -19,6 +19,10 @@ import pytest
 ort.set_default_logger_severity(3)
 os.environ["POSE_MODEL_PREPARE"] = "false"
 os.environ["POSE_CAMERA_DB"] = str(Path(tempfile.mkdtemp(prefix="pose-cameras-")) / "cameras.db")
+# One folder of optimized graphs for the whole run (made by the first process, inherited by
+# pytest-xdist's workers and passed to the servers the tests start): each graph is optimized
+# once, not once per app and server.
+os.environ.setdefault("POSE_OPTIMIZED_DIR", tempfile.mkdtemp(prefix="pose-optimized-"))
 
 # Each xdist worker's torch and OpenCV thread pools get the worker's share of the cores (read
 # when torch is first imported, after this file), not every core each.

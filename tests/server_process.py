@@ -54,9 +54,15 @@ def stop(proc: subprocess.Popen[bytes], timeout: float = 30) -> int:
     return proc.returncode
 
 
+#: The one POSE_* variable a server inherits: the run's folder of optimized graphs
+#: (tests/conftest.py).
+SHARED = "POSE_OPTIMIZED_DIR"
+
+
 def clean_env(**env: str) -> dict[str, str]:
-    """This process's environment without POSE_* variables, plus `env`."""
-    return {**{k: v for k, v in os.environ.items() if not k.startswith("POSE_")}, **env}
+    """This process's environment without POSE_* variables (but `SHARED`), plus `env`."""
+    kept = {k: v for k, v in os.environ.items() if not k.startswith("POSE_") or k == SHARED}
+    return {**kept, **env}
 
 
 @contextmanager

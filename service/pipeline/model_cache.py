@@ -199,7 +199,6 @@ class ModelCache:
         self._locks: dict[tuple[str, str, Signature], threading.Lock] = {}
         self._lock = threading.Lock()
         self.pinned: set[tuple[str, str, Signature]] = set()
-        self._optimizers: list[threading.Thread] = []
 
     def peek(self, file: ModelFile, count: bool = True) -> Predictor | None:
         """The loaded predictor of `file` (now the most recent; `count`: a cache hit), else
@@ -251,9 +250,9 @@ class ModelCache:
         with self._lock:
             self._loaded[file.key] = _Loaded(predictor, size, quick)
             if quick:
-                optimizer = threading.Thread(target=self._optimize_loaded, args=(file,))
-                self._optimizers = [t for t in self._optimizers if t.is_alive()] + [optimizer]
-                optimizer.start()
+                # not a daemon: the interpreter's exit waits for it (onnxruntime aborts the
+                # process when it exits with a thread inside a session's creation)
+                threading.Thread(target=self._optimize_loaded, args=(file,), daemon=False).start()
         self._count_load("ok", start)
         self._make_room(0, file.key)  # others may have loaded meanwhile
         log.info(
@@ -283,12 +282,6 @@ class ModelCache:
                 return
             self._loaded[file.key] = _Loaded(predictor, loaded.size)
         log.info("model %s now runs its optimized graph", file.name)
-
-    def join(self, timeout: float) -> None:
-        """Wait up to `timeout` seconds for each optimization under way (a thread inside
-        onnxruntime at the interpreter's exit aborts the process)."""
-        for thread in list(self._optimizers):
-            thread.join(timeout)
 
     def optimized(self, file: ModelFile) -> Path | None:
         """The file of `file`'s optimized graph (None: no folder for them, or unreadable);

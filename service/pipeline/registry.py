@@ -95,7 +95,7 @@ class ModelRegistry:
         self._lock = threading.Lock()
         self._problems: dict[str, str] = {}
         self._gone: dict[str, float] = {}  # name -> time.monotonic() its file was first missed
-        optimized = (
+        optimized = settings.optimized_dir or (
             process_optimized_folder()
             if settings.runtime_dir is None
             else settings.runtime_dir / "optimized"
@@ -263,7 +263,6 @@ class ModelRegistry:
         self._prepare.set()
         if self._preparer is not None:
             self._preparer.join(PREPARE_JOIN_S)
-        self.cache.join(PREPARE_JOIN_S)
 
     @property
     def problems(self) -> dict[str, str]:

@@ -175,7 +175,9 @@ def test_the_workers_write_one_optimized_graph_per_content(
     folder.mkdir()
     for name, source in ((DEFAULT, SMALL), ("copy", SMALL), ("small", SPEC_80x60)):
         put(folder, name, source)
-    with app_factory(model_dir=folder, runtime_dir=runtime, workers=1, model_prepare=True) as c:
+    with app_factory(
+        model_dir=folder, runtime_dir=runtime, workers=1, model_prepare=True, optimized_dir=None
+    ) as c:
         optimized = runtime / "optimized"
         deadline = time.monotonic() + 60  # written in the background, at the lowest priority
         while len(list(optimized.glob("*.ort"))) < 2:
@@ -195,7 +197,9 @@ def test_a_cold_model_answers_unoptimized_at_once_then_runs_its_optimized_graph(
     folder, runtime = tmp_path / "models", tmp_path / "runtime"
     folder.mkdir()
     put(folder, DEFAULT, SMALL)
-    with app_factory(model_dir=folder, runtime_dir=runtime, workers=1, model_prepare=False) as c:
+    with app_factory(
+        model_dir=folder, runtime_dir=runtime, workers=1, model_prepare=False, optimized_dir=None
+    ) as c:
         models = c.app.state.pose.models  # type: ignore[attr-defined]
         first = models.loaded(DEFAULT)
         assert first is not None

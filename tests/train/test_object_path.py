@@ -65,11 +65,12 @@ def test_from_a_picture_to_a_served_model(tmp_path: Path) -> None:
     assert card["profile"]["name"] == "poster" and set(card["accuracy"]) == {
         f"free-s2-b{b}" for b in range(4)
     }
-    # run again: every step is done, the model is written again from the same weights
+    # run again: every step is done, the model written from these weights is kept
+    written = onnx.read_bytes()
     result = runner.invoke(app, [*train, "--models", str(models), *budget, "--no-bf16"])
-    assert (
-        result.exit_code == 0 and "train:" not in result.output and "renders:" not in result.output
-    )
+    assert result.exit_code == 0 and "up to date" in result.output, result.output
+    assert "train:" not in result.output and "renders:" not in result.output
+    assert onnx.read_bytes() == written
 
     (models / DEFAULT_MODEL.name).write_bytes(DEFAULT_MODEL.read_bytes())
     (models / DEFAULT_MODEL.with_suffix(".json").name).write_bytes(
@@ -110,3 +111,24 @@ def test_object_new_refuses_bad_input(tmp_path: Path, args: list[str], message: 
         ["object", "new", *args, "--texture", str(picture), "--profiles", str(tmp_path / "p")],
     )
     assert result.exit_code in (1, 2) and message in result.output, result.output
+
+
+def test_an_export_is_up_to_date_only_for_the_files_it_wrote(tmp_path: Path) -> None:
+    """The run's record of its export matches while the checkpoint and the model are the
+    ones it wrote; a changed model (or checkpoint) is exported again."""
+    from train.network.pipeline import EXPORTED, _digest, _exported
+
+    best, onnx = tmp_path / "best.pt", tmp_path / "models" / "m.onnx"
+    onnx.parent.mkdir()
+    best.write_bytes(b"weights")
+    onnx.write_bytes(b"graph")
+    onnx.with_suffix(".json").write_text('{"name": "m"}')
+    assert _exported(tmp_path, best, onnx) is None  # no record yet
+    marker = {"checkpoint": _digest(best), "onnx": str(onnx.resolve()), "model": _digest(onnx)}
+    (tmp_path / EXPORTED).write_text(json.dumps(marker))
+    assert _exported(tmp_path, best, onnx) == (onnx, {"name": "m"})
+    onnx.write_bytes(b"another graph")
+    assert _exported(tmp_path, best, onnx) is None
+    onnx.write_bytes(b"graph")
+    best.write_bytes(b"trained on")
+    assert _exported(tmp_path, best, onnx) is None

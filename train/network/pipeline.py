@@ -11,12 +11,14 @@
     export      models/<name>-corners-160x120.onnx with its card, measured on the evaluation
                 renders' test split (and the real test split)
 
-Every step leaves its output in the run folder and is skipped when it is there, and a stage
-stopped midway continues from its last epoch: running it again resumes.
+Every step leaves its output in the run folder and is skipped when it is there (the export
+when the model file is the one the run wrote from its best checkpoint), and a stage stopped
+midway continues from its last epoch: running it again resumes.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -123,6 +125,10 @@ def train_object(
             say,
         )
     name = model_name(profile)
+    exported = _exported(run, best, models / f"{name}.onnx")
+    if exported is not None:
+        say(f"export: {models / name}.onnx is up to date (from {best})")
+        return exported
     say(f"export: {models / name}.onnx, measured on {', '.join(p.name for p in evals + real)}")
     start = "fine-tuned from the generic network (corners-any), " if init else ""
     notes = (
@@ -131,7 +137,34 @@ def train_object(
         + (f", then {recipe.fine_tune_epochs} on the real train frames)" if real else ")")
         + "; the half turn is read from the texture (train/network/pattern.py)."
     )
-    return export(best, name, models, [*evals, *real], "test", "1.0.0", notes, real or None)
+    path, card = export(best, name, models, [*evals, *real], "test", "1.0.0", notes, real or None)
+    marker = {"checkpoint": _digest(best), "onnx": str(path.resolve()), "model": _digest(path)}
+    (run / EXPORTED).write_text(json.dumps(marker, indent=1) + "\n")
+    return path, card
+
+
+#: The run folder's record of its last export: the checkpoint's and the model's digests.
+EXPORTED = "exported.json"
+
+
+def _digest(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def _exported(run: Path, best: Path, onnx: Path) -> tuple[Path, dict[str, Any]] | None:
+    """(onnx, its card) when the run's last export wrote `onnx` from the checkpoint `best`
+    as they both are now, else None (the model is exported again)."""
+    try:
+        marker = json.loads((run / EXPORTED).read_text())
+        card = json.loads(onnx.with_suffix(".json").read_text())
+        same = (
+            marker["onnx"] == str(onnx.resolve())
+            and marker["checkpoint"] == _digest(best)
+            and marker["model"] == _digest(onnx)
+        )
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return (onnx, card) if same else None
 
 
 def expected_duration(config: FitConfig, recipe: ObjectRecipe, steps: int = 4) -> str:

@@ -70,7 +70,11 @@ def run_service(wait_for: str = "/readyz", **env: str) -> Iterator[str]:
     if not MODEL.is_file():
         pytest.fail(f"the client tests need the shipped model {MODEL.relative_to(REPO)}")
     port = _free_port()
-    settings = {k: v for k, v in os.environ.items() if not k.startswith("POSE_")}
+    settings = {
+        k: v
+        for k, v in os.environ.items()
+        if not k.startswith("POSE_") or k == "POSE_OPTIMIZED_DIR"  # the run's shared graphs
+    }
     settings |= {"POSE_MODEL_PATH": str(MODEL), "POSE_MAX_IMAGES": str(MAX_IMAGES), **env}
     command = [sys.executable, "-m", "uvicorn", "service.app:app", "--host", "127.0.0.1"]
     with tempfile.TemporaryFile("w+") as log, tempfile.TemporaryDirectory() as state:
