@@ -62,6 +62,11 @@ LENS_RANGE, LENS_GRID = (-0.8, 0.4), 13
 TRACK_POINTS, MIN_TRACKED, TRACK_WINDOW = 80, 12, 15
 #: How near px a followed feature must come back to where it started, followed back.
 TRACK_RETURN_PX = 0.3
+#: The least the fitted lens must lower the features' mean squared distance (px^2) from one
+#: homography, below the guess's, to be worth an alignment through it: less is the features'
+#: own noise (lens-free renders: 0.00-0.05; the ChArUco val frames, real webcam lenses:
+#: 0.1-2.4).
+LENS_MIN_FIT_GAIN_PX2 = 0.05
 #: The least gain in correlation a fitted lens must bring over the start's: less is noise
 #: (a head-on view of a lens-free photo gains 0.0002, the ChArUco val frames 0.01-0.05).
 LENS_MIN_GAIN = 0.002
@@ -79,8 +84,10 @@ MAX_SHIFT = 0.25
 ITERATIONS, EPSILON = 20, 1e-4
 #: ECC's iterations where the start is already close (the alignment through a fitted lens).
 REALIGN_ITERATIONS = 8
-#: The blurs (Gaussian sigma px at the crop's scale) a photo's blur is read among (0: sharp).
-PHOTO_BLURS = (2.0, 3.5)
+#: The blurs (Gaussian sigma px at the crop's scale) a photo's blur is read among (0: sharp):
+#: one, heavy. A second at 2 px aligned mildly blurred photos once more for nothing (the
+#: same answers on the validation sets: docs/decisions.md) at ~4 ms a photo.
+PHOTO_BLURS = (3.5,)
 #: The least correlation of a refined alignment (good ones of the ChArUco val frames: 0.78-0.97,
 #: alignments onto the wrong place: up to 0.3).
 MIN_SCORE = 0.5
@@ -590,6 +597,33 @@ def _homography_fit(features: Features, lens: RadialLens) -> tuple[np.ndarray, f
     return H, float(((fit - pinhole) ** 2).sum(1).mean())
 
 
+def _normalised(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Points [..., N, 2] moved to their centroid and scaled to a mean distance of sqrt(2)
+    (Hartley) -> (those points, the scale [...] px per unit)."""
+    centred = points - points.mean(-2, keepdims=True)
+    spread = np.sqrt((centred**2).sum(-1).mean(-1)) / np.sqrt(2.0)
+    return centred / spread[..., None, None], spread
+
+
+def homography_costs(uv: np.ndarray, pinholes: np.ndarray) -> np.ndarray:
+    """The mean squared distance px^2 of each of `pinholes` [K, N, 2] px from the
+    least-squares homography (normalised DLT) of `uv` [N, 2] onto it -> [K]: the K fits at
+    once (the lens fit's grid)."""
+    src, _ = _normalised(np.asarray(uv, np.float64))
+    dst, spread = _normalised(np.asarray(pinholes, np.float64))
+    k, n = dst.shape[:2]
+    x, y = (np.broadcast_to(c, (k, n)) for c in src.T)
+    u, v = dst[..., 0], dst[..., 1]
+    one, zero = np.ones((k, n)), np.zeros((k, n))
+    rows_u = np.stack([x, y, one, zero, zero, zero, -u * x, -u * y, -u], -1)
+    rows_v = np.stack([zero, zero, zero, x, y, one, -v * x, -v * y, -v], -1)
+    _, _, vt = np.linalg.svd(np.concatenate([rows_u, rows_v], 1))
+    h = vt[:, -1].reshape(k, 3, 3)
+    mapped = h @ np.stack([x[0], y[0], one[0]])  # [K, 3, N]
+    fit = np.swapaxes(mapped[:, :2] / mapped[:, 2:], 1, 2)  # [K, N, 2]
+    return np.asarray(((fit - dst) ** 2).sum(-1).mean(-1) * spread**2)
+
+
 def fit_radial_lens(
     grey: np.ndarray,
     aligned: _Aligned,
@@ -602,22 +636,26 @@ def fit_radial_lens(
     followed into the photo `grey` uint8 [H, W] (`_tracked_points`), lie on one homography
     best: kappa
     (W/2)^2 (W the photo's longer side) on a grid of `LENS_GRID` values over `LENS_RANGE`,
-    then the vertex of the parabola through the best and its neighbours; the alignment is
-    then repeated through it from that homography's corners, and kept where it correlates
-    better than `aligned` by `LENS_MIN_GAIN` -> (alignment, lens). Where too few features are
-    followed, or time runs out, `aligned` and `lens` stay."""
+    then the vertex of the parabola through the best and its neighbours; where it fits the
+    features better than `lens` by `LENS_MIN_FIT_GAIN_PX2`, the alignment is repeated through
+    it from that homography's corners, and kept where it correlates better than `aligned` by
+    `LENS_MIN_GAIN` -> (alignment, lens). Where too few features are followed, or time runs
+    out, `aligned` and `lens` stay."""
     if points is None or time.perf_counter() > deadline:
         return aligned, lens
     unit = (0.5 * max(grey.shape)) ** 2
     grid = np.linspace(*LENS_RANGE, LENS_GRID)
-    costs = [_homography_fit(points, RadialLens(lens.centre, k / unit))[1] for k in grid]
+    pinholes = [RadialLens(lens.centre, k / unit).undistort(points.seen) for k in grid]
+    costs = homography_costs(points.uv, np.stack(pinholes))
     best = int(np.clip(np.argmin(costs), 1, LENS_GRID - 2))
     c0, c1, c2 = costs[best - 1 : best + 2]
     curve = c0 - 2 * c1 + c2
     step = grid[1] - grid[0]
     offset = 0.5 * (c0 - c2) / curve if curve > 0 else 0.0
     fitted = RadialLens(lens.centre, (grid[best] + step * float(np.clip(offset, -1, 1))) / unit)
-    H, _ = _homography_fit(points, fitted)
+    H, cost = _homography_fit(points, fitted)
+    if _homography_fit(points, lens)[1] - cost < LENS_MIN_FIT_GAIN_PX2:
+        return aligned, lens  # the guess fits the features as well: nothing to align again
     h, w = texture.grey.shape
     edges = (texture.corners + 0.5) / [w, h]  # the texture's corners in units of uv
     start = cv2.perspectiveTransform(edges.reshape(-1, 1, 2), H)

@@ -18,6 +18,7 @@ from service.core.refine import (
     Texture,
     extent,
     feature_start,
+    homography_costs,
     refine_corners,
 )
 
@@ -204,3 +205,20 @@ def test_texture_files_the_models_carry_are_the_profiles(tmp_path: Path) -> None
     bottom-left, bottom-right, top-right, top-left."""
     tex = Texture(np.zeros((20, 30), np.float32))
     assert tex.corners.tolist() == [[-0.5, 19.5], [29.5, 19.5], [29.5, -0.5], [-0.5, -0.5]]
+
+
+def test_homography_costs_are_the_least_squares_fits_residuals() -> None:
+    """The grid's batched fit gives what OpenCV's least-squares homography leaves, per set."""
+    rng = np.random.default_rng(0)
+    uv = rng.random((40, 2))
+    H = np.array([[800.0, 30.0, 100.0], [10.0, 700.0, 50.0], [0.1, 0.05, 1.0]])
+    exact = cv2.perspectiveTransform(uv.reshape(-1, 1, 2), H).reshape(-1, 2)
+    sets = np.stack([exact + rng.normal(0, s, exact.shape) for s in (0.0, 0.5, 2.0)])
+    want = []
+    for points in sets:
+        fitted, _ = cv2.findHomography(uv, points, 0)
+        back = cv2.perspectiveTransform(uv.reshape(-1, 1, 2), fitted).reshape(-1, 2)
+        want.append(((back - points) ** 2).sum(1).mean())
+    got = homography_costs(uv, sets)
+    assert got.shape == (3,) and got[0] < 1e-12
+    assert np.allclose(got[1:], want[1:], rtol=1e-2)

@@ -8,7 +8,7 @@ book and the ChArUco board, neither of which is in the texture bank):
                 on renders of it (`train.network.pipeline.zero_shot_checkpoint`)
     test sets   independent renders: other seeds (cameras, backgrounds) than the threshold's,
                 one set per SPEC blur level, 160 x 120, classes 0-8 balanced
-    answers     the exported graph as the service answers (`export._graph_predictor`, with its
+    answers     the exported graph as the service answers (`export.graph_predictor`, with its
                 zoom pass), the object's shipped model where it has one (`models/`), and the
                 feature-matching peer (SIFT, RANSAC, PnP: `train.compare.baseline`, no tuning)
 """
@@ -27,7 +27,7 @@ from service.core.profile import PROFILES_DIR, Profile, load_profile, write_prof
 from train.compare.baseline import BaselineConfig
 from train.compare.peers import run_baseline_on
 from train.network.evaluate import compute_metrics, predict_all
-from train.network.export import _graph_predictor, onnx_bytes
+from train.network.export import graph_predictor, image_count, onnx_bytes
 from train.network.fit import load_network
 from train.network.model import export_form
 from train.network.pipeline import model_name, zero_shot_checkpoint
@@ -71,7 +71,7 @@ def test_sets(profile: Profile, run: Path, count: int) -> list[Path]:
 
 def _graph_accuracy(raw: bytes, name: str, sets: list[Path]) -> list[dict[str, float]]:
     """Accuracy and class-0 accuracy of an ONNX graph (as the service answers) per set."""
-    predict = _graph_predictor(raw, {"name": name, "input": [160, 120]})
+    predict = graph_predictor(raw, {"name": name, "input": [160, 120]}, image_count(sets, "all"))
     rows = []
     for path in sets:
         data = load_dataset(path)
