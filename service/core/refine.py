@@ -617,8 +617,9 @@ def homography_costs(uv: np.ndarray, pinholes: np.ndarray) -> np.ndarray:
     one, zero = np.ones((k, n)), np.zeros((k, n))
     rows_u = np.stack([x, y, one, zero, zero, zero, -u * x, -u * y, -u], -1)
     rows_v = np.stack([zero, zero, zero, x, y, one, -v * x, -v * y, -v], -1)
-    _, _, vt = np.linalg.svd(np.concatenate([rows_u, rows_v], 1))
-    h = vt[:, -1].reshape(k, 3, 3)
+    a = np.concatenate([rows_u, rows_v], 1)  # [K, 2N, 9]
+    _, vectors = np.linalg.eigh(np.swapaxes(a, 1, 2) @ a)  # ascending eigenvalues
+    h = vectors[..., 0].reshape(k, 3, 3)  # the least one's: A h ~ 0
     mapped = h @ np.stack([x[0], y[0], one[0]])  # [K, 3, N]
     fit = np.swapaxes(mapped[:, :2] / mapped[:, 2:], 1, 2)  # [K, N, 2]
     return np.asarray(((fit - dst) ** 2).sum(-1).mean(-1) * spread**2)
