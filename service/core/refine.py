@@ -34,7 +34,9 @@ bottom-left, bottom-right, top-right, top-left of the front-on texture).
 from __future__ import annotations
 
 import math
+import threading
 import time
+from collections import OrderedDict
 from dataclasses import dataclass, replace
 from functools import cached_property
 from typing import Protocol
@@ -99,6 +101,11 @@ GOOD_SCORE = 0.7
 FEATURE_SIDE, RATIO, RANSAC_PX, MIN_INLIERS = 640, 0.75, 4.0, 12
 
 
+#: Sizes of a texture kept resized (`Texture.at_extent`), and the lock of all their caches.
+RESIZED_KEPT = 16
+_RESIZED_LOCK = threading.Lock()
+
+
 @dataclass(frozen=True)
 class Texture:
     """An object's front-on texture for alignment: grey float32 [h, w] in [0, 1]."""
@@ -128,14 +135,28 @@ class Texture:
         scale = max(self.grey.shape) / max(image.shape)
         return (points + 0.5) * scale - 0.5, descriptors
 
+    @cached_property
+    def _resized(self) -> OrderedDict[tuple[int, int], np.ndarray]:
+        return OrderedDict()
+
     def at_extent(self, extent_px: float) -> np.ndarray:
         """The texture resized so that its longer side is `extent_px` (area average down,
-        bilinear up)."""
+        bilinear up); read-only, the last `RESIZED_KEPT` sizes kept (a large picture takes
+        ~0.7 ms to resize, and most photos ask for the same sizes: `MAX_EXTENT_PX` and its
+        pyramid)."""
         h, w = self.grey.shape
         f = extent_px / max(w, h)
         size = (max(8, round(w * f)), max(8, round(h * f)))
-        interpolation = cv2.INTER_AREA if f < 1 else cv2.INTER_LINEAR
-        return cv2.resize(self.grey, size, interpolation=interpolation)
+        found = self._resized.get(size)
+        if found is None:
+            interpolation = cv2.INTER_AREA if f < 1 else cv2.INTER_LINEAR
+            found = cv2.resize(self.grey, size, interpolation=interpolation)
+            found.setflags(write=False)
+            with _RESIZED_LOCK:
+                self._resized[size] = found
+                while len(self._resized) > RESIZED_KEPT:
+                    self._resized.popitem(last=False)
+        return found
 
 
 @dataclass(frozen=True)
