@@ -8,7 +8,8 @@ one worker runs it) with the refinement off and on, per corner model, on
 * a 1280x720 JPEG without the object (a background photo): the refinement does not run.
 
 The issue's budget: a board photo at most 1.5x the time without the refinement, a photo
-without the object no more. Each time is the best of `--repeat` rounds of `--seconds`.
+without the object no more. Each time is the best of `--repeat` rounds of `--seconds`, the
+refinement off and on called in turn within each round (the same load and clock for both).
 
 Streams (`Predictor.track`, as `WS /v1/stream` runs it, the network every 10th frame)
 against the network on every frame: ms per frame and frames/s per core on a still sequence
@@ -24,14 +25,15 @@ from __future__ import annotations
 import argparse
 import csv
 import datetime as dt
+import math
 import os
 import platform
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import cv2
 import numpy as np
-from bench_inference import best_ms  # benchmarks/, the script's own folder
 from docs_section import write_section
 
 from service.core.dataset import camera_of_row
@@ -86,6 +88,25 @@ def empty_photo() -> bytes:
     return jpeg(cv2.resize(bgr, SIZE, interpolation=cv2.INTER_LINEAR))
 
 
+def paired_ms(works: list[Callable[[], object]], seconds: float, repeat: int) -> list[float]:
+    """Each of `works`' best over `repeat` rounds of its mean ms per call, the works called in
+    turn within each round (one of each, again, for at least `seconds`): both sides of a
+    ratio timed under the same load and clock."""
+    for work in works:
+        work()  # warm-up
+    best = [math.inf] * len(works)
+    for _ in range(repeat):
+        spent, calls, start = [0.0] * len(works), 0, time.perf_counter()
+        while time.perf_counter() - start < seconds or calls == 0:
+            for i, work in enumerate(works):
+                t0 = time.perf_counter()
+                work()
+                spent[i] += time.perf_counter() - t0
+            calls += 1
+        best = [min(b, 1000 * t / calls) for b, t in zip(best, spent, strict=True)]
+    return best
+
+
 def measure(obj: str, seconds: float, repeat: int) -> list[list[str]]:
     """The rows of one model: each photo, ms off and on, the ratio, within the budget."""
     model = PoseModel.load(ROOT / "models" / f"{MODELS[obj]}.onnx", intra_op_threads=1)
@@ -97,12 +118,11 @@ def measure(obj: str, seconds: float, repeat: int) -> list[list[str]]:
     rows = []
     for what, data, known, budget in cases:
         source = on.predict([(None, data)], "whole", known).results[0].corners_source or "-"
-        ms = [
-            best_ms(
-                lambda p=p, d=data, k=known: p.predict([(None, d)], "whole", k), 1, seconds, repeat
-            )
-            for p in (off, on)
-        ]
+        ms = paired_ms(
+            [lambda p=p, d=data, k=known: p.predict([(None, d)], "whole", k) for p in (off, on)],
+            seconds,
+            repeat,
+        )
         ratio = ms[1] / ms[0]
         # a ratio within the timer's noise of the budget counts as within it
         ok = "yes" if ratio <= budget * 1.05 else "no"
