@@ -11,8 +11,12 @@ ARG BASE_IMAGE=python:3.11-slim
 FROM ${BASE_IMAGE} AS build
 WORKDIR /src
 COPY pyproject.toml README.md ./
+# The dependencies (pyproject's list) in a layer of their own: a change to the code alone
+# rebuilds from the next COPY on, in seconds.
+RUN python -c "import tomllib; print(*tomllib.load(open('pyproject.toml', 'rb'))['project']['dependencies'], sep='\n')" > requirements.txt \
+    && python -m venv /opt/venv && /opt/venv/bin/pip install --no-cache-dir -r requirements.txt
 COPY service ./service
-RUN python -m venv /opt/venv && /opt/venv/bin/pip install --no-cache-dir . \
+RUN /opt/venv/bin/pip install --no-cache-dir --no-deps . \
     && /opt/venv/bin/pip uninstall --yes --quiet setuptools pip
 
 FROM ${BASE_IMAGE} AS runtime
