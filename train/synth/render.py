@@ -55,9 +55,11 @@ def occlude_edge(image: np.ndarray, quad: np.ndarray, rng: np.random.Generator) 
     """Draw (in place) a hand-like occluder over a random point of the board's outline
     `quad` (4, 2) px: an anti-aliased ellipse of skin or sleeve colour, 8-25 % of the
     outline's size, as the fingers holding the board in the real photographs."""
+    if len(quad) != 4:  # no outline: a corner behind the camera (`Renderer.homography`)
+        return
     i = int(rng.integers(4))
     point = quad[i] + rng.uniform(0.1, 0.9) * (quad[(i + 1) % 4] - quad[i])
-    if len(quad) != 4 or not np.all(np.isfinite(point)):
+    if not np.all(np.isfinite(point)):
         return
     extent = float(np.linalg.norm(np.ptp(quad, axis=0)))
     a = max(2.0, extent * rng.uniform(0.08, 0.25))

@@ -14,7 +14,7 @@ from service.core.paths import ASSETS_DIR
 from service.core.profile import load_profile
 from service.core.regions import pose_class
 from train.synth.background import BackgroundPool, procedural_backgrounds
-from train.synth.render import Renderer, View, draw_views, render_view
+from train.synth.render import Renderer, View, draw_views, occlude_edge, render_view
 
 SIZE = (160, 120)
 
@@ -153,3 +153,14 @@ def test_background_pool_crops():
     crops = [pool.sample(rng) for _ in range(20)]
     assert all(c.shape == (60, 80, 3) for c in crops)
     assert len({c.tobytes() for c in crops}) == 20
+
+
+def test_an_occluder_needs_the_outline_and_draws_on_it() -> None:
+    """A view with a corner behind the camera has no outline (two points: the frame's box),
+    and gets no occluder instead of an IndexError; a real outline gets one on its edge."""
+    image = np.zeros((120, 160, 3), np.uint8)
+    occlude_edge(image, np.array([[0.0, 0.0], [160.0, 120.0]]), np.random.default_rng(0))
+    assert not image.any()
+    quad = np.array([[40.0, 90.0], [120.0, 90.0], [120.0, 30.0], [40.0, 30.0]])
+    occlude_edge(image, quad, np.random.default_rng(0))
+    assert image.any()
