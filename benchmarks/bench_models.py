@@ -144,14 +144,14 @@ class Server:
 
 
 @contextmanager
-def serve(folder: Path, memory_mb: float | None, log: Path) -> Iterator[Server]:
-    """`python -m service.cli --workers 2` on `folder`, timed until /readyz answers 200."""
+def serve(folder: Path, memory_mb: float | None, log: Path, workers: int = 2) -> Iterator[Server]:
+    """`python -m service.cli --workers N` on `folder`, timed until /readyz answers 200."""
     port = free_port()
     env = {k: v for k, v in os.environ.items() if not k.startswith("POSE_")}
     env.update(PYTHONPATH=str(ROOT), POSE_ACCESS_LOG="false")
     if memory_mb is not None:
         env["POSE_MODEL_MEMORY_MB"] = str(memory_mb)
-    command = [sys.executable, "-m", "service.cli", "--port", str(port), "--workers", "2"]
+    command = [sys.executable, "-m", "service.cli", "--port", str(port), "--workers", str(workers)]
     command += ["--model-dir", str(folder), "--log-level", LOG_LEVEL]
     start = time.perf_counter()
     with log.open("ab") as sink:

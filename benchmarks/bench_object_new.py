@@ -1,5 +1,5 @@
 """From a new picture to a served model (issue 51's first bar), timed end to end on this machine:
-a running service (`python -m service.cli --workers 1` on a model folder holding the default
+a running service (`bench_models.serve`, one worker, on a model folder holding the default
 model), then, timed, `planar-pose object new NAME --texture PICTURE` writing the profile, its
 sample sheet and the zero-shot model into that folder (a fresh process: imports included),
 `POST /v1/models/reload`, and the first `POST /v1/predict?model=NAME-corners-160x120` of a
@@ -26,7 +26,7 @@ from pathlib import Path
 
 import cv2
 import httpx
-from bench_models import free_port  # benchmarks/, the script's own folder
+from bench_models import serve  # benchmarks/, the script's own folder
 from docs_section import write_section
 
 from service.core.paths import DEFAULT_MODEL
@@ -38,20 +38,6 @@ DOCS = ROOT / "docs" / "benchmarks.md"
 BACKGROUNDS = ROOT / "train" / "assets" / "backgrounds"
 TARGET_S = 120.0
 WIDTH_CM = 30.0  # the object's width; its height from the picture's aspect
-
-
-def wait_ready(base: str, proc: subprocess.Popen[bytes], log: Path) -> None:
-    deadline = time.monotonic() + 120
-    while time.monotonic() < deadline:
-        if proc.poll() is not None:
-            raise SystemExit(f"error: the service exited; see {log}")
-        try:
-            if httpx.get(base + "/readyz", timeout=2).status_code == 200:
-                return
-        except httpx.TransportError:
-            pass
-        time.sleep(0.1)
-    raise SystemExit(f"error: the service was not ready after 120 s; see {log}")
 
 
 def one_picture(picture: Path, models: Path, work: Path, base: str) -> list[str]:
@@ -108,19 +94,8 @@ def main() -> None:
             shutil.copyfile(
                 DEFAULT_MODEL.with_suffix(suffix), models / f"{DEFAULT_MODEL.stem}{suffix}"
             )
-        port, log = free_port(), work / "serve.log"
-        env = {k: v for k, v in os.environ.items() if not k.startswith("POSE_")}
-        command = [sys.executable, "-m", "service.cli", "--port", str(port), "--workers", "1",
-                   "--model-dir", str(models)]  # fmt: skip
-        with log.open("wb") as sink:
-            proc = subprocess.Popen(command, cwd=ROOT, env=env, stdout=sink, stderr=sink)
-        base = f"http://127.0.0.1:{port}"
-        try:
-            wait_ready(base, proc, log)
-            rows = [one_picture(p, models, work, base) for p in pictures]
-        finally:
-            proc.terminate()
-            proc.wait(30)
+        with serve(models, None, work / "serve.log", workers=1) as server:
+            rows = [one_picture(p, models, work, server.base) for p in pictures]
     head = ["picture", "object new s", "reload s", "first answer s", "total s", "within"]
     body = [header, "", *table(head, rows)]
     print("\n".join(body))
