@@ -271,9 +271,12 @@ class ModelCache:
         os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 19)  # this thread only
         target = self.optimized(file)
         try:
-            with writing(target):
-                predictor = self._load(file, target, True)
-        except (ModelLoadError, OSError) as exc:  # the unoptimized graph loaded: it stays
+            try:
+                with writing(target):
+                    predictor = self._load(file, target, True)
+            except OSError:  # a folder it cannot write to: optimized all the same, not kept
+                predictor = self._load(file, None, True)
+        except ModelLoadError as exc:  # the unoptimized graph loaded: it stays
             log.warning("model %s not optimized: %s", file.name, exc)
             return
         with self._lock:
