@@ -12,6 +12,7 @@ the machine.
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import sys
 from concurrent.futures import ProcessPoolExecutor
@@ -93,12 +94,14 @@ def _evaluate(job: tuple[Path, Path, Path, int, bool]) -> dict[str, Any]:
     """`evaluate_object` in a worker process (one torch thread), its row printed."""
     torch.set_num_threads(1)
     profile, generic, run, count, peer = job
-    done = run / "row.json"  # measured already with these options: kept (run again resumes)
+    done = run / "row.json"  # measured already with these weights and options: kept
+    weights = hashlib.sha256(generic.read_bytes()).hexdigest()
     if done.is_file():
         row: dict[str, Any] = json.loads(done.read_text())
-        if row["count"] == count and row["threshold"]["generic"] == repo_path(generic):
+        if row["count"] == count and row.get("generic_sha256") == weights:
             return row
     row = evaluate_object(load_profile(profile), generic, run, count, peer)
+    row["generic_sha256"] = weights
     done.write_text(json.dumps(row) + "\n")
     print(json.dumps(row), flush=True)
     return row
