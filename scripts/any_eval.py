@@ -43,7 +43,8 @@ def page(rows: list[dict[str, Any]], generic: Path, card: dict[str, Any], comman
         f" ({card.get('steps')} training steps; its card beside it). Each object: its "
         "presence threshold measured on its own renders, then independent renders (other "
         f"cameras and backgrounds, {rows[0]['count']} per blur level, classes 0-8 balanced) "
-        "answered by the exported graph as the service answers. `shipped`: the object's own "
+        "answered through the service's own path (`/v1/predict`'s code), nothing known of the "
+        "camera. `shipped`: the object's own "
         "trained model; `peer`: feature matching (SIFT, RANSAC, PnP), no training.",
         "",
         "## Class accuracy (class 0 accuracy) per blur level",
@@ -73,6 +74,25 @@ def page(rows: list[dict[str, Any]], generic: Path, card: dict[str, Any], comman
                 if any(k in r for r in test)
             ],
         )
+    lines += ["", "## Anatomy of the answers at blur 0 and blur 3", ""]
+    lines += [
+        "Among the images whose object was found (class > 0 answered and true): near/far "
+        "right and x/y side right; found: of the images that show the object; corners: the "
+        "median error px against the labels.",
+        "",
+    ]
+    lines += table(
+        ["object", "answered by", "blur", "class", "near/far", "x/y side", "found", "corners px"],
+        [
+            [r["object"], key.replace("_", "-"), str(b), pct(v["accuracy"]), pct(v["near_far"]),
+             pct(v["side"]), pct(v["found"]),
+             "-" if v["corner_px"] is None else f"{v['corner_px']:.2f}"]
+            for r in rows
+            for key in ("zero_shot", "shipped")
+            if key in r
+            for b, v in ((b, r[key][b]) for b in (0, len(r[key]) - 1))
+        ],
+    )  # fmt: skip
     lines += ["", "## Presence threshold per object (on its own renders)", ""]
     lines += table(
         ["object", "threshold", "present right", "absent right", "backgrounds left out"],
@@ -98,7 +118,8 @@ def _evaluate(job: tuple[Path, Path, Path, int, bool]) -> dict[str, Any]:
     weights = hashlib.sha256(generic.read_bytes()).hexdigest()
     if done.is_file():
         row: dict[str, Any] = json.loads(done.read_text())
-        if row["count"] == count and row.get("generic_sha256") == weights:
+        served = "side" in row["zero_shot"][0]  # measured through the service's path
+        if row["count"] == count and row.get("generic_sha256") == weights and served:
             return row
     row = evaluate_object(load_profile(profile), generic, run, count, peer)
     row["generic_sha256"] = weights

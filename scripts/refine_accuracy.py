@@ -29,10 +29,8 @@ from __future__ import annotations
 import argparse
 import csv
 import sys
-import time
 import tomllib
 from collections.abc import Iterator
-from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -44,11 +42,11 @@ from service.cameras.store import known_focal
 from service.core.dataset import camera_of_row, corners_of_row
 from service.core.paths import REPO_ROOT
 from service.core.profile import load_profile
-from service.core.regions import is_far, quadrant_of_class
 from service.pipeline.focal import KnownFocal
 from service.pipeline.model import PoseModel
 from service.pipeline.predictor import Predictor
 from service.settings import Settings
+from train.compare.answers import Photo, answer_all
 from train.markdown import pct_cell, table, written_by
 from train.synth.background import BackgroundPool, procedural_backgrounds, shipped_backgrounds
 
@@ -64,17 +62,6 @@ REAL = {
 LEARN_FROM = 10  # frames a learned camera is learned from
 RENDER_SEED = 970_000  # far from every recipe's seeds (recipes/*.toml)
 RENDER_SIZES = ((160, 120), (640, 480))
-
-
-@dataclass(frozen=True)
-class Photo:
-    """One image: its bytes, class, labelled corners [4, 2] px (None: class 0) and its
-    calibration (None: renders, class 0)."""
-
-    data: bytes
-    label: int
-    corners: np.ndarray | None
-    camera: KnownFocal | None
 
 
 def folder_photos(folder: Path) -> list[Photo]:
@@ -140,34 +127,16 @@ def renders(obj: str, size: tuple[int, int], blur: int, count: int, seed: int) -
 
 def score(predictor: Predictor, photos: list[Photo], known: list[KnownFocal | None]) -> list[str]:
     """The table cells of one set under one condition (the module doc's columns)."""
-    right, side, depth, found, refined, errors, ms = 0, 0, 0, 0, 0, [], []
-    for photo, camera in zip(photos, known, strict=True):
-        t0 = time.perf_counter()
-        result = predictor.predict([(None, photo.data)], "whole", camera).results[0]
-        ms.append(1000 * (time.perf_counter() - t0))
-        right += result.class_id == photo.label
-        if result.class_id and photo.label:
-            found += 1
-            depth += bool(is_far(result.class_id) == is_far(photo.label))
-            side += bool(quadrant_of_class(result.class_id) == quadrant_of_class(photo.label))
-            refined += result.corners_source == "refined"
-        if result.corners is not None and photo.corners is not None:
-            errors.append(
-                float(np.linalg.norm(np.array(result.corners) - photo.corners, axis=1).mean())
-            )
-    present = sum(p.label > 0 for p in photos)
-
-    def share(n: int, d: int) -> str:
-        return pct_cell(n / d if d else None)
-
+    a = answer_all(predictor, photos, known).as_dict()
+    px = a["corner_px"]
     return [
-        pct_cell(right / len(photos)),
-        f"{np.median(errors):.2f}" if errors else "-",
-        share(depth, found),
-        share(side, found),
-        share(found, present),
-        share(refined, found),
-        f"{np.median(ms):.0f}",
+        pct_cell(a["accuracy"]),
+        "-" if px is None else f"{px:.2f}",
+        pct_cell(a["near_far"]),
+        pct_cell(a["side"]),
+        pct_cell(a["found"]),
+        pct_cell(a["refined"]),
+        f"{a['ms']:.0f}",
     ]
 
 

@@ -8,9 +8,11 @@ book and the ChArUco board, neither of which is in the texture bank):
                 on renders of it (`train.network.pipeline.zero_shot_checkpoint`)
     test sets   independent renders: other seeds (cameras, backgrounds) than the threshold's,
                 one set per SPEC blur level, 160 x 120, classes 0-8 balanced
-    answers     the exported graph as the service answers (`export.graph_predictor`, with its
-                zoom pass), the object's shipped model where it has one (`models/`), and the
-                feature-matching peer (SIFT, RANSAC, PnP: `train.compare.baseline`, no tuning)
+    answers     the zero-shot model file (exported as `object new` writes it) and the object's
+                shipped model where it has one (`models/`), each through the service's path
+                (`service.pipeline.Predictor`, nothing known of the camera), with the anatomy
+                of their answers (`train.compare.answers`); and the feature-matching peer
+                (SIFT, RANSAC, PnP: `train.compare.baseline`, no tuning)
 """
 
 from __future__ import annotations
@@ -24,12 +26,13 @@ from service.core.blur import BLUR_LEVELS
 from service.core.dataset import MANIFEST_FILE, load_dataset
 from service.core.paths import REPO_ROOT
 from service.core.profile import PROFILES_DIR, Profile, load_profile, write_profile
+from service.pipeline.model import PoseModel
+from service.pipeline.predictor import Predictor
+from service.settings import Settings
+from train.compare.answers import answer_all, dataset_photos
 from train.compare.baseline import BaselineConfig
 from train.compare.peers import run_baseline_on
-from train.network.evaluate import compute_metrics, predict_all
-from train.network.export import graph_predictor, image_count, onnx_bytes
-from train.network.fit import load_network
-from train.network.model import export_form
+from train.network.export import export
 from train.network.pipeline import model_name, zero_shot_checkpoint
 from train.synth.generate import DatasetSpec, make_datasets
 from train.synth.textures import held_out_textures
@@ -69,15 +72,15 @@ def test_sets(profile: Profile, run: Path, count: int) -> list[Path]:
     return sets
 
 
-def _graph_accuracy(raw: bytes, name: str, sets: list[Path]) -> list[dict[str, float]]:
-    """Accuracy and class-0 accuracy of an ONNX graph (as the service answers) per set."""
-    predict = graph_predictor(raw, {"name": name, "input": [160, 120]}, image_count(sets, "all"))
+def _service_answers(model: Path, sets: list[Path]) -> list[dict[str, float | None]]:
+    """The anatomy of a model file's answers through the service's path, per set
+    (`train.compare.answers`; the refinement's budget at its largest, so that the answers do
+    not depend on the machine's load)."""
+    predictor = Predictor(PoseModel.load(model), Settings(refine_budget_ms=10_000))
     rows = []
     for path in sets:
-        data = load_dataset(path)
-        probs, ms = predict_all(predict, data.images, data.pixel_aspect())
-        m = compute_metrics(data.labels, probs.argmax(1), ms)
-        rows.append({"accuracy": m["accuracy"], "class0": m["per_class_accuracy"][0]})
+        photos = dataset_photos(path)
+        rows.append(answer_all(predictor, photos, [None] * len(photos)).as_dict())
     return rows
 
 
@@ -101,12 +104,12 @@ def evaluate_object(
     class-0 accuracy, the shipped model's and the peer's where measured; the threshold's."""
     checkpoint, _, info = zero_shot_checkpoint(profile, run, generic)
     sets = test_sets(profile, run, count)
-    net, _ = load_network(checkpoint)
+    model, _ = export(checkpoint, model_name(profile), run / "model")
     row: dict[str, Any] = {"object": profile.name, "threshold": info, "count": count}
-    row["zero_shot"] = _graph_accuracy(onnx_bytes(export_form(net)), profile.name, sets)
+    row["zero_shot"] = _service_answers(model, sets)
     shipped = REPO_ROOT / "models" / f"{model_name(profile)}.onnx"
     if shipped.is_file() and profile.path.parent.parent == PROFILES_DIR:  # a shipped object
-        row["shipped"] = _graph_accuracy(shipped.read_bytes(), shipped.stem, sets)
+        row["shipped"] = _service_answers(shipped, sets)
     if peer:
         row["peer"] = [_peer_accuracy(path, profile) for path in sets]
     return row
