@@ -18,8 +18,7 @@ import numpy as np
 
 from service.core.dataset import load_dataset
 from service.core.regions import is_far, quadrant_of_class
-from service.pipeline.focal import KnownFocal
-from service.pipeline.predictor import Predictor
+from service.pipeline import KnownFocal, Predictor
 
 
 @dataclass(frozen=True)

@@ -26,9 +26,7 @@ from service.core.blur import BLUR_LEVELS
 from service.core.dataset import MANIFEST_FILE, load_dataset
 from service.core.paths import REPO_ROOT
 from service.core.profile import PROFILES_DIR, Profile, load_profile, write_profile
-from service.pipeline.model import PoseModel
-from service.pipeline.predictor import Predictor
-from service.settings import Settings
+from service.pipeline import PoseModel, Predictor, Settings
 from train.compare.answers import answer_all, dataset_photos
 from train.compare.baseline import BaselineConfig
 from train.compare.peers import run_baseline_on
