@@ -223,7 +223,7 @@ def _stage(config: FitConfig, say: Callable[[str], None]) -> Path:
 #: Seeds and sizes of `zero_shot_model`'s renders: the threshold set (classes 0-8, blur 0-3
 #: mixed by set), and one evaluation set per blur level (other cameras and backgrounds).
 THRESHOLD_SEED, ZERO_SHOT_EVAL_SEED = 7001, 7100
-THRESHOLD_COUNT, ZERO_SHOT_EVAL_COUNT = 216, 90
+THRESHOLD_COUNT, ZERO_SHOT_EVAL_COUNT = 432, 90
 
 
 def zero_shot_checkpoint(

@@ -17,7 +17,9 @@ from train.network.corners import CornerNet
 from train.network.fit import load_network
 from train.network.model import arch_of
 from train.network.zeroshot import (
+    ABSENT_RIGHT,
     GENERIC_WEIGHTS,
+    THRESHOLDS,
     load_generic,
     object_checkpoint,
     object_network,
@@ -63,6 +65,17 @@ def test_presence_threshold_separates_scores() -> None:
     # a presence logit that says "present" everywhere is biased away
     t, bias, rates = presence_threshold(score, np.full(6, 0.99), present)
     assert rates["absent_right"] == 1.0 and bias < -4.0
+
+
+def test_presence_threshold_keeps_absent_right_then_most_present() -> None:
+    # overlapping scores (off the grid's values): the balanced best gives up absent renders
+    absent, present_scores = np.linspace(0.103, 0.503, 40), np.linspace(0.303, 0.903, 40)
+    score = np.concatenate([absent, present_scores])
+    present = np.arange(80) >= 40
+    t, bias, rates = presence_threshold(score, np.full(80, 0.01), present)
+    assert rates["absent_right"] >= ABSENT_RIGHT and rates["absent_right"] == np.mean(absent < t)
+    most = max(np.mean(present_scores > u) for u in THRESHOLDS if np.mean(absent < u) >= 0.97)
+    assert rates["present_right"] == most < 1.0
 
 
 @pytest.fixture(scope="module")
