@@ -59,6 +59,14 @@ def new(
     eval_count: Annotated[
         int, typer.Option(min=9, help="Renders per blur level the zero-shot model is measured on.")
     ] = 90,
+    threshold_count: Annotated[
+        int | None,
+        typer.Option(
+            min=36,
+            help="Renders (classes 0-8, blur 0-3) its presence threshold is measured on "
+            "(default: the zero-shot recipe's; fewer: faster, a less certain threshold).",
+        ),
+    ] = None,
 ) -> None:
     """Write a validated profile (profile.toml + texture.png), a sheet of sample renders and
     (with the generic network) a zero-shot model in the model folder."""
@@ -88,21 +96,30 @@ def new(
     out.print(f"[green]wrote[/] {folder / 'profile.toml'} and {sheet} (look at the renders)")
     if zero_shot and generic.is_file():
         folder = run or Path("runs") / profile.name
-        _zero_shot(profile, generic, models, folder, eval_count, start)
+        _zero_shot(profile, generic, models, folder, (eval_count, threshold_count), start)
     elif zero_shot:
         out.print(f"[yellow]no generic network at {generic}[/]: no zero-shot model")
     out.print(f"next: planar-pose object train {name}")
 
 
 def _zero_shot(
-    profile: Profile, generic: Path, models: Path, run: Path, eval_count: int, start: float
+    profile: Profile,
+    generic: Path,
+    models: Path,
+    run: Path,
+    counts: tuple[int, int | None],
+    start: float,
 ) -> None:
     """Serve the object at once: the generic network with its picture (`zero_shot_model`),
-    its renders in `run`, measured on `eval_count` renders per blur level."""
-    from train.network.pipeline import zero_shot_model
+    its renders in `run`; `counts`: the renders per blur level it is measured on, and those
+    its presence threshold is (None: the recipe's)."""
+    from train.network.pipeline import THRESHOLD_COUNT, zero_shot_model
 
+    eval_count, threshold_count = counts
     path, card = guard(
-        lambda: zero_shot_model(profile, run, models, generic, out.print, eval_count)
+        lambda: zero_shot_model(
+            profile, run, models, generic, out.print, eval_count, threshold_count or THRESHOLD_COUNT
+        )
     )
     info = card["zero_shot"]
     if info["backgrounds_excluded"]:

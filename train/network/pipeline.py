@@ -227,10 +227,11 @@ THRESHOLD_COUNT, ZERO_SHOT_EVAL_COUNT = 432, 90
 
 
 def zero_shot_checkpoint(
-    profile: Profile, run: Path, generic: Path
+    profile: Profile, run: Path, generic: Path, count: int = THRESHOLD_COUNT
 ) -> tuple[Path, dict[str, Any], dict[str, Any]]:
     """The object's network from the generic one (`train.network.zeroshot`) with its presence
-    threshold measured on renders of it, written to run/zero-shot.pt -> (that checkpoint,
+    threshold measured on `count` renders of it (a quarter per blur level), written to
+    run/zero-shot.pt -> (that checkpoint,
     the generic network's card, what the threshold measured and the backgrounds left out)."""
     from train.network.zeroshot import (
         alignment_scores,
@@ -246,7 +247,7 @@ def zero_shot_checkpoint(
     net = object_network(profile, net)
     images, classes = [], []
     for b in BLUR_LEVELS:  # a quarter of the threshold renders at each blur level
-        spec = DatasetSpec("free", 2, b, THRESHOLD_COUNT // 4, THRESHOLD_SEED + b, profile)
+        spec = DatasetSpec("free", 2, b, count // 4, THRESHOLD_SEED + b, profile)
         im, k = render_in_memory(spec)
         images.append(im)
         classes.append(k)
@@ -274,11 +275,13 @@ def zero_shot_model(
     generic: Path,
     say: Callable[[str], None] = print,
     eval_count: int = ZERO_SHOT_EVAL_COUNT,
+    threshold_count: int = THRESHOLD_COUNT,
 ) -> tuple[Path, dict[str, Any]]:
     """The object's model from the generic network, no training (`zero_shot_checkpoint`),
     exported to `models` with a card that says it is zero-shot and what it measured on other
-    renders (`eval_count` per blur level) -> (ONNX path, card)."""
-    checkpoint, generic_card, info = zero_shot_checkpoint(profile, run, generic)
+    renders (`eval_count` per blur level; its threshold on `threshold_count`) -> (ONNX path,
+    card)."""
+    checkpoint, generic_card, info = zero_shot_checkpoint(profile, run, generic, threshold_count)
     evals = [run / "data" / f"zero-shot-b{b}" for b in BLUR_LEVELS]
     jobs = [
         (DatasetSpec("free", 2, b, eval_count, ZERO_SHOT_EVAL_SEED + b, profile), path)
