@@ -2,11 +2,13 @@
 
 Per object (the held-back test textures and the shipped book and ChArUco board): accuracy and
 class-0 accuracy of the zero-shot graph on independent renders at each blur level (160 x 120),
-against the object's shipped model (book, ChArUco) and the feature-matching peer
+against the object's shipped model (book, ChArUco), a model fine-tuned from the generic network
+(`--fine-tuned OBJECT=MODEL.onnx`, `planar-pose object train`) and the feature-matching peer
 (`train/compare/anyobject.py` says how). Writes docs/any_object.md (default) with the date and
 the machine.
 
-    python scripts/any_eval.py models/generic/corners-any-160x120.npz --run runs/any-eval
+    python scripts/any_eval.py models/generic/corners-any-160x120.npz --run runs/any-eval \
+        [--fine-tuned book=runs/book-ft/models/book-corners-160x120.onnx]
 """
 
 from __future__ import annotations
@@ -44,15 +46,16 @@ def page(rows: list[dict[str, Any]], generic: Path, card: dict[str, Any], comman
         "presence threshold measured on its own renders, then independent renders (other "
         f"cameras and backgrounds, {rows[0]['count']} per blur level, classes 0-8 balanced) "
         "answered through the service's own path (`/v1/predict`'s code), nothing known of the "
-        "camera. `shipped`: the object's own "
-        "trained model; `peer`: feature matching (SIFT, RANSAC, PnP), no training.",
+        "camera. `shipped`: the object's own trained model; `fine-tuned`: a model fine-tuned "
+        "from the generic network (`object train`); `peer`: feature matching (SIFT, RANSAC, "
+        "PnP), no training.",
         "",
         "## Class accuracy (class 0 accuracy) per blur level",
         "",
     ]
     body = []
     for r in rows:
-        for key in ("zero_shot", "shipped", "peer"):
+        for key in ("zero_shot", "fine_tuned", "shipped", "peer"):
             if key in r:
                 cells = [
                     f"{pct(v['accuracy'])} ({pct(v['class0'], 0)}){' *' if 'note' in v else ''}"
@@ -88,7 +91,7 @@ def page(rows: list[dict[str, Any]], generic: Path, card: dict[str, Any], comman
              pct(v["side"]), pct(v["found"]),
              "-" if v["corner_px"] is None else f"{v['corner_px']:.2f}"]
             for r in rows
-            for key in ("zero_shot", "shipped")
+            for key in ("zero_shot", "fine_tuned", "shipped")
             if key in r
             for b, v in ((b, r[key][b]) for b in (0, len(r[key]) - 1))
         ],
@@ -110,19 +113,27 @@ def page(rows: list[dict[str, Any]], generic: Path, card: dict[str, Any], comman
     return "\n".join(lines) + "\n"
 
 
-def _evaluate(job: tuple[Path, Path, Path, int, bool]) -> dict[str, Any]:
-    """`evaluate_object` in a worker process (one torch thread), its row printed."""
+def _digest(path: Path | None) -> str | None:
+    return None if path is None else hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def _evaluate(job: tuple[Path, Path, Path, int, bool, Path | None]) -> dict[str, Any]:
+    """`evaluate_object` in a worker process (one torch thread), its row printed; a row
+    measured already with the same weights and options is kept (run/row.json)."""
     torch.set_num_threads(1)
-    profile, generic, run, count, peer = job
-    done = run / "row.json"  # measured already with these weights and options: kept
-    weights = hashlib.sha256(generic.read_bytes()).hexdigest()
+    profile, generic, run, count, peer, fine_tuned = job
+    done = run / "row.json"
+    key = {
+        "count": count,
+        "generic_sha256": _digest(generic),
+        "fine_tuned_sha256": _digest(fine_tuned),
+    }
     if done.is_file():
         row: dict[str, Any] = json.loads(done.read_text())
         served = "side" in row["zero_shot"][0]  # measured through the service's path
-        if row["count"] == count and row.get("generic_sha256") == weights and served:
+        if served and all(row.get(k) == v for k, v in key.items()):
             return row
-    row = evaluate_object(load_profile(profile), generic, run, count, peer)
-    row["generic_sha256"] = weights
+    row = evaluate_object(load_profile(profile), generic, run, count, peer, fine_tuned) | key
     done.write_text(json.dumps(row) + "\n")
     print(json.dumps(row), flush=True)
     return row
@@ -137,14 +148,25 @@ def main() -> None:
     parser.add_argument("--objects", nargs="*", default=["book", "charuco"])
     parser.add_argument("--no-peer", action="store_true")
     parser.add_argument("--no-held-out", action="store_true", help="only the --objects")
+    parser.add_argument(
+        "--fine-tuned", action="append", default=[], metavar="OBJECT=MODEL.onnx",
+        help="a model of OBJECT fine-tuned from the generic network (planar-pose object train)",
+    )  # fmt: skip
     parser.add_argument("--workers", type=int, default=1, help="objects measured at once")
     parser.add_argument("--out", type=Path, default=REPO_ROOT / "docs" / "any_object.md")
     args = parser.parse_args()
     _, card = load_generic(args.generic)
+    tuned = {}
+    for item in args.fine_tuned:
+        name, _, model = item.partition("=")
+        if not name or not Path(model).is_file():
+            parser.error(f"--fine-tuned {item!r}: OBJECT=MODEL.onnx, an existing file")
+        tuned[name] = Path(model)
     held_out = [] if args.no_held_out else test_profiles(args.run / "profiles")
     profiles = held_out + [load_profile(n) for n in args.objects]
     jobs = [
-        (p.path, args.generic, args.run / p.name, args.count, not args.no_peer) for p in profiles
+        (p.path, args.generic, args.run / p.name, args.count, not args.no_peer, tuned.get(p.name))
+        for p in profiles
     ]
     with ProcessPoolExecutor(args.workers, mp_context=get_context("spawn")) as pool:
         rows = list(pool.map(_evaluate, jobs))

@@ -96,10 +96,16 @@ def _peer_accuracy(path: Path, profile: Profile) -> dict[str, Any]:
 
 
 def evaluate_object(
-    profile: Profile, generic: Path, run: Path, count: int, peer: bool = True
+    profile: Profile,
+    generic: Path,
+    run: Path,
+    count: int,
+    peer: bool = True,
+    fine_tuned: Path | None = None,
 ) -> dict[str, Any]:
-    """The object's figures (module doc): per blur level the zero-shot graph's accuracy and
-    class-0 accuracy, the shipped model's and the peer's where measured; the threshold's."""
+    """The object's figures (module doc): per blur level the zero-shot model's answers, the
+    shipped model's, a `fine_tuned` model file's (`object train` from the generic network)
+    and the peer's where measured; the threshold's."""
     checkpoint, _, info = zero_shot_checkpoint(profile, run, generic)
     sets = test_sets(profile, run, count)
     model, _ = export(checkpoint, model_name(profile), run / "model")
@@ -108,6 +114,8 @@ def evaluate_object(
     shipped = REPO_ROOT / "models" / f"{model_name(profile)}.onnx"
     if shipped.is_file() and profile.path.parent.parent == PROFILES_DIR:  # a shipped object
         row["shipped"] = _service_answers(shipped, sets)
+    if fine_tuned is not None:
+        row["fine_tuned"] = _service_answers(fine_tuned, sets)
     if peer:
         row["peer"] = [_peer_accuracy(path, profile) for path in sets]
     return row
