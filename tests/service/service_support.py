@@ -108,3 +108,16 @@ def check_answer(
         else:
             assert box["x"] >= 0 and box["y"] >= 0 and box["w"] >= 1 and box["h"] >= 1
             assert box["x"] + box["w"] <= w and box["y"] + box["h"] <= h
+
+
+def board_photo() -> tuple[bytes, np.ndarray]:
+    """A 640x480 PNG of the profile's board warped onto known corners over grey, and the
+    corners [4, 2] in the order (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y) (the texture's bottom left
+    square is the (-X,-Y) one)."""
+    texture = cv2.imread(str(ROOT / "train/assets/profiles/chessboard/texture.png"))
+    th, tw = texture.shape[:2]
+    corners = np.float32([[190, 335], [470, 350], [455, 130], [205, 115]])
+    src = np.float32([[0, th], [tw, th], [tw, 0], [0, 0]])
+    H = cv2.getPerspectiveTransform(src, corners)
+    image = cv2.warpPerspective(texture, H, (640, 480), borderValue=(128, 128, 128))
+    return encode(".png", image), corners

@@ -14,7 +14,16 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 from image_bytes import png_claiming, with_exif_focal, with_exif_orientation
-from service_support import CARD, JPEG, PHOTO, REAL, ROOT, AppFactory, check_answer, encode
+from service_support import (
+    CARD,
+    JPEG,
+    PHOTO,
+    REAL,
+    AppFactory,
+    board_photo,
+    check_answer,
+    encode,
+)
 
 from service.api.deps import get_predictor
 from service.core.paths import DEFAULT_MODEL
@@ -47,21 +56,8 @@ IMAGES: dict[str, tuple[bytes, str, tuple[int, int]]] = {
 # --- happy paths -----------------------------------------------------------------------------
 
 
-def _board_photo() -> tuple[bytes, np.ndarray]:
-    """A 640x480 PNG of the profile's board warped onto known corners over grey, and the
-    corners [4, 2] in the order (-X,-Y), (+X,-Y), (+X,+Y), (-X,+Y) (the texture's bottom left
-    square is the (-X,-Y) one)."""
-    texture = cv2.imread(str(ROOT / "train/assets/profiles/chessboard/texture.png"))
-    th, tw = texture.shape[:2]
-    corners = np.float32([[190, 335], [470, 350], [455, 130], [205, 115]])
-    src = np.float32([[0, th], [tw, th], [tw, 0], [0, 0]])
-    H = cv2.getPerspectiveTransform(src, corners)
-    image = cv2.warpPerspective(texture, H, (640, 480), borderValue=(128, 128, 128))
-    return encode(".png", image), corners
-
-
 def test_whole_mode_gives_the_corners_in_image_pixels(client: TestClient) -> None:
-    data, corners = _board_photo()
+    data, corners = board_photo()
     png = {"content-type": "image/png"}
     result = client.post("/v1/predict", content=data, headers=png).json()["results"][0]
     assert result["class_id"] != 0
@@ -76,7 +72,7 @@ def test_a_known_focal_length_sets_the_distance(client: TestClient) -> None:
     """`fx` (px of the upload) replaces the estimated focal length: the board 280 px wide
     in a 640 px image is 25 cm wide, so about 18 cm away through a lens of fx = 200 px (a
     near class, 1-4) and 1.4 m through one of 1600 px (far, 5-8); the corners stay."""
-    data, _ = _board_photo()
+    data, _ = board_photo()
     png = {"content-type": "image/png"}
     plain = client.post("/v1/predict", content=data, headers=png).json()["results"][0]
     near, far = (
@@ -95,7 +91,7 @@ def test_the_photos_exif_focal_length_is_used_where_the_request_gives_none(
     """The board photo with an EXIF 35 mm equivalent of 87 mm (fx = 1608 px at 640x480) is
     answered as with fx=1600 (far), and says so; a request's fx wins over the EXIF; sliding
     mode and POSE_EXIF_FOCAL=false leave the focal length estimated."""
-    data, _ = _board_photo()
+    data, _ = board_photo()
     tagged = with_exif_focal(data, 87, (4000, 3000))
     png = {"content-type": "image/png"}
     plain, exif, query, sliding = (
@@ -153,7 +149,7 @@ def test_a_portrait_photo_is_turned_to_landscape_and_its_corners_back(client: Te
     """The board photo turned a quarter counter-clockwise (a camera roll: same camera centre,
     same class) is answered as the landscape one, with the corners in its own pixels (the
     refinement aligns the turned photo's pixels: the same corners within a tenth of a px)."""
-    data, corners = _board_photo()
+    data, corners = board_photo()
     landscape = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
     portrait = encode(".png", cv2.rotate(landscape, cv2.ROTATE_90_COUNTERCLOCKWISE))
     png = {"content-type": "image/png"}

@@ -1,0 +1,65 @@
+"""Where the network calls the object absent but may be wrong, the texture aligned at the
+photo's resolution has a second say (service/pipeline/predictor.py `RESCUE_FROM_P`,
+`PRESENT_SCORE`)."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from service_support import board_photo, encode
+
+from service.core.paths import DEFAULT_MODEL
+from service.pipeline import PoseModel, Predictor, Settings
+from service.pipeline.model_cache import optimized_path
+from service.pipeline.predictor import PRESENT_SCORE, RESCUE_FROM_P
+
+
+@pytest.fixture(scope="module")
+def predictor() -> Predictor:
+    optimized = optimized_path(Path(os.environ["POSE_OPTIMIZED_DIR"]), DEFAULT_MODEL)  # conftest
+    return Predictor(PoseModel.load(DEFAULT_MODEL, optimized=optimized), Settings())
+
+
+def missed(predictor: Predictor, monkeypatch: pytest.MonkeyPatch, present: float) -> None:
+    """The network answers every image absent, with P(present) `present`."""
+    run = predictor._run
+
+    def absent(*args: object, **kwargs: object) -> object:
+        answer = run(*args, **kwargs)
+        probs = np.tile([1.0 - present] + [present / 8] * 8, (len(answer.probabilities), 1))
+        return replace(answer, probabilities=probs)
+
+    monkeypatch.setattr(predictor, "_run", absent)
+
+
+def test_an_object_the_network_missed_is_found_where_its_texture_aligns(
+    predictor: Predictor, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    data, corners = board_photo()
+    want = predictor.predict([(None, data)], "whole").results[0]
+    missed(predictor, monkeypatch, 2 * RESCUE_FROM_P)
+    got = predictor.predict([(None, data)], "whole").results[0]
+    assert got.class_id == want.class_id != 0 and got.corners_source == "refined"
+    assert got.refinement is not None and got.refinement.score >= PRESENT_SCORE
+    assert 1.0 - got.probabilities[0] == pytest.approx(got.refinement.score, abs=1e-3)
+    assert np.abs(np.array(got.corners) - corners).max() < 2.0
+    assert got.pose is not None
+
+
+@pytest.mark.parametrize("present", [0.5 * RESCUE_FROM_P, 0.45])
+def test_no_second_opinion_below_its_p_nor_where_no_texture_aligns(
+    predictor: Predictor, monkeypatch: pytest.MonkeyPatch, present: float
+) -> None:
+    data, _ = board_photo()
+    grey = encode(".png", np.random.default_rng(0).integers(0, 255, (480, 640, 3), np.uint8))
+    missed(predictor, monkeypatch, present)
+    board, noise = (
+        r.results[0] for r in (predictor.predict([(None, d)], "whole") for d in (data, grey))
+    )
+    assert noise.class_id == 0 and noise.corners is None  # nothing aligns in noise
+    if present < RESCUE_FROM_P:  # not asked: the network's "absent" stands
+        assert board.class_id == 0 and board.corners is None
