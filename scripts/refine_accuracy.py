@@ -20,8 +20,8 @@ photos whose object was found; found; refined (`corners_source`); the median ms 
 (the refinement's time budget at its largest, 10 s, so that the answers do not depend on
 the machine's load; the times do: `benchmarks/bench_refine.py` measures them).
 
-    python scripts/refine_accuracy.py [--count 100] [--extra charuco-1280=/tmp/full/cam2] \
-        [--out docs/refinement.md]
+    python scripts/refine_accuracy.py [--count 100] [--extra charuco:cam2-1280=/tmp/full/cam2] \
+        [--model charuco=ZERO_SHOT.onnx] [--out docs/refinement.md]
 """
 
 from __future__ import annotations
@@ -48,6 +48,7 @@ from service.pipeline.predictor import Predictor
 from service.settings import Settings
 from train.compare.answers import Photo, answer_all
 from train.markdown import pct_cell, table, written_by
+from train.network.export import repo_path
 from train.synth.background import BackgroundPool, procedural_backgrounds, shipped_backgrounds
 
 MODELS = {
@@ -178,9 +179,10 @@ def set_rows(
     return rows
 
 
-def object_rows(obj: str, count: int, extra: list[tuple[str, Path]]) -> list[list[str]]:
-    """Every set of one object: its real sources (and `extra` folders), then its renders."""
-    model = PoseModel.load(REPO_ROOT / "models" / f"{MODELS[obj]}.onnx")
+def object_rows(obj: str, count: int, extra: list[tuple[str, Path]], path: Path) -> list[list[str]]:
+    """Every set of one object answered by the model file `path`: its real sources (and
+    `extra` folders), then its renders."""
+    model = PoseModel.load(path)
     # the budget at its largest: the answers do not depend on the machine's load
     settings = {c: Settings(refine=c == "refined", refine_budget_ms=10_000) for c in CONDITIONS}
     predictors = {c: Predictor(model, settings[c]) for c in CONDITIONS}
@@ -205,6 +207,10 @@ def main(argv: list[str] | None = None) -> int:
         "--extra", action="append", default=[], metavar="OBJECT:NAME=DIR",
         help="a labelled folder of real photos of OBJECT, e.g. charuco:cam2-1280=/tmp/cam2",
     )  # fmt: skip
+    parser.add_argument(
+        "--model", action="append", default=[], metavar="OBJECT=MODEL.onnx",
+        help="answer OBJECT with this model file instead of its shipped one (e.g. zero-shot)",
+    )  # fmt: skip
     parser.add_argument("--out", type=Path, default=REPO_ROOT / "docs/refinement.md")
     args = parser.parse_args(argv)
     extra: dict[str, list[tuple[str, Path]]] = {}
@@ -214,12 +220,19 @@ def main(argv: list[str] | None = None) -> int:
         if obj not in MODELS or not name or not (Path(folder) / "labels.csv").is_file():
             parser.error(f"--extra {item!r}: OBJECT:NAME=DIR with DIR/labels.csv")
         extra.setdefault(obj, []).append((name, Path(folder)))
+    models: dict[str, Path] = {}
+    for item in args.model:
+        obj, _, path = item.partition("=")
+        if obj not in MODELS or not Path(path).is_file():
+            parser.error(f"--model {item!r}: OBJECT=MODEL.onnx with an existing file")
+        models[obj] = Path(path)
     command = "python scripts/refine_accuracy.py " + " ".join(argv or sys.argv[1:])
     lines = ["# What the refinement at the photo's resolution adds", "", written_by(command), ""]
     lines += [line for line in (__doc__ or "").split("\n\n")[0:2]] + [""]
     for obj in args.objects:
-        rows = object_rows(obj, args.count, extra.get(obj, []))
-        lines += [f"## {obj} (`{MODELS[obj]}`)", "", *table(HEADER, rows), ""]
+        path = models.get(obj, REPO_ROOT / "models" / f"{MODELS[obj]}.onnx")
+        rows = object_rows(obj, args.count, extra.get(obj, []), path)
+        lines += [f"## {obj} (`{repo_path(path)}`)", "", *table(HEADER, rows), ""]
     args.out.write_text("\n".join(lines) + "\n", encoding="utf-8")
     print(f"wrote {args.out}")
     return 0
