@@ -178,14 +178,28 @@ def lineage(parent: dict[str, Any] | None) -> dict[str, Any] | None:
     return keep | {"parent": lineage(parent.get("parent"))}
 
 
+def rebuild_command(config: dict[str, Any], parent: dict[str, Any] | None) -> str:
+    """The command line that runs a generic training run again, from its config
+    (`GenericConfig.to_json`) and what it started from (`lineage`: the checkpoint or graph
+    of the run it continued; None: from scratch)."""
+    start = parent and (parent.get("checkpoint") or parent.get("onnx"))
+    return (
+        f"python scripts/train_any.py {config['out']} --steps {config['steps']} "
+        f"--batch-size {config['batch_size']} --lr {config['lr']} "
+        f"--threads {config['threads']} --init {start or 'none'}"
+    )
+
+
 def _payload(net: AnyCornerNet, config: GenericConfig, state: dict[str, Any]) -> dict[str, Any]:
     """A checkpoint in `train.network.fit`'s format (`load_network` reads it)."""
+    settings = config.to_json()
+    rebuild = [rebuild_command(settings, lineage(state.get("parent")))]
     return {
         "format": CHECKPOINT_FORMAT,
         "size": list(net.size),
         "batch_norm": True,
         "arch": "corners-any",
-        "config": config.to_json() | {"extra": {"rebuild": ["scripts/train_any.sh"]}},
+        "config": settings | {"extra": {"rebuild": rebuild}},
         "data": [{"path": "texture bank (on the fly)", "note": DATA_NOTE, "split": "train",
                   "count": state["step"] * config.batch_size}],
         "profile": {},

@@ -26,7 +26,7 @@ import torch
 
 from service.core.paths import REPO_ROOT
 from service.core.profile import Profile
-from train.network.anyfit import lineage
+from train.network.anyfit import lineage, rebuild_command
 from train.network.anynet import AnyCornerNet, grown_from
 from train.network.corners import PATTERN_SLOPE
 from train.network.fit import CHECKPOINT_FORMAT, _save, load_network, to_input
@@ -51,14 +51,16 @@ def save_generic(checkpoint: Path, out: Path = GENERIC_WEIGHTS) -> dict[str, Any
     net, saved = load_network(checkpoint)
     out.parent.mkdir(parents=True, exist_ok=True)
     np.savez_compressed(out, **{k: v.cpu().numpy() for k, v in net.state_dict().items()})
+    parent = lineage(saved.get("parent"))
+    rebuild = [rebuild_command(saved["config"], parent)]
     card = {
         "architecture": "corners-any (train/network/anynet.py)",
         "input": saved["size"],
         "steps": saved["epoch"],
         "best": saved["best"],
-        "config": saved["config"],
+        "config": saved["config"] | {"extra": {"rebuild": rebuild}},
         "data": saved["data"],
-        "initialised_from": lineage(saved.get("parent")),
+        "initialised_from": parent,
         "history": saved["history"][-5:],
     }
     out.with_suffix(".json").write_text(json.dumps(card, indent=1, default=str) + "\n")

@@ -97,6 +97,11 @@ def test_generic_run_checkpoints_load_and_become_one_objects(run: Path, tmp_path
     save_generic(run / "best.pt", tmp_path / "g.npz")
     generic, card = load_generic(tmp_path / "g.npz")
     assert card["steps"] == saved["epoch"]
+    rebuild = card["config"]["extra"]["rebuild"]  # a command that exists, with its start
+    assert rebuild[0].startswith(f"python scripts/train_any.py {run} --steps 3 ")
+    assert (Path(__file__).parents[3] / "scripts/train_any.py").is_file()
+    start = card["initialised_from"]  # lineage: None where the run started from scratch
+    assert rebuild[0].endswith("--init " + ("none" if start is None else start["onnx"]))
     book = load_profile("book")
     mine = object_network(book, generic)
     assert not torch.equal(mine.texture_input, generic.texture_input)  # the book's picture
