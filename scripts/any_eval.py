@@ -42,7 +42,8 @@ def page(rows: list[dict[str, Any]], generic: Path, card: dict[str, Any], comman
         written_by(command),
         "",
         f"Generic network: `{repo_path(generic)}`"
-        f" ({card.get('steps')} training steps; its card beside it). Each object: its "
+        f" (best of its last run at step {card.get('steps')}; its card beside it names the "
+        "runs before). Each object: its "
         "presence threshold measured on its own renders, then independent renders (other "
         f"cameras and backgrounds, {rows[0]['count']} per blur level, classes 0-8 balanced) "
         "answered through the service's own path (`/v1/predict`'s code), nothing known of the "
