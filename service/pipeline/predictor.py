@@ -417,8 +417,7 @@ class Predictor:
         for graphs without corners), refined where the model carries its texture, the
         settings ask for it and the photo has more pixels than the network read
         (`MIN_PHOTO_SCALE`; the refinement's time is added to the image's `prep`); and where
-        the network missed it but the texture aligns there (`RESCUE_FROM_P`, `PRESENT_SCORE`;
-        no search for the texture's features then)."""
+        the network missed it but the texture aligns there (`RESCUE_FROM_P`, `PRESENT_SCORE`)."""
         corners = image_corners(answer, frames)
         if corners is None:
             return [None] * len(images)
@@ -427,9 +426,9 @@ class Predictor:
         for i, p in enumerate(answer.probabilities):
             seen, size = corners[0][i], frames[i].image_size
             large = max(size) >= MIN_PHOTO_SCALE * max(self.model.input_size)
-            refine = texture is not None and large
+            aligns = texture if large else None  # the texture, where the photo has more pixels
             missed = p.argmax() == 0  # a second opinion where it may be there (`RESCUE_FROM_P`)
-            if missed and not (refine and 1.0 - p[0] >= RESCUE_FROM_P):
+            if missed and (aligns is None or 1.0 - p[0] < RESCUE_FROM_P):
                 views.append(None)
                 continue
             lens: Lens | None = _camera_lens(known[i], size)
@@ -438,9 +437,9 @@ class Predictor:
                 lens, kind = RadialLens.fitted(seen, corners[1][i], image_centre(size)), "network"
             pinhole = seen if lens is None else lens.undistort(seen)
             view = ObjectView(seen, pinhole, kind)
-            if texture is not None and refine:
+            if aligns is not None:
                 t0 = time.perf_counter()
-                view = self._refined(images[i], view, texture, lens, features=True)
+                view = self._refined(images[i], view, aligns, lens)
                 prep[i] += time.perf_counter() - t0
             ref = view.refinement
             if not missed:
@@ -452,15 +451,9 @@ class Predictor:
         return views
 
     def _refined(
-        self,
-        image: Upload,
-        view: ObjectView,
-        texture: Texture,
-        lens: Lens | None,
-        features: bool = True,
+        self, image: Upload, view: ObjectView, texture: Texture, lens: Lens | None
     ) -> ObjectView:
-        """`view` with its corners refined at the photo's own resolution (`refine_corners`;
-        `features`: its search for the texture's features where the start aligns poorly),
+        """`view` with its corners refined at the photo's own resolution (`refine_corners`),
         the photo decoded reduced as far as the object keeps `MAX_EXTENT_PX` of extent."""
         grey, f, _ = load_grey(image.data, _reduction(view.pinhole), image.header)
         fit = view.lens != "camera"  # a lens not known is fitted with the alignment
@@ -471,7 +464,6 @@ class Predictor:
             None if lens is None else lens.reduced(f),
             self.settings.refine_budget_ms,
             fit_lens=fit,
-            features=features,
         )
         if not ref.refined:
             return replace(view, refinement=ref)
