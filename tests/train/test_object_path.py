@@ -44,7 +44,7 @@ def test_from_a_picture_to_a_served_model(tmp_path: Path) -> None:
     profiles, models = tmp_path / "profiles", tmp_path / "models"
     args = ["object", "new", "poster", "--texture", str(picture), "--profiles", str(profiles)]
     args += ["--models", str(models), "--run", str(tmp_path / "run"), "--eval-count", "9"]
-    args += ["--threshold-count", "216"]
+    args += ["--threshold-count", "72"]
     result = runner.invoke(app, [*args, "--size", "30", "20"])
     assert result.exit_code == 0, result.output
     assert (profiles / "poster" / "profile.toml").is_file()
