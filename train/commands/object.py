@@ -96,7 +96,7 @@ def new(
     out.print(f"[green]wrote[/] {folder / 'profile.toml'} and {sheet} (look at the renders)")
     if zero_shot and generic.is_file():
         folder = run or Path("runs") / profile.name
-        _zero_shot(profile, generic, models, folder, (eval_count, threshold_count), start)
+        _zero_shot(profile, generic, models, folder, eval_count, threshold_count, start)
     elif zero_shot:
         out.print(f"[yellow]no generic network at {generic}[/]: no zero-shot model")
     out.print(f"next: planar-pose object train {name}")
@@ -107,15 +107,15 @@ def _zero_shot(
     generic: Path,
     models: Path,
     run: Path,
-    counts: tuple[int, int | None],
+    eval_count: int,
+    threshold_count: int | None,
     start: float,
 ) -> None:
     """Serve the object at once: the generic network with its picture (`zero_shot_model`),
-    its renders in `run`; `counts`: the renders per blur level it is measured on, and those
-    its presence threshold is (None: the recipe's)."""
+    its renders in `run`, measured on `eval_count` renders per blur level, its presence
+    threshold on `threshold_count` renders (None: the recipe's)."""
     from train.network.pipeline import THRESHOLD_COUNT, zero_shot_model
 
-    eval_count, threshold_count = counts
     path, card = guard(
         lambda: zero_shot_model(
             profile, run, models, generic, out.print, eval_count, threshold_count or THRESHOLD_COUNT

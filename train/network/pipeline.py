@@ -231,8 +231,8 @@ def zero_shot_checkpoint(
 ) -> tuple[Path, dict[str, Any], dict[str, Any]]:
     """The object's network from the generic one (`train.network.zeroshot`) with its presence
     threshold measured on `count` renders of it (a quarter per blur level), written to
-    run/zero-shot.pt -> (that checkpoint,
-    the generic network's card, what the threshold measured and the backgrounds left out)."""
+    run/zero-shot.pt -> (that checkpoint, the generic network's card, what the threshold
+    measured and the backgrounds left out)."""
     from train.network.zeroshot import (
         alignment_scores,
         load_generic,
