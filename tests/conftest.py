@@ -57,6 +57,13 @@ LONG_FIRST = (
 )
 
 
+@pytest.fixture(scope="session")
+def default_model() -> PoseModel:
+    """The default model, loaded from the run's optimized graph (written above)."""
+    folder = Path(os.environ["POSE_OPTIMIZED_DIR"])
+    return PoseModel.load(DEFAULT_MODEL, optimized=optimized_path(folder, DEFAULT_MODEL))
+
+
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     """`LONG_FIRST`'s files first, in its order; every other test after them, in the order
     collected (a file's tests stay together: `--dist loadfile`)."""

@@ -4,24 +4,19 @@ photo's resolution has a second say (service/pipeline/predictor.py `RESCUE_FROM_
 
 from __future__ import annotations
 
-import os
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
 from service_support import board_photo, encode
 
-from service.core.paths import DEFAULT_MODEL
 from service.pipeline import PoseModel, Predictor, Settings
-from service.pipeline.model_cache import optimized_path
 from service.pipeline.predictor import PRESENT_SCORE, RESCUE_FROM_P
 
 
 @pytest.fixture(scope="module")
-def predictor() -> Predictor:
-    optimized = optimized_path(Path(os.environ["POSE_OPTIMIZED_DIR"]), DEFAULT_MODEL)  # conftest
-    return Predictor(PoseModel.load(DEFAULT_MODEL, optimized=optimized), Settings())
+def predictor(default_model: PoseModel) -> Predictor:
+    return Predictor(default_model, Settings())
 
 
 def missed(predictor: Predictor, monkeypatch: pytest.MonkeyPatch, present: float) -> None:

@@ -3,16 +3,13 @@
 
 from __future__ import annotations
 
-import os
 from dataclasses import replace
 from pathlib import Path
 
 import pytest
 
-from service.core.paths import DEFAULT_MODEL
 from service.core.profile import load_profile
 from service.pipeline import PoseModel, Predictor, Settings
-from service.pipeline.model_cache import optimized_path
 from train.compare.answers import answer_all, dataset_photos
 from train.synth.generate import DatasetSpec, make_dataset
 
@@ -25,13 +22,14 @@ def renders(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
-def test_the_anatomy_counts_what_the_service_answers(renders: Path) -> None:
+def test_the_anatomy_counts_what_the_service_answers(
+    renders: Path, default_model: PoseModel
+) -> None:
     photos = dataset_photos(renders)
     n, absent = len(photos), sum(p.label == 0 for p in photos)
     assert (n, absent) == (18, 2)
     assert all((p.corners is None) == (p.label == 0) for p in photos)
-    optimized = optimized_path(Path(os.environ["POSE_OPTIMIZED_DIR"]), DEFAULT_MODEL)  # conftest
-    predictor = Predictor(PoseModel.load(DEFAULT_MODEL, optimized=optimized), Settings())
+    predictor = Predictor(default_model, Settings())
     a = answer_all(predictor, photos, [None] * n)
     assert (a.images, a.absent, a.present) == (n, absent, n - absent)
     assert 0 < a.found <= a.present and a.depth_right <= a.found and a.side_right <= a.found
