@@ -96,6 +96,10 @@ MIN_SCORE = 0.5
 #: An alignment from the network's corners that correlates less than this is tried again from
 #: the texture's features matched in the photo (`feature_start`), and the better one kept.
 GOOD_SCORE = 0.7
+#: Where the start correlates less than `GOOD_SCORE`, the alignment is also tried in both
+#: half-turn orders from the start shifted (by up to this share of the texture's extent)
+#: that correlates best.
+SHIFT_SEARCH = 0.2
 #: Feature matching: the photo's longer side is reduced to this (px), the ratio test's
 #: threshold, the RANSAC reprojection threshold (px of the reduced photo), the least inliers.
 FEATURE_SIDE, RATIO, RANSAC_PX, MIN_INLIERS = 640, 0.75, 4.0, 12
@@ -403,7 +407,8 @@ def _align(
     """ECC from the corners [4, 2] px of the crop `start`, coarse to fine (`finest_only`:
     the crop's own level alone with at most `iterations`, for a start already close) -> the
     refined corners [4, 2] px
-    of the crop and the final correlation; cv2.error where it fails, _OverBudget where
+    of the crop and the final correlation. A coarse level where ECC fails is skipped (the
+    next starts where it would have); cv2.error where the finest fails, _OverBudget where
     `deadline` (`time.perf_counter()`) passes between two levels."""
     levels = (
         1 if finest_only else max(1, min(5, 1 + int(math.log2(max(extent_px / COARSE_PX, 1.0)))))
@@ -423,9 +428,14 @@ def _align(
         mask = cv2.resize(crop.mask, size, interpolation=cv2.INTER_NEAREST) if level else crop.mask
         tex = Texture(template).corners
         H0 = _homography(tex, _level(corners, factor)).astype(np.float32)
-        score, H = cv2.findTransformECC(
-            template, image, H0, cv2.MOTION_HOMOGRAPHY, criteria, mask, GAUSS_TAPS
-        )
+        try:
+            score, H = cv2.findTransformECC(
+                template, image, H0, cv2.MOTION_HOMOGRAPHY, criteria, mask, GAUSS_TAPS
+            )
+        except cv2.error:
+            if level == 0:
+                raise
+            continue  # a coarse level that loses the detail (a chessboard's squares): skipped
         moved = cv2.perspectiveTransform(tex.reshape(-1, 1, 2), np.asarray(H, np.float64))
         corners = (moved.reshape(4, 2) + 0.5) * factor - 0.5
     return corners, float(score)
@@ -504,7 +514,11 @@ def _aligned_from(
     grey: np.ndarray, start: np.ndarray, texture: Texture, lens: Lens | None, deadline: float
 ) -> _Aligned:
     """The texture aligned to the photo `grey` uint8 [H, W] from the pinhole corners [4, 2]
-    px `start`, in the half-turn order that correlates better."""
+    px `start`, in the half-turn order that correlates better; where that start correlates
+    less than `GOOD_SCORE`, also from each order's best shifted start (`_shifted_start`),
+    and the best alignment kept. A chessboard's half turn inverts its colours, as does a shift by one
+    square: a start about a square off correlates weakly in both orders, and the wrong one
+    aligns onto the squares one square off."""
     size, nan = extent(start), float("nan")
     if not np.isfinite(start).all() or size < MIN_EXTENT_PX:
         return _Aligned(start, nan, nan, False, "the object is too small to align")
@@ -518,31 +532,75 @@ def _aligned_from(
     orders = [crop.to_crop(start), crop.to_crop(np.roll(start, 2, 0))]
     starts = [_score(full, crop, _homography(tex, q)) for q in orders]
     turned = starts[1] > starts[0]
-    begin, start_score = orders[int(turned)], starts[int(turned)]
+    start_score = starts[int(turned)]
+    tries = [(orders[int(turned)], turned)]
+    if start_score < GOOD_SCORE:  # each order from its best shifted start too
+        tries += [(_shifted_start(full, crop, orders[t]), bool(t)) for t in (turned, not turned)]
+    reasons, held = [], []
+    for begin, turn in tries:
+        found = _aligned_once(texture, crop, begin, size, start_score, deadline)
+        if isinstance(found, str):
+            reasons.append(found)
+        else:
+            held.append((found[1], found[0], turn))
+    if not held:  # the first start's reason: why the network's corners stand
+        return _Aligned(start, start_score, start_score, turned, reasons[0])
+    score, corners, turn = max(held, key=lambda h: h[0])
+    return _Aligned(crop.to_image(corners), score, start_score, turn, None, crop)
 
-    def refused(reason: str) -> _Aligned:
-        return _Aligned(start, start_score, start_score, turned, reason)
 
+def _shifted_start(template: np.ndarray, crop: _Crop, start: np.ndarray) -> np.ndarray:
+    """The corners [4, 2] px of the crop `start` shifted along the texture's axes by the
+    shift, up to `SHIFT_SEARCH` of the texture's extent, at which `template` correlates
+    best with the crop (`cv2.matchTemplate` over the crop warped onto the texture's frame
+    widened by that much) -> those corners [4, 2] px of the crop."""
+    h, w = template.shape
+    m = max(1, round(SHIFT_SEARCH * max(w, h)))
+    tex = Texture(template).corners
+    widened = _homography(tex, start) @ np.array([[1.0, 0, -m], [0, 1.0, -m], [0, 0, 1.0]])
+    flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
+    seen = cv2.warpPerspective(
+        crop.grey, widened, (w + 2 * m, h + 2 * m), flags=flags, borderMode=cv2.BORDER_REPLICATE
+    )
+    scores = cv2.matchTemplate(seen, template, cv2.TM_CCOEFF_NORMED)
+    dy, dx = np.unravel_index(int(np.argmax(scores)), scores.shape)
+    moved = (tex + [dx, dy]).reshape(-1, 1, 2)  # in the widened frame: dx - m, dy - m shifted
+    return cv2.perspectiveTransform(moved, widened).reshape(4, 2)
+
+
+def _aligned_once(
+    texture: Texture,
+    crop: _Crop,
+    begin: np.ndarray,
+    size: float,
+    start_score: float,
+    deadline: float,
+) -> tuple[np.ndarray, float] | str:
+    """One alignment in `crop` from its corners [4, 2] px `begin` (the object `size` px in
+    the photo; its better start correlating `start_score`) -> (the corners [4, 2] px of the
+    crop, their correlation), or why it is refused."""
     try:
-        moved, score = _align(texture, crop, begin, size * scale, deadline)
+        moved, score = _align(texture, crop, begin, size * crop.scale, deadline)
     except cv2.error:
-        return refused("the alignment did not converge")
+        return "the alignment did not converge"
     except _OverBudget:
-        return refused("the alignment ran out of its time budget")
+        return "the alignment ran out of its time budget"
     shift = float(np.linalg.norm(moved - begin, axis=1).max()) / crop.scale
     if not np.isfinite(moved).all() or shift > MAX_SHIFT * size:
-        return refused("the alignment moved the corners too far")
+        return "the alignment moved the corners too far"
     if score < max(start_score, MIN_SCORE):
-        return refused("the alignment correlates too little")
+        return "the alignment correlates too little"
     blur = _photo_blur(texture, crop, moved)
     if blur > 0:  # a blurred photo: aligned again at its level with the texture blurred alike
         try:
-            again, s = _align(texture, crop, moved, size * scale, deadline, True, ITERATIONS, blur)
+            again, s = _align(
+                texture, crop, moved, size * crop.scale, deadline, True, ITERATIONS, blur
+            )
             if s > score:
                 moved, score = again, s
         except (cv2.error, _OverBudget):
             pass
-    return _Aligned(crop.to_image(moved), score, start_score, turned, None, crop)
+    return moved, score
 
 
 def _realigned(

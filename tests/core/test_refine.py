@@ -5,6 +5,7 @@ hand over the object, the frame's edge, a far-off start, a half turn and a lens 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -85,6 +86,36 @@ def test_a_half_turned_start_is_put_in_the_textures_order() -> None:
     ref = refine_corners(photo(tex), np.roll(START, 2, 0), tex)
     assert ref.refined and ref.turned
     assert error(ref.corners) < 0.5
+
+
+def test_a_chessboard_start_a_square_off_is_tried_shifted() -> None:
+    """A chessboard's start a square off along its width correlates weakly in both half-turn
+    orders (a square's shift swaps the colours, as the half turn does); aligned from it
+    alone, ECC locks onto the squares one square off. The shifted start that correlates best
+    is aligned too, and the better alignment kept."""
+    tex = texture("chessboard")
+    square = (TRUTH[1] - TRUTH[0]) / 10.0  # the board is 10 squares wide
+    ref = refine_corners(photo(tex), START + 0.8 * square, tex, features=False)
+    assert ref.refined and error(ref.corners) < 0.5
+    assert ref.start_score < 0.7 < 0.9 < ref.score
+
+
+def test_a_coarse_level_where_ecc_fails_is_skipped(monkeypatch: pytest.MonkeyPatch) -> None:
+    """ECC fails at the pyramid's coarsest level (a chessboard's squares a few px wide can
+    lose it): the finer levels align from the start, not the network's corners kept."""
+    ecc, calls = cv2.findTransformECC, []
+
+    def failing_first(*args: Any) -> Any:
+        calls.append(args[0].shape)
+        if len(calls) == 1:
+            raise cv2.error("the correlation is going to be minimised")
+        return ecc(*args)
+
+    monkeypatch.setattr(cv2, "findTransformECC", failing_first)
+    tex = texture("chessboard")
+    ref = refine_corners(photo(tex), START, tex)
+    assert len(calls) > 2 and calls[0][1] < calls[-1][1]  # the coarsest first, the finest last
+    assert ref.refined and error(ref.corners) < 0.5
 
 
 def test_blur_a_hand_over_the_object_and_the_frames_edge_are_held() -> None:
