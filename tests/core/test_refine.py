@@ -14,6 +14,7 @@ import pytest
 from service.core.paths import REPO_ROOT
 from service.core.pose import Camera
 from service.core.refine import (
+    SELF_SIMILAR,
     CameraLens,
     RadialLens,
     Texture,
@@ -98,6 +99,14 @@ def test_a_chessboard_start_a_square_off_is_tried_shifted() -> None:
     ref = refine_corners(photo(tex), START + 0.8 * square, tex, features=False)
     assert ref.refined and error(ref.corners) < 0.5
     assert ref.start_score < 0.7 < 0.9 < ref.score
+
+
+def test_only_a_self_similar_texture_is_tried_shifted() -> None:
+    """The chessboard half turned and a square off is itself inside; the ChArUco board's
+    markers and the book's picture are not: their weak starts are aligned once."""
+    similarity = {name: texture(name).self_similarity for name in ("chessboard", "charuco", "book")}
+    assert similarity["chessboard"] > 0.95
+    assert max(similarity["charuco"], similarity["book"]) < SELF_SIMILAR < similarity["chessboard"]
 
 
 def test_a_coarse_level_where_ecc_fails_is_skipped(monkeypatch: pytest.MonkeyPatch) -> None:
