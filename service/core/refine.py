@@ -96,9 +96,9 @@ MIN_SCORE = 0.5
 #: An alignment from the network's corners that correlates less than this is tried again from
 #: the texture's features matched in the photo (`feature_start`), and the better one kept.
 GOOD_SCORE = 0.7
-#: Where the start correlates less than `GOOD_SCORE`, the alignment is also tried in both
-#: half-turn orders from the start shifted (by up to this share of the texture's extent)
-#: that correlates best.
+#: How far the shifted starts of a weak start are searched (`_shifted_start`), and the
+#: texture's likeness to itself measured (`Texture.self_similarity`): this share of the
+#: texture's extent.
 SHIFT_SEARCH = 0.2
 #: A texture this self-similar (`Texture.self_similarity`) may lock onto itself shifted: a
 #: weak start is also aligned from the shifted starts (the chessboard: 1.0; the ChArUco
@@ -544,9 +544,9 @@ def _aligned_from(
     px `start`, in the half-turn order that correlates better; where that start correlates
     less than `GOOD_SCORE` and the texture is self-similar (`Texture.self_similarity` >=
     `SELF_SIMILAR`), also from each order's best shifted start (`_shifted_start`), and the
-    best alignment kept. A chessboard's half turn inverts
-    its colours, as does a shift by one square: a start about a square off correlates
-    weakly in both orders, and the wrong one aligns onto the squares one square off."""
+    best alignment kept. A chessboard's half turn inverts its colours, as does a shift by
+    one square: a start about a square off correlates weakly in both orders, and the wrong
+    one aligns onto the squares one square off."""
     size, nan = extent(start), float("nan")
     if not np.isfinite(start).all() or size < MIN_EXTENT_PX:
         return _Aligned(start, nan, nan, False, "the object is too small to align")
