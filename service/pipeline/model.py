@@ -233,6 +233,11 @@ class PoseModel:
         return str(self.card["name"])
 
     @property
+    def training(self) -> Training:
+        """How the model came to know its object (`training_of` its card)."""
+        return training_of(self.card)
+
+    @property
     def object_size_cm(self) -> tuple[float, float] | None:
         """The object's (width, height) cm from the card's profile (None: not stated)."""
         profile = self.card.get("profile")

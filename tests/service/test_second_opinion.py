@@ -1,6 +1,6 @@
 """Where the network calls the object absent but may be wrong, the texture aligned at the
 photo's resolution has a second say (service/pipeline/predictor.py `RESCUE_FROM_P`,
-`PRESENT_SCORE`)."""
+`ZERO_SHOT_RESCUE_FROM_P`, `PRESENT_SCORE`)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import pytest
 from service_support import board_photo, encode
 
 from service.pipeline import PoseModel, Predictor, Settings
-from service.pipeline.predictor import PRESENT_SCORE, RESCUE_FROM_P
+from service.pipeline.predictor import PRESENT_SCORE, RESCUE_FROM_P, ZERO_SHOT_RESCUE_FROM_P
 
 
 @pytest.fixture(scope="module")
@@ -58,3 +58,23 @@ def test_no_second_opinion_below_its_p_nor_where_no_texture_aligns(
     assert noise.class_id == 0 and noise.corners is None  # nothing aligns in noise
     if present < RESCUE_FROM_P:  # not asked: the network's "absent" stands
         assert board.class_id == 0 and board.corners is None
+
+
+def test_a_zero_shot_model_is_asked_again_from_a_lower_p(
+    default_model: PoseModel, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A zero-shot model's presence is set to call nearly every absent render absent: its
+    "absent" at a P(present) between the two thresholds is looked at again, a trained one's
+    stands."""
+    assert ZERO_SHOT_RESCUE_FROM_P < RESCUE_FROM_P
+    between = (ZERO_SHOT_RESCUE_FROM_P + RESCUE_FROM_P) / 2
+    data, _ = board_photo()
+    zero_shot = replace(default_model, card={**default_model.card, "zero_shot": {}})
+    assert zero_shot.training == "zero-shot" and default_model.training == "trained"
+    answers = {}
+    for name, model in (("zero-shot", zero_shot), ("trained", default_model)):
+        predictor = Predictor(model, Settings())
+        missed(predictor, monkeypatch, between)
+        answers[name] = predictor.predict([(None, data)], "whole").results[0]
+    assert answers["zero-shot"].class_id != 0 and answers["zero-shot"].corners_source == "refined"
+    assert answers["trained"].class_id == 0 and answers["trained"].corners is None
