@@ -16,6 +16,7 @@ from typer.testing import CliRunner
 
 from service.app import create_app
 from service.core.paths import DEFAULT_MODEL
+from service.pipeline.model import PoseModel
 from service.settings import Settings
 from train.cli import app
 from train.network.zeroshot import GENERIC_WEIGHTS
@@ -53,6 +54,8 @@ def test_from_a_picture_to_a_served_model(tmp_path: Path) -> None:
         zero_shot = json.loads((models / "poster-corners-160x120.json").read_text())
         assert zero_shot["zero_shot"]["threshold_renders"] > 0, result.output
         assert set(zero_shot["accuracy"]) == {f"zero-shot-b{b}" for b in range(4)}
+        served = PoseModel.load(models / "poster-corners-160x120.onnx")  # the graph's own card
+        assert served.training == "zero-shot"
     again = runner.invoke(app, [*args, "--size", "30", "20"])
     assert again.exit_code == 1 and "exists" in again.output
 

@@ -31,7 +31,7 @@ from train.compare.answers import answer_all, dataset_photos
 from train.compare.baseline import BaselineConfig
 from train.compare.peers import run_baseline_on
 from train.network.export import export
-from train.network.pipeline import model_name, zero_shot_checkpoint
+from train.network.pipeline import marked_zero_shot, model_name, zero_shot_checkpoint
 from train.synth.generate import DatasetSpec, make_datasets
 from train.synth.textures import held_out_textures
 
@@ -108,7 +108,8 @@ def evaluate_object(
     and the peer's where measured; the threshold's."""
     checkpoint, _, info = zero_shot_checkpoint(profile, run, generic)
     sets = test_sets(profile, run, count)
-    model, _ = export(checkpoint, model_name(profile), run / "model")
+    model, card = export(checkpoint, model_name(profile), run / "model")
+    marked_zero_shot(model, card, info)  # served as `object new` serves it
     row: dict[str, Any] = {"object": profile.name, "threshold": info, "count": count}
     row["zero_shot"] = _service_answers(model, sets)
     shipped = REPO_ROOT / "models" / f"{model_name(profile)}.onnx"

@@ -268,6 +268,16 @@ def zero_shot_checkpoint(
     return checkpoint, generic_card, info
 
 
+def marked_zero_shot(path: Path, card: dict[str, Any], info: dict[str, Any]) -> dict[str, Any]:
+    """An exported zero-shot model's card with `info` (its threshold's figures) as its
+    `zero_shot`, written into the graph at `path` and beside it (what the service reads as
+    zero-shot: `service.pipeline.model.training_of`) -> that card."""
+    card = {**card, "zero_shot": info}
+    path.write_bytes(with_card(path.read_bytes(), card))
+    path.with_suffix(".json").write_text(json.dumps(card, indent=1) + "\n")
+    return card
+
+
 def zero_shot_model(
     profile: Profile,
     run: Path,
@@ -294,9 +304,7 @@ def zero_shot_model(
         "not trained on this object. `planar-pose object train` fine-tunes it."
     )
     path, card = export(checkpoint, model_name(profile), models, evals, "all", "0.1.0", notes)
-    card["zero_shot"] = info
-    path.write_bytes(with_card(path.read_bytes(), card))
-    path.with_suffix(".json").write_text(json.dumps(card, indent=1) + "\n")
+    card = marked_zero_shot(path, card, info)
     say(
         f"presence threshold {info['presence_threshold']:.2f} on {info['threshold_renders']} "
         f"renders: present right {100 * info['present_right']:.1f} %, "
