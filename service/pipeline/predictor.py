@@ -431,8 +431,9 @@ class Predictor:
             return [None] * len(images)
         views: list[ObjectView | None] = []
         texture = self.model.texture if self.settings.refine else None
-        zero_shot = self.model.training == "zero-shot"
-        rescue_from = ZERO_SHOT_RESCUE_FROM_P if zero_shot else RESCUE_FROM_P
+        rescue_from = (
+            ZERO_SHOT_RESCUE_FROM_P if self.model.training == "zero-shot" else RESCUE_FROM_P
+        )
         for i, p in enumerate(answer.probabilities):
             seen, size = corners[0][i], frames[i].image_size
             large = max(size) >= MIN_PHOTO_SCALE * max(self.model.input_size)
