@@ -129,13 +129,6 @@ RESCUE_FROM_P, PRESENT_SCORE = 0.1, 0.8
 #: photo without the object the book model hesitates over (docs/benchmarks.md), for no val
 #: frame of the shipped models.
 ZERO_SHOT_RESCUE_FROM_P = 0.05
-#: Where the alignment from the network's corners does not hold, the texture's features are
-#: searched in the whole photo (`refine_corners`' far-off start, ~100 ms) only where the
-#: network is this sure the object is there (its corners, not its eyes, are then what is
-#: off), or the model is zero-shot (its presence is not to be trusted either way). The
-#: shipped ChArUco model's val frames: every search that won was at P(present) 0.959-1.0;
-#: the 22 backgrounds: 6 of the 9 failed searches of the shipped models at 0.16-0.84.
-FEATURES_FROM_P = 0.9
 
 
 @dataclass(frozen=True)
@@ -438,8 +431,9 @@ class Predictor:
             return [None] * len(images)
         views: list[ObjectView | None] = []
         texture = self.model.texture if self.settings.refine else None
-        zero_shot = self.model.training == "zero-shot"
-        rescue_from = ZERO_SHOT_RESCUE_FROM_P if zero_shot else RESCUE_FROM_P
+        rescue_from = (
+            ZERO_SHOT_RESCUE_FROM_P if self.model.training == "zero-shot" else RESCUE_FROM_P
+        )
         for i, p in enumerate(answer.probabilities):
             seen, size = corners[0][i], frames[i].image_size
             large = max(size) >= MIN_PHOTO_SCALE * max(self.model.input_size)
@@ -456,8 +450,7 @@ class Predictor:
             view = ObjectView(seen, pinhole, kind)
             if aligns is not None:
                 t0 = time.perf_counter()
-                search = zero_shot or 1.0 - p[0] >= FEATURES_FROM_P  # the features too
-                view = self._refined(images[i], view, aligns, lens, search)
+                view = self._refined(images[i], view, aligns, lens)
                 prep[i] += time.perf_counter() - t0
             ref = view.refinement
             if not missed:
@@ -469,17 +462,10 @@ class Predictor:
         return views
 
     def _refined(
-        self,
-        image: Upload,
-        view: ObjectView,
-        texture: Texture,
-        lens: Lens | None,
-        features: bool,
+        self, image: Upload, view: ObjectView, texture: Texture, lens: Lens | None
     ) -> ObjectView:
-        """`view` with its corners refined at the photo's own resolution (`refine_corners`;
-        with `features`, from the texture's features too where the network's corners do not
-        align), the photo decoded reduced as far as the object keeps `MAX_EXTENT_PX` of
-        extent."""
+        """`view` with its corners refined at the photo's own resolution (`refine_corners`),
+        the photo decoded reduced as far as the object keeps `MAX_EXTENT_PX` of extent."""
         grey, f, _ = load_grey(image.data, _reduction(view.pinhole), image.header)
         fit = view.lens != "camera"  # a lens not known is fitted with the alignment
         ref = refine_corners(
@@ -489,7 +475,6 @@ class Predictor:
             None if lens is None else lens.reduced(f),
             self.settings.refine_budget_ms,
             fit_lens=fit,
-            features=features,
         )
         if not ref.refined:
             return replace(view, refinement=ref)
