@@ -566,6 +566,8 @@ def _aligned_from(
     if start_score < GOOD_SCORE and texture.self_similarity >= SELF_SIMILAR:
         for turn in (turned, not turned):  # each order from its best shifted start too
             begin = _shifted_start(full, crop, orders[int(turn)])
+            if turn == turned and np.allclose(begin, orders[int(turned)]):
+                continue  # no shift: the first alignment again
             found = _aligned_once(texture, crop, begin, size, start_score, deadline)
             if not isinstance(found, str):
                 held.append((found[1], found[0], turn))
