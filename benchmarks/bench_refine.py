@@ -14,9 +14,11 @@ without the object no more. Each time is the best of `--repeat` rounds of `--sec
 refinement off and on called in turn within each round (the same load and clock for both).
 
 Streams (`Predictor.track`, as `WS /v1/stream` runs it, the network every 10th frame)
-against the network on every frame: ms per frame and frames/s per core on a still sequence
-(the 1280x720 ChArUco render, fresh sensor noise of 2 grey levels per frame) and the spread
-of its `camera_cm` (RMS distance from their mean, cm); and class right on a video-like
+against the network on every frame: ms per frame and frames/s per core on still sequences
+(`STILL_SEQUENCES` of `STILL_FRAMES` frames of the 1280x720 ChArUco render, fresh sensor noise
+of 2 grey levels per frame) and the spread of their `camera_cm` (RMS distance from each
+sequence's mean, pooled over the sequences, cm; one sequence's spread swings by 2x with its
+noise draw); and class right on a video-like
 sequence (the ChArUco val source's frames in order, 6 frames/s, its camera registered).
 
     .venv/bin/python benchmarks/bench_refine.py [--seconds 2] [--repeat 3] [--write-docs]
@@ -59,6 +61,7 @@ SIZE = (1280, 720)
 MODELS = {"chessboard": "chessboard-corners-160x120", "charuco": "charuco-corners-160x120",
           "book": "book-corners-160x120"}  # fmt: skip
 BUDGET_OBJECT, BUDGET_EMPTY = 1.5, 1.0
+STILL_SEQUENCES, STILL_FRAMES = 8, 40
 
 
 def jpeg(bgr: np.ndarray) -> bytes:
@@ -171,12 +174,17 @@ def stream(
     return results, 1000 * (time.perf_counter() - start) / len(frames)
 
 
-def spread_cm(results: list[ImageResult]) -> float:
-    """RMS distance (cm) of the answers' camera centres from their mean."""
-    centres = np.array([r.pose.camera_cm for r in results if r.pose is not None])
-    if not len(centres):
+def spread_cm(sequences: list[list[ImageResult]]) -> float:
+    """RMS distance (cm) of the answers' camera centres from their sequence's mean, pooled
+    over the sequences."""
+    offsets = []
+    for results in sequences:
+        centres = np.array([r.pose.camera_cm for r in results if r.pose is not None])
+        if len(centres):
+            offsets.append(centres - centres.mean(0))
+    if not offsets:
         return float("nan")
-    return float(np.sqrt(((centres - centres.mean(0)) ** 2).sum(1).mean()))
+    return float(np.sqrt((np.concatenate(offsets) ** 2).sum(1).mean()))
 
 
 def stream_rows() -> list[list[str]]:
@@ -186,8 +194,8 @@ def stream_rows() -> list[list[str]]:
     board, _ = object_photo("charuco")
     bgr = cv2.imdecode(np.frombuffer(board, np.uint8), cv2.IMREAD_COLOR).astype(np.float64)
     rng = np.random.default_rng(0)
-    still = [jpeg(np.clip(bgr + rng.normal(0, 2, bgr.shape), 0, 255).astype(np.uint8))
-             for _ in range(40)]  # fmt: skip
+    stills = [[jpeg(np.clip(bgr + rng.normal(0, 2, bgr.shape), 0, 255).astype(np.uint8))
+               for _ in range(STILL_FRAMES)] for _ in range(STILL_SEQUENCES)]  # fmt: skip
     with (VIDEO / "labels.csv").open(newline="", encoding="utf-8") as f:
         labels = sorted(csv.DictReader(f), key=lambda row: row["file"])
     frames = [(VIDEO / row["file"]).read_bytes() for row in labels]
@@ -195,13 +203,16 @@ def stream_rows() -> list[list[str]]:
     camera = None if calibration is None else KnownFocal.of_camera(calibration)
     rows = []
     for what, every in (("network every frame", 1), ("tracked, network every 10th", 10)):
-        answers, ms = stream(predictor, still, None, every)
+        runs = [stream(predictor, still, None, every) for still in stills]
+        answers = [answer for run in runs for answer in run[0]]
+        ms = float(np.mean([run[1] for run in runs]))
         seen, _ = stream(predictor, frames, camera, every)
         truth = [int(row["class"]) for row in labels]
         right = np.mean([r.class_id == k for r, k in zip(seen, truth, strict=True)])
         tracked = np.mean([bool(r.tracked) for r in answers])
+        spread = spread_cm([run[0] for run in runs])
         rows.append([what, f"{100 * tracked:.0f}", f"{ms:.1f}", f"{1000 / ms:.1f}",
-                     f"{spread_cm(answers):.3f}", f"{100 * right:.1f}"])  # fmt: skip
+                     f"{spread:.4f}", f"{100 * right:.1f}"])  # fmt: skip
         print(" | ".join(rows[-1]), flush=True)
     return rows
 
@@ -227,9 +238,9 @@ def main() -> None:
     stream_head = ["stream", "tracked %", "ms per frame", "frames/s per core",
                    "camera_cm spread (still), cm", "class right (video-like) %"]  # fmt: skip
     body = [header, "", *table(head, rows), "",
-            f"Streams, `{MODELS['charuco']}` on one thread: a still 1280x720 sequence of 40 "
-            "frames; the ChArUco val source's frames in order (640x360, its camera "
-            "registered).", "", *table(stream_head, streams), "",
+            f"Streams, `{MODELS['charuco']}` on one thread: {STILL_SEQUENCES} still 1280x720 "
+            f"sequences of {STILL_FRAMES} frames; the ChArUco val source's frames in order "
+            "(640x360, its camera registered).", "", *table(stream_head, streams), "",
             f"* load average {os.getloadavg()[0]:.2f} at end"]  # fmt: skip
     print("\n".join(body))
     if args.write_docs:
