@@ -64,6 +64,9 @@ def test_from_a_picture_to_a_served_model(tmp_path: Path) -> None:
     train = ["object", "train", str(profiles / "poster"), "--run", str(run)]
     result = runner.invoke(app, [*train, "--models", str(models), *budget, "--no-bf16"])
     assert result.exit_code == 0, result.output
+    said = " ".join(result.output.split())  # rich wraps the lines
+    assert "expected: under a minute of training on this machine (1 epochs x" in said, said
+    assert "shorter: fewer --epochs or --count (now 90)" in said
     onnx = models / "poster-corners-160x120.onnx"
     card = json.loads(onnx.with_suffix(".json").read_text())
     assert card["profile"]["name"] == "poster" and set(card["accuracy"]) == {

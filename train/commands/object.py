@@ -161,6 +161,10 @@ def train_command(
     ] = False,
     fine_tune_epochs: Annotated[int, typer.Option(min=1, help="Epochs on real data.")] = 6,
     batch_size: Annotated[int, typer.Option(min=2, help="Images per batch.")] = 64,
+    lr: Annotated[
+        float | None,
+        typer.Option(min=1e-6, max=1.0, help="Peak learning rate (default 5e-4; scratch 2e-3)."),
+    ] = None,
     threads: Annotated[int, typer.Option(min=0, help="Torch threads, 0 = default.")] = 0,
     workers: Annotated[int, typer.Option(min=1, help="Render processes.")] = 1,
     device: Annotated[
@@ -187,9 +191,10 @@ def train_command(
         out.print(f"[yellow]no generic network at {generic}[/]: training from scratch")
         start_from = None
     fine = start_from is not None
+    peak = lr or (0.0005 if fine else 0.002)
     recipe = ObjectRecipe(
         train_count=count or (6000 if fine else 20000), eval_count=eval_count,
-        epochs=epochs or (4 if fine else 10), generic=start_from, lr=0.0005 if fine else 0.002,
+        epochs=epochs or (4 if fine else 10), generic=start_from, lr=peak,
         fine_tune_epochs=fine_tune_epochs, batch_size=batch_size, threads=threads,
         bf16=native_bf16(device) if bf16 is None else bf16, workers=workers, device=device,
     )  # fmt: skip

@@ -199,8 +199,9 @@ def expected_duration(config: FitConfig, recipe: ObjectRecipe, steps: int = 4) -
         times.append((time.perf_counter() - t0) / n)
     per_image = float(np.mean(times[1:]))
     minutes = per_image * len(train.labels) * config.epochs / 60
+    took = f"about {minutes:.0f} min" if minutes >= 1 else "under a minute"
     return (
-        f"expected: about {minutes:.0f} min of training on this machine ({config.epochs} "
+        f"expected: {took} of training on this machine ({config.epochs} "
         f"epochs x {len(train.labels)} images at {1000 * per_image:.0f} ms / image, measured "
         f"on {steps - 1} steps; plus the evaluation after each epoch); shorter: fewer --epochs "
         f"or --count (now {recipe.train_count})"
