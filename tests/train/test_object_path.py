@@ -67,6 +67,8 @@ def test_from_a_picture_to_a_served_model(tmp_path: Path) -> None:
     said = " ".join(result.output.split())  # rich wraps the lines
     assert "expected: under a minute of training on this machine (1 epochs x" in said, said
     assert "shorter: fewer --epochs or --count (now 90)" in said
+    manifest = json.loads((run / "data" / "train-free-s2" / "manifest.json").read_text())
+    assert manifest["counts"] == {"train": 90, "val": 0, "test": 0}  # selected on the evals'
     onnx = models / "poster-corners-160x120.onnx"
     card = json.loads(onnx.with_suffix(".json").read_text())
     assert card["profile"]["name"] == "poster" and set(card["accuracy"]) == {

@@ -78,7 +78,10 @@ def train_object(
     data = run / "data"
     train_set = data / "train-free-s2"
     evals = [data / f"free-s2-b{b}" for b in BLUR_LEVELS]
-    jobs = [(DatasetSpec("free", 2, 0, recipe.train_count, TRAIN_SEED, profile), train_set)]
+    # every training render is trained on; the epochs are selected on the evaluation sets'
+    # val split (blur 0-3), their test split measures the model
+    train_spec = DatasetSpec("free", 2, 0, recipe.train_count, TRAIN_SEED, profile, all_train=True)
+    jobs = [(train_spec, train_set)]
     jobs += [
         (DatasetSpec("free", 2, b, recipe.eval_count, EVAL_SEED + b, profile), path)
         for b, path in zip(BLUR_LEVELS, evals, strict=True)
@@ -104,7 +107,7 @@ def train_object(
         common |= {"arch": "corners-any"}
     stage1 = FitConfig(
         datasets=[train_set], out=run / "runs" / "renders", epochs=recipe.epochs, lr=recipe.lr,
-        seed=41, select=real, init=init, **common,
+        seed=41, select=real or evals, init=init, **common,
     )  # fmt: skip
     if not (stage1.out / "done").is_file():
         say(expected_duration(stage1, recipe))

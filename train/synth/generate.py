@@ -56,7 +56,9 @@ PNG_PARAMS = [cv2.IMWRITE_PNG_COMPRESSION, 0, cv2.IMWRITE_PNG_FILTER, cv2.IMWRIT
 
 @dataclass(frozen=True)
 class DatasetSpec:
-    """What to generate: variant C / noC, SPEC size 1 / 2, blur 0..3, count, seed, profile."""
+    """What to generate: variant C / noC, SPEC size 1 / 2, blur 0..3, count, seed, profile;
+    `all_train`: every image in the train split (a training set selected on other sets' val
+    split), not `SPLIT_FRACTIONS`."""
 
     variant: str
     size: int
@@ -65,6 +67,7 @@ class DatasetSpec:
     seed: int
     profile: Profile
     jitter: bool = True
+    all_train: bool = False
 
     def __post_init__(self) -> None:
         if self.variant not in VARIANTS:
@@ -91,14 +94,16 @@ class DatasetSpec:
         return SIZES[self.size]
 
 
-def balanced_assignment(count: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+def balanced_assignment(
+    count: int, rng: np.random.Generator, fractions: tuple[float, float, float] = SPLIT_FRACTIONS
+) -> tuple[np.ndarray, np.ndarray]:
     """Classes int (N,) and split indices int (N,) (0 train, 1 val, 2 test), shuffled.
 
-    Split sizes round(60 %), round(20 %), rest; inside each split the 9 classes differ by at
-    most one image, and the split's extra images go to the classes with fewest so far, so the
-    whole set is balanced too.
+    Split sizes round(`fractions`[0] x N), round(`fractions`[1] x N), rest (60 %, 20 %, 20 %
+    by default); inside each split the 9 classes differ by at most one image, and the split's
+    extra images go to the classes with fewest so far, so the whole set is balanced too.
     """
-    n_train, n_val = round(SPLIT_FRACTIONS[0] * count), round(SPLIT_FRACTIONS[1] * count)
+    n_train, n_val = round(fractions[0] * count), round(fractions[1] * count)
     sizes = (n_train, n_val, count - n_train - n_val)
     totals = np.zeros(NUM_CLASSES, int)
     classes, splits = [], []
@@ -146,7 +151,9 @@ class Plan:
 def plan_dataset(spec: DatasetSpec) -> Plan:
     """Classes, splits and cameras of a set, from its seed alone."""
     rng = np.random.default_rng(spec.seed)
-    classes, splits = balanced_assignment(spec.count, rng)
+    classes, splits = balanced_assignment(
+        spec.count, rng, (1.0, 0.0, 0.0) if spec.all_train else SPLIT_FRACTIONS
+    )
     present = classes > 0
     drawn = iter(draw_views(spec.profile, classes[present], spec.variant, rng))
     views = [next(drawn) if p else None for p in present]

@@ -13,7 +13,13 @@ import pytest
 from service.core.dataset import DatasetError, load_dataset
 from service.core.preprocess import decode_image, resize_rgb
 from service.core.profile import load_profile
-from train.synth.generate import DatasetSpec, balanced_assignment, make_dataset, render_in_memory
+from train.synth.generate import (
+    DatasetSpec,
+    balanced_assignment,
+    make_dataset,
+    plan_dataset,
+    render_in_memory,
+)
 
 PROFILE = load_profile("chessboard")
 
@@ -78,6 +84,15 @@ def test_splits_are_class_balanced(count):
         assert per.max() - per.min() <= 1
         if count >= 900:
             assert (per.max() - per.min()) / sizes[s] <= 0.01
+
+
+def test_an_all_train_set_draws_the_same_views_into_the_train_split():
+    spec = DatasetSpec("free", 2, 0, 90, 7, PROFILE)
+    split = plan_dataset(spec)
+    whole = plan_dataset(DatasetSpec("free", 2, 0, 90, 7, PROFILE, all_train=True))
+    assert (whole.splits == 0).all() and (split.splits != 0).any()
+    assert np.bincount(whole.classes, minlength=9).tolist() == [10] * 9
+    assert [v is None for v in whole.views] == [k == 0 for k in whole.classes]
 
 
 def test_same_seed_same_bytes_any_worker_count(tmp_path):
