@@ -147,11 +147,11 @@ def train_command(
         ),
     ] = None,  # fmt: skip
     count: Annotated[
-        int | None, typer.Option(min=90, help="Training renders (default 6000; scratch 20000).")
+        int | None, typer.Option(min=90, help="Training renders (default 22000; scratch 20000).")
     ] = None,
     eval_count: Annotated[int, typer.Option(min=45, help="Renders per evaluation set.")] = 1000,
     epochs: Annotated[
-        int | None, typer.Option(min=1, help="Epochs on the renders (default 4; scratch 10).")
+        int | None, typer.Option(min=1, help="Epochs on the renders (default 8; scratch 10).")
     ] = None,
     generic: Annotated[
         Path, typer.Option(help="The generic corner network to fine-tune from.")
@@ -163,7 +163,7 @@ def train_command(
     batch_size: Annotated[int, typer.Option(min=2, help="Images per batch.")] = 64,
     lr: Annotated[
         float | None,
-        typer.Option(min=1e-6, max=1.0, help="Peak learning rate (default 5e-4; scratch 2e-3)."),
+        typer.Option(min=1e-6, max=1.0, help="Peak learning rate (default 1e-3; scratch 2e-3)."),
     ] = None,
     threads: Annotated[int, typer.Option(min=0, help="Torch threads, 0 = default.")] = 0,
     workers: Annotated[int, typer.Option(min=1, help="Render processes.")] = 1,
@@ -191,10 +191,10 @@ def train_command(
         out.print(f"[yellow]no generic network at {generic}[/]: training from scratch")
         start_from = None
     fine = start_from is not None
-    peak = lr or (0.0005 if fine else 0.002)
+    peak = lr or (0.001 if fine else 0.002)
     recipe = ObjectRecipe(
-        train_count=count or (6000 if fine else 20000), eval_count=eval_count,
-        epochs=epochs or (4 if fine else 10), generic=start_from, lr=peak,
+        train_count=count or (22000 if fine else 20000), eval_count=eval_count,
+        epochs=epochs or (8 if fine else 10), generic=start_from, lr=peak,
         fine_tune_epochs=fine_tune_epochs, batch_size=batch_size, threads=threads,
         bf16=native_bf16(device) if bf16 is None else bf16, workers=workers, device=device,
     )  # fmt: skip
