@@ -86,7 +86,7 @@ def test_splits_are_class_balanced(count):
             assert (per.max() - per.min()) / sizes[s] <= 0.01
 
 
-def test_an_all_train_set_draws_the_same_views_into_the_train_split():
+def test_an_all_train_set_puts_every_image_in_the_train_split():
     spec = DatasetSpec("free", 2, 0, 90, 7, PROFILE)
     split = plan_dataset(spec)
     whole = plan_dataset(DatasetSpec("free", 2, 0, 90, 7, PROFILE, all_train=True))
