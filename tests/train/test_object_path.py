@@ -16,6 +16,7 @@ from typer.testing import CliRunner
 
 from service.app import create_app
 from service.core.paths import DEFAULT_MODEL
+from service.core.profile import load_profile
 from service.pipeline.model import PoseModel
 from service.settings import Settings
 from train.cli import app
@@ -141,3 +142,27 @@ def test_an_export_is_up_to_date_only_for_the_files_it_wrote(tmp_path: Path) -> 
     onnx.write_bytes(b"graph")
     best.write_bytes(b"trained on")
     assert _exported(tmp_path, best, onnx) is None
+
+
+def test_object_train_from_scratch_keeps_the_shipped_models_recipe(tmp_path, monkeypatch):
+    """`--scratch` renders and selects as the shipped models were made (60 / 20 / 20 splits,
+    the epochs selected on the training renders' val split); only the fine-tuning from the
+    generic network trains on every render (the object-path test above)."""
+    from train.network import pipeline
+
+    seen: dict[str, object] = {}
+    monkeypatch.setattr(pipeline, "make_datasets", lambda jobs, **_: seen.update(jobs=jobs))
+    monkeypatch.setattr(pipeline, "expected_duration", lambda *_: "")
+
+    def stage(config: pipeline.FitConfig, say: object) -> Path:
+        seen["config"] = config
+        raise RuntimeError("stop before training")
+
+    monkeypatch.setattr(pipeline, "_stage", stage)
+    with pytest.raises(RuntimeError, match="stop before training"):
+        pipeline.train_object(
+            load_profile("book"), tmp_path, tmp_path / "models", pipeline.ObjectRecipe()
+        )
+    spec, _ = seen["jobs"][0]  # type: ignore[index]
+    assert spec.count == 20000 and not spec.all_train
+    assert seen["config"].select == []  # type: ignore[attr-defined]
