@@ -78,9 +78,8 @@ def train_object(
     data = run / "data"
     train_set = data / "train-free-s2"
     evals = [data / f"free-s2-b{b}" for b in BLUR_LEVELS]
-    # fine-tuned from the generic network: every training render is trained on, the epochs
-    # selected on the evaluation sets' val split (blur 0-3); from scratch, the recipe of the
-    # shipped models as they were made (60 / 20 / 20 splits, selected on the val split)
+    # fine-tuning trains on every render, selected on the evaluation sets' val split (blur
+    # 0-3); from scratch, the shipped models' recipe (60 / 20 / 20 splits, their val split)
     fine = recipe.generic is not None
     train_spec = DatasetSpec("free", 2, 0, recipe.train_count, TRAIN_SEED, profile, all_train=fine)
     jobs = [(train_spec, train_set)]
