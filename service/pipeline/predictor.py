@@ -407,9 +407,11 @@ class Predictor:
             )
         if detail is not None:
             cfg = self.settings
-            return zoomed(
-                self.model, batch, aspect, cfg.zoom_search, focal, detail, cfg.zoom_search_tiles
-            )
+            # A zero-shot model searches no tile where the whole frame found nothing: its
+            # presence threshold is measured on whole frames (train/network/zeroshot.py), and
+            # a look at one more tile lets more absent images pass it (docs/decisions.md).
+            search = cfg.zoom_search and self.model.training != "zero-shot"
+            return zoomed(self.model, batch, aspect, search, focal, detail, cfg.zoom_search_tiles)
         return self.model.run(batch, aspect, focal=focal)
 
     def _views(

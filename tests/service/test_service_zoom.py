@@ -3,6 +3,7 @@ default."""
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any
 
 import cv2
@@ -204,6 +205,17 @@ def test_the_zoom_setting_switches_the_pass_off(model: PoseModel) -> None:
         spy = Spy(model)
         Predictor(spy, Settings(**options)).predict([(None, blank)], "whole")  # type: ignore[arg-type]
         assert [n for n, _ in spy.calls] == calls
+
+
+def test_a_zero_shot_model_searches_no_tile(model: PoseModel) -> None:
+    """Its presence threshold is measured on whole frames: no board in the whole frame, no
+    second look (a trained model's search looks at one tile)."""
+    blank = cv2.imencode(".png", np.full((120, 160, 3), 128, np.uint8))[1].tobytes()
+    zero_shot = replace(model, card={**model.card, "zero_shot": {}})
+    for served, calls in ((zero_shot, [1]), (model, [1, 1])):
+        spy = Spy(served)
+        Predictor(spy, Settings()).predict([(None, blank)], "whole")  # type: ignore[arg-type]
+        assert [n for n, _ in spy.calls] == calls, served.training
 
 
 def test_the_service_cuts_the_tile_from_a_large_upload(model: PoseModel) -> None:
