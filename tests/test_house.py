@@ -1,14 +1,16 @@
 """The repository's own rules: every shipped model's card names its recipe in recipes/ and
-the commands that rebuild it, and no folder outside the repository; the ONNX's copy of each
-card is its .json; one pick per object; models/README.md is what `planar-pose catalog` writes
-from the cards; every relative link and repository path of the pages resolves; no function
-over 80 lines; README.md within 180 lines."""
+the commands that rebuild it (each `planar-pose` one a valid command line), and no folder
+outside the repository; the ONNX's copy of each card is its .json; one pick per object;
+models/README.md is what `planar-pose catalog` writes from the cards; every relative link and
+repository path of the pages resolves; no function over 80 lines; README.md within 180
+lines."""
 
 from __future__ import annotations
 
 import ast
 import json
 import re
+import shlex
 from collections import Counter
 from fnmatch import fnmatch
 from pathlib import Path
@@ -16,6 +18,7 @@ from typing import Any
 
 import onnx
 import pytest
+import typer
 
 from service.core.onnx_contract import CARD_KEY
 from service.core.paths import REPO_ROOT
@@ -79,6 +82,31 @@ def test_a_shipped_cards_recipe_and_rebuild_commands_are_in_the_repository(model
             if word.startswith(("recipes/", "scripts/")):
                 assert (REPO_ROOT / word).is_file(), f"{model.name}: {command}"
     assert card["role"] in ROLES and card["use"]
+
+
+def _parsed(words: list[str]) -> None:
+    """A `planar-pose` command line's words after the program's name parsed by the CLI (its
+    options and arguments checked, nothing run); a click usage error where they are wrong."""
+    from train.cli import app
+
+    command, name = typer.main.get_command(app), "planar-pose"
+    while hasattr(command, "commands"):  # a group: its subcommand
+        name, words = words[0], words[1:]
+        command = command.commands[name]
+    command.make_context(name, words)
+
+
+def test_the_parser_refuses_a_wrong_command_line() -> None:
+    with pytest.raises(Exception, match="No such option: --bogus"):
+        _parsed(["object", "train", "book", "--bogus"])
+
+
+@pytest.mark.parametrize("model", MODELS, ids=lambda p: p.stem)
+def test_a_cards_planar_pose_rebuild_commands_parse(model: Path) -> None:
+    for command in _card(model)["training"]["rebuild"]:
+        words = shlex.split(command)
+        if words[0] == "planar-pose":
+            _parsed(words[1:])
 
 
 @pytest.mark.parametrize("model", MODELS, ids=lambda p: p.stem)
