@@ -13,16 +13,16 @@ The issue's budget: a board photo at most 1.5x the time without the refinement, 
 without the object no more. Each time is the best of `--repeat` rounds of `--seconds`, the
 refinement off and on called in turn within each round (the same load and clock for both).
 
-Streams (`Predictor.track`, as `WS /v1/stream` runs it, the network every 10th frame)
-against the network on every frame: ms per frame and frames/s per core on still sequences
-(`STILL_SEQUENCES` of `STILL_FRAMES` frames of the 1280x720 ChArUco render, fresh sensor noise
-of 2 grey levels per frame) and the spread of their `camera_cm` (RMS distance from each
-sequence's mean, pooled over the sequences, cm); and class right on a video-like sequence
-(the ChArUco val source's frames in order, 6 frames/s, its camera registered). A tracked
-frame's alignment hardly moves from the frame before's corners on a still board, so a tracked
-sequence's answers repeat its network frames' (4 of 40): 32 sequences, so that those 128
-draws pin the spread (8 sequences: 0.0121 against the network's 0.0105 cm, 32: 0.0099
-against 0.0098).
+Streams (`Predictor.follow`, and `Predictor.confirm` on the network's every 10th frame, as
+`WS /v1/stream` runs them) against the network on every frame: ms per frame and frames/s per
+core on still sequences (`STILL_SEQUENCES` of `STILL_FRAMES` frames of the 1280x720 ChArUco
+render, fresh sensor noise of 2 grey levels per frame) and the spread of their `camera_cm`
+(RMS distance from each sequence's mean, pooled over the sequences, cm); and class right on a
+video-like sequence (the ChArUco val source's frames in order, 6 frames/s, its camera
+registered). A tracked frame's alignment hardly moves from the frame before's corners on a
+still board, so a tracked sequence's spread is that of the few answers the network gave it:
+32 sequences, so that the spread is pinned (before the network's frames kept the track, 8
+sequences gave 0.0121 cm against the network's 0.0105, 32 gave 0.0099 against 0.0098).
 
     .venv/bin/python benchmarks/bench_refine.py [--seconds 2] [--repeat 3] [--write-docs]
 """
@@ -159,15 +159,20 @@ def stream(
     predictor: Predictor, frames: list[bytes], known: KnownFocal | None, every: int
 ) -> tuple[list[ImageResult], float]:
     """Each frame's answer as the stream gives it (tracked from the last one, the network
-    every `every` frames; 1: the network on every frame) and the mean ms per frame."""
+    every `every` frames, where it agrees with the track the track's answer; 1: the network
+    on every frame) and the mean ms per frame."""
     results, track, since = [], None, 0
     start = time.perf_counter()
     for data in frames:
-        tracked = None
-        if track is not None and since + 1 < every:
-            tracked = predictor.track(data, track, known)
-        prediction = tracked or predictor.predict([(None, data)], "whole", known)
-        since = since + 1 if tracked else 0
+        job = predictor.admit([(None, data)], predictor.options("whole", known))
+        last = track if every > 1 else None
+        due = since + 1 >= every  # as service/stream/protocol.py runs a stream
+        prediction = None if last is None or due else predictor.follow(job, last)
+        since = 0 if prediction is None else since + 1
+        if prediction is None:
+            prediction = predictor.run(job)
+            if last is not None and due:
+                prediction = predictor.confirm(job, last, prediction)
         result = prediction.results[0]
         track = None
         if result.corners is not None and result.class_id:

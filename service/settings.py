@@ -145,8 +145,9 @@ class Settings(BaseSettings):
         le=10_000,
         description="Streams, whole mode, models that carry their texture: a frame after one "
         "whose object was found is refined from that frame's corners without the network "
-        "(`tracked` in the answer); the network still answers every this many frames, to "
-        "catch drift. 0: the network answers every frame.",
+        "(`tracked` in the answer); the network still looks at every this many frames, to "
+        "catch drift, and the track stands where the network finds the object within 1 px "
+        "of it. 0 or 1: the network answers every frame.",
     )
     exif_focal: bool = Field(
         default=True,

@@ -147,9 +147,10 @@ class ImageResult(BaseModel):
     )
     tracked: bool | None = Field(
         default=None,
-        description="Streams: the corners were refined from the previous frame's, without the "
-        "network (which answers a frame where the track is lost, and every STREAM_TRACK_EVERY "
-        "frames); null outside streams.",
+        description="Streams: the corners were refined from the previous frame's (the network "
+        "answers a frame where the track is lost; every STREAM_TRACK_EVERY frames it checks "
+        "the track, which stands where the network finds the object within 1 px of it); null "
+        "outside streams.",
     )
     fx: float | None = Field(
         default=None,

@@ -114,6 +114,9 @@ def image_corners(
 MIN_PHOTO_SCALE = 2.0
 #: A tracked frame's alignment must correlate this well, else the network answers it.
 TRACK_SCORE = 0.7
+#: A stream's network frame whose object lies within this many px of the track's corners
+#: (each corner, the photo's pixels) keeps the track (`Predictor.confirm`).
+TRACK_AGREE_PX = 1.0
 #: A second opinion where the network calls the object absent: an image it gives at least
 #: this P(present) has its corners refined at the photo's resolution all the same, and the
 #: object is present where the texture then aligns with a correlation of `PRESENT_SCORE` or
@@ -607,6 +610,20 @@ class Predictor:
         return Prediction(
             [result], 0.0, [pinhole if found else None], [kappa if found else None], [None]
         )
+
+    def confirm(self, job: Job, last: Track, network: Prediction) -> Prediction:
+        """A stream's frame that the network answered (`network`, `run`'s) while the frame
+        before showed the object at `last`: that frame tracked from there (`follow`) where
+        the network found the object within `TRACK_AGREE_PX` of the track, else the network's
+        answer (the track drifted or was lost). The network's own alignment of a still object
+        is a new draw of the photo's noise; the track's stays put (ChArUco still sequences,
+        `benchmarks/bench_refine.py`)."""
+        result = network.results[0]
+        if result.corners is None or not result.class_id:
+            return network
+        if np.abs(np.array(result.corners) - last.corners).max() > TRACK_AGREE_PX:
+            return network
+        return self.follow(job, last) or network
 
     def _exif_focal(self, data: bytes, size: tuple[int, int]) -> KnownFocal | None:
         """The focal length of the photo's EXIF (`exif_focal`), px of its `size` (W, H), or

@@ -46,7 +46,7 @@ from service.core.preprocess import ImageDecodeError, ImageTooLargeError
 from service.core.regions import region_of_class
 from service.metrics import Metrics
 from service.pipeline.focal import KnownFocal
-from service.pipeline.job import Job, Options, too_large_code
+from service.pipeline.job import Options, too_large_code
 from service.pipeline.predictor import Prediction, Predictor, Track
 from service.pipeline.results import ImageResult, Mode, Region
 
@@ -440,19 +440,29 @@ class StreamSession:
 
     def _predict(self, data: bytes) -> Prediction:
         """One frame's answer (with the learned camera once there is one): tracked from the
-        last frame's corners where it can be (`Predictor.follow`), else the network's; its
-        corners are then offered to the camera the stream learns."""
+        last frame's corners where it can be (`Predictor.follow`), else the network's, which
+        keeps the track where it agrees with it (`Predictor.confirm`, every
+        `Settings.stream_track_every` frames: tracking off below 2, and in other modes than
+        whole); its corners are then offered to the camera the stream learns."""
         known = self.focal or (self.camera.known if self.camera is not None else None)
         # the request's focal length was checked once, when the stream opened; the frame's
         # header is read once, here
         options = Options(self.options.mode, known, grid=self.options.grid)
         job = self.predictor.admit([(None, data)], options)
-        prediction = self._tracked(job)
+        every = self.predictor.settings.stream_track_every
+        last = self.track if self.options.mode == "whole" and every > 1 else None
+        due = self.tracked + 1 >= every  # the network's turn, to catch drift
+        prediction = None
+        if last is not None and not due:
+            prediction = self.predictor.follow(job, last)  # None: the track is lost
+            self.tracked += prediction is not None
         if prediction is None:
             prediction = self.predictor.run(job)
             self.tracked = 0
             if prediction.results[0].corners is not None:
                 prediction.results[0].tracked = False
+            if last is not None and due:
+                prediction = self.predictor.confirm(job, last, prediction)
         result, pinhole = prediction.results[0], prediction.pinhole[0]
         self.track = None
         if result.corners is not None and result.class_id:
@@ -461,18 +471,6 @@ class StreamSession:
         if self.camera is not None and pinhole is not None and result.image_size:
             w, h = result.image_size
             self.camera.offer(pinhole, (w, h), prediction.kappas[0], prediction.features[0])
-        return prediction
-
-    def _tracked(self, job: Job) -> Prediction | None:
-        """The frame tracked from the last one, or None where the network answers it: no
-        track, tracking off or due the network (`Settings.stream_track_every`), not whole
-        mode, or the track lost."""
-        every = self.predictor.settings.stream_track_every
-        if self.track is None or self.options.mode != "whole" or self.tracked + 1 >= every:
-            return None
-        prediction = self.predictor.follow(job, self.track)
-        if prediction is not None:
-            self.tracked += 1
         return prediction
 
     async def _send(self, text: str) -> None:

@@ -88,10 +88,10 @@ def test_video_frames_come_back_in_order_as_predict_answers_them(
             assert np.abs(np.array(got["corners"]) - want["corners"]).max() < 1.0
         else:
             assert got["probabilities"] == pytest.approx(want["probabilities"], abs=1e-6)
-    # whole mode tracks a view from frame to frame; the network answers every 10th frame
+    # whole mode tracks a view from frame to frame (the network's every 10th frame keeps the
+    # track where it agrees: tests/service/test_stream_track.py)
     tracked = [bool(a.get("tracked")) for a in answers]
     assert any(tracked) == (mode == "whole")
-    assert "".join("t" if t else "n" for t in tracked).count("t" * 10) == 0
     # The rendered classes (a segment counts by its majority): the empty frames are class 0
     # and every view of the board is seen as the board (the x/y side is the model's accuracy,
     # measured in docs/results.md, not the stream's behaviour).
