@@ -114,8 +114,8 @@ class Settings(BaseSettings):
         default=True,
         description="With ZOOM: also search the tiles of an image where no board was found "
         "(1 + ZOOM_SEARCH_TILES network inputs for each; off: at most 2 per image, a small "
-        "board's tile). Zero-shot models never search: their presence threshold is measured "
-        "on whole frames.",
+        "board's tile). Zero-shot models search only photos with more pixels than the network "
+        "reads: their presence threshold is measured on whole frames.",
     )
     zoom_search_tiles: int = Field(
         default=1,

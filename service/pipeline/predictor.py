@@ -410,10 +410,12 @@ class Predictor:
             )
         if detail is not None:
             cfg = self.settings
-            # A zero-shot model searches no tile where the whole frame found nothing: its
-            # presence threshold is measured on whole frames (train/network/zeroshot.py), and
-            # a look at one more tile lets more absent images pass it (docs/decisions.md).
-            search = cfg.zoom_search and self.model.training != "zero-shot"
+            # A zero-shot model searches no tile of a photo without more pixels than the
+            # network reads (no `detail`): its presence threshold is measured on whole frames
+            # (train/network/zeroshot.py), and a look at that enlarged tile lets more absent
+            # images pass it, for no detail gained (docs/decisions.md).
+            trained = self.model.training != "zero-shot"
+            search = [cfg.zoom_search and (trained or d is not None) for d in detail]
             return zoomed(self.model, batch, aspect, search, focal, detail, cfg.zoom_search_tiles)
         return self.model.run(batch, aspect, focal=focal)
 

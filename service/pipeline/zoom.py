@@ -32,6 +32,7 @@ without `search`), 1 for a large board.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import cv2
 import numpy as np
@@ -128,15 +129,16 @@ def zoomed(
     model: PoseModel,
     batch: np.ndarray,
     pixel_aspect: np.ndarray | None,
-    search: bool = True,
+    search: bool | Sequence[bool] = True,
     focal: np.ndarray | None = None,
     detail: list[np.ndarray | None] | None = None,
     search_tiles: int = SEARCH_TILES,
 ) -> Answer:
     """The whole-frame answer of `model` on float32 [N, 3, H, W] in [0, 1] (and its pixel
     aspect [N] and the known focal lengths [N], `PoseModel.run`), with the zoom pass where
-    it applies (module doc; `search`: also in the `search_tiles` tiles nearest the corners'
-    guess of the images where no board was found, 1 to `GRID` * `GRID`; `detail`: per image
+    it applies (module doc; `search`, for all images or per image: also in the
+    `search_tiles` tiles nearest the corners' guess of the images where no board was found,
+    1 to `GRID` * `GRID`; `detail`: per image
     its frame at twice the input size, or None, `detail_of`) -> `Answer` (probabilities
     [N, 9], corners [N, 4, 2] in input pixels, pattern [N]). A model without `view` and
     `pattern` (`PoseModel.zooms`) gives its whole-frame answer."""
@@ -154,7 +156,7 @@ def zoomed(
         if p_absent < PRESENT:
             view = closer_view(corners, model.input_size)
             chosen = [] if view is None else [view]
-        elif search:
+        elif search if isinstance(search, bool) else search[i]:
             chosen = list(tiles[search_order(corners, tiles, model.input_size)[:search_tiles]])
         else:
             chosen = []

@@ -207,15 +207,18 @@ def test_the_zoom_setting_switches_the_pass_off(model: PoseModel) -> None:
         assert [n for n, _ in spy.calls] == calls
 
 
-def test_a_zero_shot_model_searches_no_tile(model: PoseModel) -> None:
-    """Its presence threshold is measured on whole frames: no board in the whole frame, no
-    second look (a trained model's search looks at one tile)."""
-    blank = cv2.imencode(".png", np.full((120, 160, 3), 128, np.uint8))[1].tobytes()
+def test_a_zero_shot_model_searches_only_photos_with_more_pixels(model: PoseModel) -> None:
+    """Its presence threshold is measured on whole frames: no board in a photo of the input's
+    size, no second look at an enlarged tile of it (a trained model's search looks at one);
+    a larger photo's tile has detail of its own, and is searched."""
     zero_shot = replace(model, card={**model.card, "zero_shot": {}})
-    for served, calls in ((zero_shot, [1]), (model, [1, 1])):
-        spy = Spy(served)
-        Predictor(spy, Settings()).predict([(None, blank)], "whole")  # type: ignore[arg-type]
-        assert [n for n, _ in spy.calls] == calls, served.training
+    for (w, h), calls in (((160, 120), {"zero-shot": [1], "trained": [1, 1]}),
+                          ((640, 480), {"zero-shot": [1, 1], "trained": [1, 1]})):  # fmt: skip
+        blank = cv2.imencode(".png", np.full((h, w, 3), 128, np.uint8))[1].tobytes()
+        for served in (zero_shot, model):
+            spy = Spy(served)
+            Predictor(spy, Settings()).predict([(None, blank)], "whole")  # type: ignore[arg-type]
+            assert [n for n, _ in spy.calls] == calls[served.training], (w, served.training)
 
 
 def test_the_service_cuts_the_tile_from_a_large_upload(model: PoseModel) -> None:
