@@ -560,16 +560,6 @@ class Predictor:
         else:  # the pose's region is less likely than the object's absence
             result.corners = result.corners_source = result.refinement = None
 
-    def track(
-        self,
-        data: bytes,
-        last: Track,
-        focal: KnownFocal | None = None,
-        grid: RegionGrid | None = None,
-    ) -> Prediction | None:
-        """`follow` for a frame's bytes (its header read here, its size limits checked)."""
-        return self.follow(self.admit([(None, data)], Options("whole", focal, grid=grid)), last)
-
     def follow(self, job: Job, last: Track) -> Prediction | None:
         """The one frame of `job`, of a stream whose object the frame before showed at `last`:
         its corners refined from there (no network, no feature search, the last frame's
