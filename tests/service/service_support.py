@@ -78,6 +78,18 @@ UVICORN = [sys.executable, "-m", "uvicorn", "service.app:app", "--port", "{port}
 SERVE = [sys.executable, "-m", "service.cli", "--port", "{port}"]
 
 
+def stream_answers(client: TestClient, frames: list[bytes]) -> list[dict[str, Any]]:
+    """Each frame sent on a new `WS /v1/stream` (after its "ready" event) and its answer, in
+    lockstep."""
+    with client.websocket_connect("/v1/stream") as ws:
+        assert ws.receive_json()["event"] == "ready"
+        answers = []
+        for frame in frames:
+            ws.send_bytes(frame)
+            answers.append(ws.receive_json())
+    return answers
+
+
 def encode(ext: str, image: np.ndarray) -> bytes:
     ok, buf = cv2.imencode(ext, image)
     assert ok

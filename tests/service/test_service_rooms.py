@@ -9,7 +9,7 @@ from typing import Any
 
 import pytest
 from fastapi.testclient import TestClient
-from service_support import PHOTO
+from service_support import PHOTO, stream_answers
 
 from service.api.schemas import image_result_out
 from service.core import preprocess
@@ -70,11 +70,6 @@ def test_each_stream_frames_header_is_read_once_tracked_or_not(
     counted = _counting(calls, preprocess.image_header)
     monkeypatch.setattr(job, "image_header", counted)
     monkeypatch.setattr(preprocess, "image_header", counted)
-    with client.websocket_connect("/v1/stream") as ws:
-        assert ws.receive_json()["event"] == "ready"
-        answers = []
-        for _ in range(3):
-            ws.send_bytes(PHOTO)
-            answers.append(ws.receive_json())
+    answers = stream_answers(client, [PHOTO] * 3)
     assert all("class_id" in a for a in answers), answers
     assert calls == [len(PHOTO)] * 3

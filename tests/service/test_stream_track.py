@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
-from service_support import PHOTO
+from service_support import PHOTO, stream_answers
 
 from service.pipeline import PoseModel, Predictor, Settings
 from service.pipeline.predictor import TRACK_AGREE_PX, Track
@@ -26,12 +26,7 @@ def test_the_network_checks_the_track_every_10th_frame_and_keeps_it_where_it_agr
         return run(self, job)
 
     monkeypatch.setattr(Predictor, "run", counted)
-    with client.websocket_connect("/v1/stream") as ws:
-        assert ws.receive_json()["event"] == "ready"
-        answers = []
-        for _ in range(12):
-            ws.send_bytes(PHOTO)
-            answers.append(ws.receive_json())
+    answers = stream_answers(client, [PHOTO] * 12)
     assert runs == [1, 1]  # frames 0 and 10
     assert [a["tracked"] for a in answers] == [False] + [True] * 11
     # the same photo: the network's frame answers where the track stands
