@@ -13,16 +13,17 @@ The issue's budget: a board photo at most 1.5x the time without the refinement, 
 without the object no more. Each time is the best of `--repeat` rounds of `--seconds`, the
 refinement off and on called in turn within each round (the same load and clock for both).
 
-Streams (`Predictor.follow`, and `Predictor.confirm` on the network's every 10th frame, as
-`WS /v1/stream` runs them) against the network on every frame: ms per frame and frames/s per
-core on still sequences (`STILL_SEQUENCES` of `STILL_FRAMES` frames of the 1280x720 ChArUco
-render, fresh sensor noise of 2 grey levels per frame) and the spread of their `camera_cm`
-(RMS distance from each sequence's mean, pooled over the sequences, cm); and class right on a
-video-like sequence (the ChArUco val source's frames in order, 6 frames/s, its camera
-registered). A tracked frame's alignment hardly moves from the frame before's corners on a
-still board, so a tracked sequence's spread is that of the few answers the network gave it:
-32 sequences, so that the spread is pinned (before the network's frames kept the track, 8
-sequences gave 0.0121 cm against the network's 0.0105, 32 gave 0.0099 against 0.0098).
+Streams (`Predictor.stream_frame` as `WS /v1/stream` runs it: tracked frames, the network's
+every 10th frame keeping the track where it agrees) against the network on every frame: ms
+per frame and frames/s per core on still sequences (`STILL_SEQUENCES` of `STILL_FRAMES` frames
+of the 1280x720 ChArUco render, fresh sensor noise of 2 grey levels per frame) and the spread
+of their `camera_cm` (RMS distance from each sequence's mean, pooled over the sequences, cm);
+and class right on a video-like sequence (the ChArUco val source's frames in order, 6
+frames/s, its camera registered). A tracked frame's alignment hardly moves from the frame
+before's corners on a still board, so a tracked sequence's spread is that of the few answers
+the network gave it: 32 sequences, so that the spread is pinned (before the network's frames
+kept the track, 8 sequences gave 0.0121 cm against the network's 0.0105, 32 gave 0.0099
+against 0.0098).
 
     .venv/bin/python benchmarks/bench_refine.py [--seconds 2] [--repeat 3] [--write-docs]
 """
@@ -156,23 +157,15 @@ def measure(obj: str, seconds: float, repeat: int) -> list[list[str]]:
 
 
 def stream(
-    predictor: Predictor, frames: list[bytes], known: KnownFocal | None, every: int
+    predictor: Predictor, frames: list[bytes], known: KnownFocal | None
 ) -> tuple[list[ImageResult], float]:
-    """Each frame's answer as the stream gives it (tracked from the last one, the network
-    every `every` frames, where it agrees with the track the track's answer; 1: the network
-    on every frame) and the mean ms per frame."""
+    """Each frame's answer as a stream gives it (`Predictor.stream_frame`, the network every
+    `stream_track_every` frames of the predictor's settings) and the mean ms per frame."""
     results, track, since = [], None, 0
     start = time.perf_counter()
     for data in frames:
         job = predictor.admit([(None, data)], predictor.options("whole", known))
-        last = track if every > 1 else None
-        due = since + 1 >= every  # as service/stream/protocol.py runs a stream
-        prediction = None if last is None or due else predictor.follow(job, last)
-        since = 0 if prediction is None else since + 1
-        if prediction is None:
-            prediction = predictor.run(job)
-            if last is not None and due:
-                prediction = predictor.confirm(job, last, prediction)
+        prediction, since = predictor.stream_frame(job, track, since)
         result = prediction.results[0]
         track = None
         if result.corners is not None and result.class_id:
@@ -198,7 +191,6 @@ def spread_cm(sequences: list[list[ImageResult]]) -> float:
 def stream_rows() -> list[list[str]]:
     """The streams' rows: still sequence (ms, frames/s, spread) and video-like (class)."""
     model = PoseModel.load(ROOT / "models" / f"{MODELS['charuco']}.onnx", intra_op_threads=1)
-    predictor = Predictor(model, Settings())
     board, _ = object_photo("charuco")
     bgr = cv2.imdecode(np.frombuffer(board, np.uint8), cv2.IMREAD_COLOR).astype(np.float64)
     rng = np.random.default_rng(0)
@@ -211,10 +203,11 @@ def stream_rows() -> list[list[str]]:
     camera = None if calibration is None else KnownFocal.of_camera(calibration)
     rows = []
     for what, every in (("network every frame", 1), ("tracked, network every 10th", 10)):
-        runs = [stream(predictor, still, None, every) for still in stills]
+        predictor = Predictor(model, Settings(stream_track_every=every))
+        runs = [stream(predictor, still, None) for still in stills]
         answers = [answer for run in runs for answer in run[0]]
         ms = float(np.mean([run[1] for run in runs]))
-        seen, _ = stream(predictor, frames, camera, every)
+        seen, _ = stream(predictor, frames, camera)
         truth = [int(row["class"]) for row in labels]
         right = np.mean([r.class_id == k for r, k in zip(seen, truth, strict=True)])
         tracked = np.mean([bool(r.tracked) for r in answers])

@@ -603,6 +603,27 @@ class Predictor:
             [result], 0.0, [pinhole if found else None], [kappa if found else None], [None]
         )
 
+    def stream_frame(self, job: Job, last: Track | None, since: int) -> tuple[Prediction, int]:
+        """One frame of a stream, whole mode: `last` where the frame before showed the object
+        (None: it did not), `since` frames tracked since the network last looked -> the answer
+        and that count after it. Tracked from `last` (`follow`) until the network's turn, every
+        `Settings.stream_track_every` frames (below 2: no tracking), where the track stands if
+        the network agrees with it (`confirm`); the network's answer where the track is lost."""
+        every = self.settings.stream_track_every
+        due = since + 1 >= every
+        if every < 2:
+            last = None
+        if last is not None and not due:
+            tracked = self.follow(job, last)
+            if tracked is not None:
+                return tracked, since + 1
+        network = self.run(job)
+        if network.results[0].corners is not None:
+            network.results[0].tracked = False
+        if last is not None and due:
+            return self.confirm(job, last, network), 0
+        return network, 0
+
     def confirm(self, job: Job, last: Track, network: Prediction) -> Prediction:
         """A stream's frame that the network answered (`network`, `run`'s) while the frame
         before showed the object at `last`: that frame tracked from there (`follow`) where

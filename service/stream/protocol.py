@@ -439,30 +439,17 @@ class StreamSession:
         return json.dumps({**where, **image_result_out(result).model_dump(mode="json")})
 
     def _predict(self, data: bytes) -> Prediction:
-        """One frame's answer (with the learned camera once there is one): tracked from the
-        last frame's corners where it can be (`Predictor.follow`), else the network's, which
-        keeps the track where it agrees with it (`Predictor.confirm`, every
-        `Settings.stream_track_every` frames: tracking off below 2, and in other modes than
-        whole); its corners are then offered to the camera the stream learns."""
+        """One frame's answer (with the learned camera once there is one): in whole mode
+        tracked from the last frame's corners where it can be, the network looking every
+        `Settings.stream_track_every` frames (`Predictor.stream_frame`), else the network's;
+        its corners are then offered to the camera the stream learns."""
         known = self.focal or (self.camera.known if self.camera is not None else None)
         # the request's focal length was checked once, when the stream opened; the frame's
         # header is read once, here
         options = Options(self.options.mode, known, grid=self.options.grid)
         job = self.predictor.admit([(None, data)], options)
-        every = self.predictor.settings.stream_track_every
-        last = self.track if self.options.mode == "whole" and every > 1 else None
-        due = self.tracked + 1 >= every  # the network's turn, to catch drift
-        prediction = None
-        if last is not None and not due:
-            prediction = self.predictor.follow(job, last)  # None: the track is lost
-            self.tracked += prediction is not None
-        if prediction is None:
-            prediction = self.predictor.run(job)
-            self.tracked = 0
-            if prediction.results[0].corners is not None:
-                prediction.results[0].tracked = False
-            if last is not None and due:
-                prediction = self.predictor.confirm(job, last, prediction)
+        last = self.track if self.options.mode == "whole" else None
+        prediction, self.tracked = self.predictor.stream_frame(job, last, self.tracked)
         result, pinhole = prediction.results[0], prediction.pinhole[0]
         self.track = None
         if result.corners is not None and result.class_id:
