@@ -34,6 +34,7 @@ from service.core.refine import (
     REFINED_NOISE_PX,
     CameraLens,
     Features,
+    FeatureSearch,
     Lens,
     RadialLens,
     Refinement,
@@ -430,17 +431,18 @@ class Predictor:
         """Each image's `ObjectView` where the network found the object (None elsewhere, and
         for graphs without corners), refined where the model carries its texture, the
         settings ask for it and the photo has more pixels than the network read
-        (`MIN_PHOTO_SCALE`; the refinement's time is added to the image's `prep`); and where
-        the network missed it but the texture aligns there (`RESCUE_FROM_P`, a zero-shot model's
-        `ZERO_SHOT_RESCUE_FROM_P`; `PRESENT_SCORE`)."""
+        (`MIN_PHOTO_SCALE`; the refinement's time is added to the image's `prep`; the
+        texture's features searched near the network's corners where a trained network found
+        it, else in the whole photo); and where the network missed it but the texture aligns
+        there (`RESCUE_FROM_P`, a zero-shot model's `ZERO_SHOT_RESCUE_FROM_P`;
+        `PRESENT_SCORE`)."""
         corners = image_corners(answer, frames)
         if corners is None:
             return [None] * len(images)
         views: list[ObjectView | None] = []
         texture = self.model.texture if self.settings.refine else None
-        rescue_from = (
-            ZERO_SHOT_RESCUE_FROM_P if self.model.training == "zero-shot" else RESCUE_FROM_P
-        )
+        zero_shot = self.model.training == "zero-shot"
+        rescue_from = ZERO_SHOT_RESCUE_FROM_P if zero_shot else RESCUE_FROM_P
         for i, p in enumerate(answer.probabilities):
             seen, size = corners[0][i], frames[i].image_size
             large = max(size) >= MIN_PHOTO_SCALE * max(self.model.input_size)
@@ -457,7 +459,10 @@ class Predictor:
             view = ObjectView(seen, pinhole, kind)
             if aligns is not None:
                 t0 = time.perf_counter()
-                view = self._refined(images[i], view, aligns, lens)
+                # the features near the corners of a trained network that found the object;
+                # elsewhere its corners mark no place (docs/decisions.md)
+                near = not (missed or zero_shot)
+                view = self._refined(images[i], view, aligns, lens, "near" if near else "photo")
                 prep[i] += time.perf_counter() - t0
             ref = view.refinement
             if not missed:
@@ -469,10 +474,16 @@ class Predictor:
         return views
 
     def _refined(
-        self, image: Upload, view: ObjectView, texture: Texture, lens: Lens | None
+        self,
+        image: Upload,
+        view: ObjectView,
+        texture: Texture,
+        lens: Lens | None,
+        features: FeatureSearch,
     ) -> ObjectView:
-        """`view` with its corners refined at the photo's own resolution (`refine_corners`),
-        the photo decoded reduced as far as the object keeps `MAX_EXTENT_PX` of extent."""
+        """`view` with its corners refined at the photo's own resolution (`refine_corners`,
+        the texture's features searched where `features` says), the photo decoded reduced as
+        far as the object keeps `MAX_EXTENT_PX` of extent."""
         grey, f, _ = load_grey(image.data, _reduction(view.pinhole), image.header)
         fit = view.lens != "camera"  # a lens not known is fitted with the alignment
         ref = refine_corners(
@@ -482,6 +493,7 @@ class Predictor:
             None if lens is None else lens.reduced(f),
             self.settings.refine_budget_ms,
             fit_lens=fit,
+            features=features,
         )
         if not ref.refined:
             return replace(view, refinement=ref)
@@ -584,7 +596,7 @@ class Predictor:
             texture,
             lens.reduced(f),
             self.settings.refine_budget_ms,
-            features=False,
+            features="off",
         )
         if not ref.refined or ref.score < TRACK_SCORE:
             return None

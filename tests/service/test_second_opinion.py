@@ -5,6 +5,7 @@ photo's resolution has a second say (service/pipeline/predictor.py `RESCUE_FROM_
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 import pytest
@@ -78,3 +79,28 @@ def test_a_zero_shot_model_is_asked_again_from_a_lower_p(
         answers[name] = predictor.predict([(None, data)], "whole").results[0]
     assert answers["zero-shot"].class_id != 0 and answers["zero-shot"].corners_source == "refined"
     assert answers["trained"].class_id == 0 and answers["trained"].corners is None
+
+
+def test_the_features_are_searched_near_the_corners_of_a_trained_network_that_found_it(
+    default_model: PoseModel, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A trained network that found the object marks where it is: its features are searched
+    there. Where it missed it, or the network is zero-shot, the whole photo is searched."""
+    import service.pipeline.predictor as module
+
+    searched: list[str] = []
+    refine = module.refine_corners
+
+    def spy(*args: object, **kwargs: Any) -> object:
+        searched.append(kwargs["features"])
+        return refine(*args, **kwargs)
+
+    monkeypatch.setattr(module, "refine_corners", spy)
+    data, _ = board_photo()
+    zero_shot = replace(default_model, card={**default_model.card, "zero_shot": {}})
+    for model in (default_model, zero_shot):
+        Predictor(model, Settings()).predict([(None, data)], "whole")
+    trained = Predictor(default_model, Settings())
+    missed(trained, monkeypatch, 2 * RESCUE_FROM_P)
+    trained.predict([(None, data)], "whole")
+    assert searched == ["near", "photo", "photo"]
