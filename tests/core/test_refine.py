@@ -171,13 +171,15 @@ def test_a_start_far_off_is_found_by_the_textures_features() -> None:
 
 def test_the_feature_search_looks_around_the_start_only() -> None:
     """Around corners that mark a region: found where the board lies in it, not where it lies
-    outside; corners too close together mark no region (the whole photo is searched)."""
+    outside (or the region is outside the photo); corners too close together mark no region
+    (the whole photo is searched)."""
     tex = texture("charuco")
     image = photo(tex)
     found = feature_start(image, tex, TRUTH + [60.0, -30.0])
     assert found is not None and error(found) < 3.0
     left = np.array([[10.0, 200.0], [90.0, 200.0], [90.0, 120.0], [10.0, 120.0]])
     assert feature_start(image, tex, left) is None
+    assert feature_start(image, tex, TRUTH + 5000.0) is None  # outside the photo
     tiny = feature_start(image, tex, left * 0.05 + 20)
     assert tiny is not None and error(tiny) < 3.0
 
