@@ -49,6 +49,9 @@ from service.core.pose import Camera
 
 #: The crop around the start corners, as a share of the object's extent on each side.
 MARGIN = 0.15
+#: The least share of the object's area the photo must show to align it (a board cut by the
+#: frame's edge keeps the rest).
+MIN_SEEN = 0.2
 #: The object's extent (px) the finest level works at: larger objects are aligned on a
 #: reduced crop (the texture's detail, not the photo's, then bounds the precision).
 MAX_EXTENT_PX = 240
@@ -361,7 +364,8 @@ def _crop(grey: np.ndarray, pinhole: np.ndarray, lens: Lens | None, scale: float
     `MARGIN` of their extent around them) as a pinhole sees it (`lens` undone; None: the
     photo is a pinhole's), at `scale`: the photo's region reduced by the scale first (area
     average: no aliasing), then resampled through the lens (computed
-    every `MAP_STEP` crop px, bilinear between: a lens is smooth)."""
+    every `MAP_STEP` crop px, bilinear between: a lens is smooth). ValueError where the
+    photo shows less than `MIN_SEEN` of the object's area."""
     margin = MARGIN * extent(pinhole)
     origin = pinhole.min(0) - margin
     w, h = (np.ceil((pinhole.max(0) + margin - origin) * scale)).astype(int)
@@ -389,7 +393,10 @@ def _crop(grey: np.ndarray, pinhole: np.ndarray, lens: Lens | None, scale: float
     rh, rw = region.shape
     mx, my = maps[..., 0], maps[..., 1]
     inside = (mx >= 0) & (mx <= rw - 1) & (my >= 0) & (my <= rh - 1)
-    if np.count_nonzero(inside) < 0.2 * inside.size:
+    quad = np.zeros((h, w), np.uint8)  # the object in the crop, the margin left out
+    cv2.fillPoly(quad, [np.round((pinhole - origin) * scale).astype(np.int32)], 1)
+    area = max(int(np.count_nonzero(quad)), 1)
+    if np.count_nonzero(inside & (quad > 0)) < MIN_SEEN * area:
         raise ValueError("the object lies outside the photo")
     return _Crop(_unit(crop), inside.astype(np.uint8) * 255, origin, scale)
 
@@ -417,7 +424,7 @@ def _score(template: np.ndarray, crop: _Crop, H: np.ndarray) -> float:
     valid = cv2.warpPerspective(
         crop.mask, H, (w, h), flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP
     )
-    if np.count_nonzero(valid) < 0.2 * valid.size:
+    if np.count_nonzero(valid) < MIN_SEEN * valid.size:
         return -1.0
     try:
         return float(cv2.computeECC(template, warped, valid))
@@ -686,7 +693,7 @@ def _tracked_points(aligned: _Aligned, lens: RadialLens, texture: Texture) -> Fe
     flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
     warped = cv2.warpPerspective(crop.grey, H, (w, h), flags=flags)
     seen = cv2.warpPerspective(crop.mask, H, (w, h), flags=cv2.INTER_NEAREST | flags) > 0
-    if np.count_nonzero(seen) < 0.2 * seen.size:
+    if np.count_nonzero(seen) < MIN_SEEN * seen.size:
         return None
     # Lucas-Kanade is not invariant to brightness and contrast as the correlation is
     gain = template[seen].std() / max(float(warped[seen].std()), 1e-6)

@@ -139,6 +139,19 @@ def test_blur_a_hand_over_the_object_and_the_frames_edge_are_held() -> None:
     assert ref.refined and error(ref.corners, cut) < 0.5
 
 
+def test_a_board_mostly_outside_the_photo_is_aligned_by_what_it_shows() -> None:
+    """A board 3x the photo's height, a third of it in view: the crop around it (the board
+    and a margin) is mostly outside the photo, the part the photo shows is enough."""
+    tex = texture("charuco")
+    big = (TRUTH - TRUTH.mean(0)) * 4.0 + [420.0, 420.0]
+    quad = np.zeros(SIZE[::-1], np.uint8)
+    visible = cv2.fillPoly(quad, [np.round(big).astype(np.int32)], 1).sum()
+    share = visible / cv2.contourArea(big.astype(np.float32))
+    assert 0.2 < share < 0.4
+    ref = refine_corners(photo(tex, big), big + 2.0 * (START - TRUTH), tex)
+    assert ref.refined and error(ref.corners, big) < 4.0  # corners 500 px outside the photo
+
+
 def test_a_heavily_blurred_photo_is_aligned_with_the_texture_blurred_alike() -> None:
     """Blurred by 4 px, the ChArUco board's fine markers mislead an alignment with the sharp
     texture (5.4 px off); with the texture blurred to the photo's blur it is within 2 px."""
