@@ -175,8 +175,10 @@ def _costs(
     views: Sequence[np.ndarray], object_points: np.ndarray, size: tuple[int, int], fs: np.ndarray
 ) -> np.ndarray:
     """Each view's sum of squared reprojection errors px^2 over its 4 corners [V, F] at each
-    focal length `fs` [F] (solvePnP's error is the RMS distance: 4 rms^2 per view)."""
-    return np.stack([4.0 * _residuals(views, object_points, size, f) ** 2 for f in fs], 1)
+    focal length `fs` [F] (solvePnP's error is the RMS distance: 4 rms^2 per view); inf
+    where no pose was found (IPPE gives NaN for some exactly symmetric views)."""
+    costs = np.stack([4.0 * _residuals(views, object_points, size, f) ** 2 for f in fs], 1)
+    return np.where(np.isfinite(costs), costs, np.inf)
 
 
 def _allowed(fs: np.ndarray, cost: np.ndarray, noise: float) -> tuple[float, float]:

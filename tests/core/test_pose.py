@@ -94,6 +94,16 @@ def test_one_head_on_view_keeps_the_prior_and_says_the_range_is_wide() -> None:
     assert longer == pytest.approx(focal_prior(SIZE, 1.0)) and longer > fx
 
 
+def test_a_symmetric_view_ippe_fails_on_at_some_focal_lengths_still_gets_an_estimate() -> None:
+    """Seen from straight below its centre line, IPPE finds no pose at one of the scan's focal
+    lengths: that one fits nothing, the rest decide."""
+    view = _view([0, -45, 50])
+    fx, (lo, hi) = estimate_focal(view, OBJ, SIZE, noise_px=0.3)
+    assert fx == pytest.approx(FX, rel=0.05) and lo <= fx <= hi
+    lo, hi = focal_interval([view], OBJ, SIZE, noise_px=0.3)
+    assert lo <= FX <= hi
+
+
 def test_one_camera_is_fitted_from_noisy_views_and_an_outlier_is_dropped() -> None:
     views = [_view(c, noise=0.5, seed=i) for i, c in enumerate(OBLIQUE)]
     views.append(_view([25, 25, 60], fx=2.5 * FX))  # another lens: does not fit
