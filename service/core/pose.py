@@ -9,8 +9,9 @@ is a pinhole with square pixels, its principal point at the image centre unless 
     solve_pose       corners [4, 2] px + camera -> `CameraPose` (IPPE PnP, the face seen)
     focal_interval   views -> the focal lengths they allow: where the corners fit within
                      their noise (a head-on view allows a wide range, an oblique one a narrow)
-    estimate_focal   one view -> the focal length its pose takes: the best fit where the view
-                     pins it, else the network's prior kept within the range it allows
+    estimate_focal   one view -> the focal length its pose takes: the most probable given
+                     the view's fit and the network's prior (an oblique view pins its own,
+                     a head-on one keeps the prior)
     zhang_focal      views -> fx of Zhang's constraints on their homographies, closed form
     fit_focal        views -> one camera's fx: the focal length the views agree on (views that
                      do not dropped), Zhang refined by `cv2.calibrateCamera` (fx = fy,
@@ -43,11 +44,11 @@ CAMERA_BOUNDS = (0.3, 3.0)
 CORNER_NOISE_INPUT_PX = 0.5
 #: Focal lengths tried across the bounds (log-spaced; 6 % apart over the `CAMERA_BOUNDS`).
 FOCAL_STEPS = 41
-#: A view whose allowed focal lengths span less than this factor (hi / lo) pins its own:
-#: `estimate_focal` takes the best fit there instead of the prior (ChArUco val frames at
-#: 1280x720, refined corners, nothing known: 84.8 % with the prior, 89.1 % with the best fit
-#: below a factor of 2, 80.4 % below 1.5, 87.0 % below 3; docs/decisions.md).
-PINNED_RATIO = 2.0
+#: The spread of focal lengths around the prior, in ln(fx) (a factor of 1.28 either way): the
+#: prior's weight in `estimate_focal` against the view's own fit. Chosen on the val sets
+#: (0.25 and 0.4 tried) where it replaced a switch (the best fit where the view allowed a
+#: range narrower than a factor of 2, else the prior): docs/decisions.md.
+FOCAL_PRIOR_SD = 0.25
 
 
 @dataclass(frozen=True)
@@ -291,23 +292,24 @@ def estimate_focal(
     """One view's corners [4, 2] px (`noise_px` per coordinate, None: `corner_noise_px`) ->
     the focal length px the pose takes and the range (lo, hi) px the view allows (the
     focal lengths within the `CAMERA_BOUNDS` whose pose fits the corners within their
-    noise, as `focal_interval`). Where that range is narrower than `PINNED_RATIO` (an
-    oblique view), the focal length that fits best (the least squared error, a parabola's
-    vertex in log f between the scan's steps); else the network's prior (`focal_prior` of
-    `prior`, x the SPEC camera's) kept within the range (a head-on view keeps the prior)."""
+    noise, as `focal_interval`). The focal length is the most probable one given the view
+    and the prior: the least of the corners' squared error over 2 noise^2 plus
+    (ln f - ln prior)^2 / (2 `FOCAL_PRIOR_SD`^2) (a parabola's vertex in ln f between the
+    scan's steps), the prior being the model's (`focal_prior` of `prior`, x the SPEC
+    camera's). An oblique view pins its own focal length; a head-on one keeps the prior."""
     q = _as_points(corners)
     fs = np.geomspace(*focal_bounds(size, CAMERA_BOUNDS), FOCAL_STEPS)
     cost = _costs([q], object_points, size, fs)[0]
     noise = corner_noise_px(size) if noise_px is None else noise_px
     lo, hi = _allowed(fs, cost, noise)
-    if hi / lo >= PINNED_RATIO:
-        return float(np.clip(focal_prior(size, prior), lo, hi)), (lo, hi)
-    i = int(np.clip(np.argmin(cost), 1, len(fs) - 2))
-    c0, c1, c2 = cost[i - 1 : i + 2]
+    log_fs = np.log(fs)
+    off_prior = (log_fs - math.log(focal_prior(size, prior))) / FOCAL_PRIOR_SD
+    score = cost / (2.0 * noise**2) + 0.5 * off_prior**2
+    i = int(np.clip(np.argmin(score), 1, len(fs) - 2))
+    c0, c1, c2 = score[i - 1 : i + 2]
     curve = c0 - 2 * c1 + c2
-    step = float(np.log(fs[1] / fs[0]))
     shift = 0.5 * (c0 - c2) / curve if curve > 0 else 0.0
-    best = float(np.exp(np.log(fs[i]) + step * np.clip(shift, -1.0, 1.0)))
+    best = float(np.exp(log_fs[i] + (log_fs[1] - log_fs[0]) * np.clip(shift, -1.0, 1.0)))
     return float(np.clip(best, lo, hi)), (lo, hi)
 
 

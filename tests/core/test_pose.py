@@ -88,10 +88,27 @@ def test_more_views_narrow_the_focal_range_and_it_holds_the_truth() -> None:
 
 def test_one_head_on_view_keeps_the_prior_and_says_the_range_is_wide() -> None:
     fx, (lo, hi) = estimate_focal(_view([0.0, 0.0, 60.0], noise=0.5), OBJ, SIZE)
-    assert fx == pytest.approx(focal_prior(SIZE)) and hi / lo > 2.0
+    assert fx == pytest.approx(focal_prior(SIZE), rel=0.01) and hi / lo > 2.0
     # an object's own prior (its profile's) is the one a head-on view keeps
     longer, _ = estimate_focal(_view([0.0, 0.0, 60.0], noise=0.5), OBJ, SIZE, prior=1.0)
-    assert longer == pytest.approx(focal_prior(SIZE, 1.0)) and longer > fx
+    assert longer == pytest.approx(focal_prior(SIZE, 1.0), rel=0.01) and longer > fx
+
+
+@pytest.mark.parametrize("prior", [0.5, 0.8, 1.2])
+def test_one_oblique_view_pins_its_own_focal_length_whatever_the_prior(prior: float) -> None:
+    """fx 1000 px, priors of 0.66-1.58 x that: the view's fit outweighs them."""
+    view = _view(OBLIQUE[0], noise=0.3, seed=1)
+    fx, (lo, hi) = estimate_focal(view, OBJ, SIZE, prior=prior, noise_px=0.3)
+    assert fx == pytest.approx(FX, rel=0.05) and lo <= fx <= hi
+
+
+def test_a_view_between_head_on_and_oblique_is_drawn_to_the_prior_as_far_as_it_allows() -> None:
+    """A view that allows a range of focal lengths: its estimate moves with the prior but
+    stays within the range, nearer the prior than the best fit alone would be."""
+    view = _view([15, -10, 60], noise=0.5, seed=2)
+    estimates = [estimate_focal(view, OBJ, SIZE, prior=p, noise_px=0.5) for p in (0.5, 1.2)]
+    (low, (lo, hi)), (high, _) = estimates
+    assert lo <= low < high <= hi and hi / lo > 1.1
 
 
 def test_a_symmetric_view_ippe_fails_on_at_some_focal_lengths_still_gets_an_estimate() -> None:
