@@ -117,7 +117,8 @@ FEATURE_SIDE, RATIO, RANSAC_PX, MIN_INLIERS = 640, 0.75, 4.0, 12
 #: twice the search's time on the book's false positives; the val answers were the same).
 FEATURE_MARGIN = 0.5
 #: Where `refine_corners` searches the texture's features: around the start corners, in the
-#: whole photo (the network missed the object: its corners mark no place), or not at all.
+#: whole photo (corners that mark no place: of an object the network missed, or of a zero-shot
+#: network), or not at all.
 FeatureSearch = Literal["near", "photo", "off"]
 
 
