@@ -140,8 +140,8 @@ def test_blur_a_hand_over_the_object_and_the_frames_edge_are_held() -> None:
 
 
 def test_a_board_mostly_outside_the_photo_is_aligned_by_what_it_shows() -> None:
-    """A board 3x the photo's height, a third of it in view: the crop around it (the board
-    and a margin) is mostly outside the photo, the part the photo shows is enough."""
+    """A board nearly 3x the photo's height, 20-40 % of it in view: the crop around it (the
+    board and a margin) is mostly outside the photo, the part the photo shows is enough."""
     tex = texture("charuco")
     big = (TRUTH - TRUTH.mean(0)) * 4.0 + [420.0, 420.0]
     quad = np.zeros(SIZE[::-1], np.uint8)
