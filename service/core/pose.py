@@ -296,7 +296,9 @@ def estimate_focal(
     and the prior: the least of the corners' squared error over 2 noise^2 plus
     (ln f - ln prior)^2 / (2 `FOCAL_PRIOR_SD`^2) (a parabola's vertex in ln f between the
     scan's steps), the prior being the model's (`focal_prior` of `prior`, x the SPEC
-    camera's). An oblique view pins its own focal length; a head-on one keeps the prior."""
+    camera's). An oblique view pins its own focal length; a head-on one keeps the prior. The
+    range is the scan's, widened to the estimate where that lies between its steps (a sharply
+    pinned view allows a single step, 6 % wide)."""
     q = _as_points(corners)
     fs = np.geomspace(*focal_bounds(size, CAMERA_BOUNDS), FOCAL_STEPS)
     cost = _costs([q], object_points, size, fs)[0]
@@ -310,7 +312,7 @@ def estimate_focal(
     curve = c0 - 2 * c1 + c2
     shift = 0.5 * (c0 - c2) / curve if curve > 0 else 0.0
     best = float(np.exp(log_fs[i] + (log_fs[1] - log_fs[0]) * np.clip(shift, -1.0, 1.0)))
-    return float(np.clip(best, lo, hi)), (lo, hi)
+    return best, (min(lo, best), max(hi, best))
 
 
 #: `cv2.calibrateCamera` with one unknown: fx = fy from the guess, nothing else.
