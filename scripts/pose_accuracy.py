@@ -15,9 +15,11 @@ photos got a camera. Then each source's photos are sent one by one, in order, on
 `WS /v1/stream` without fx (at most 30): the first frame answered with `fx_source: "stream"`
 and the error of the stream's fx on its last frame. The test sources are reported, never
 used to choose anything. Writes a markdown page (default docs/pose_accuracy.md) with the
-date and the machine.
+date and the machine. `--width W` sends every photo reduced to W px wide (OpenCV's area
+resampling, JPEG quality 95; the true fx scaled alike): issue 49's "160 px not lower than
+today" is `--width 160`.
 
-    python scripts/pose_accuracy.py
+    python scripts/pose_accuracy.py [--width 160 --out docs/pose_accuracy_160.md]
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import cv2
 import numpy as np
 from fastapi.testclient import TestClient
 
@@ -75,32 +78,54 @@ class Tally:
         ]
 
 
-def _photo(folder: Path, row: dict[str, str]) -> tuple[str, tuple[str, bytes, str]]:
-    return ("image", (row["file"], (folder / row["file"]).read_bytes(), "image/jpeg"))
+def _scale(row: dict[str, str], width: int | None) -> float:
+    """The factor from the labels' px to the px of the photo sent `width` px wide (None: as
+    stored)."""
+    return 1.0 if width is None else width / int(row["width"])
 
 
-def measure(client: TestClient, folder: Path) -> dict[str, Tally]:
-    """The three ways on every photo of one source (one camera)."""
+def _bytes(folder: Path, row: dict[str, str], width: int | None) -> bytes:
+    """The photo's file as sent: as stored (`width` None), or reduced to `width` px wide."""
+    data = (folder / row["file"]).read_bytes()
+    if width is None:
+        return data
+    bgr = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+    if bgr is None:
+        sys.exit(f"error: cannot decode {folder / row['file']}")
+    height = max(1, round(bgr.shape[0] * width / bgr.shape[1]))
+    small = cv2.resize(bgr, (width, height), interpolation=cv2.INTER_AREA)
+    return cv2.imencode(".jpg", small, [cv2.IMWRITE_JPEG_QUALITY, 95])[1].tobytes()
+
+
+def _photo(
+    folder: Path, row: dict[str, str], width: int | None
+) -> tuple[str, tuple[str, bytes, str]]:
+    return ("image", (row["file"], _bytes(folder, row, width), "image/jpeg"))
+
+
+def measure(client: TestClient, folder: Path, width: int | None) -> dict[str, Tally]:
+    """The three ways on every photo of one source (one camera), sent `width` px wide."""
     with (folder / "labels.csv").open(newline="", encoding="utf-8") as handle:
         rows = [r for r in csv.DictReader(handle) if int(r["class"]) != 0 and r.get("fx")]
     tallies = {way: Tally() for way in WAYS}
     for i, row in enumerate(rows):
         label, centre = int(row["class"]), np.array([float(row[f"cam_{a}"]) for a in "xyz"])
-        photo = [_photo(folder, row)]
+        photo = [_photo(folder, row, width)]
+        fx = float(row["fx"]) * _scale(row, width)  # px of the photo as sent
         answers = {
             "estimated": client.post("/v1/predict", files=photo).json(),
-            "true fx": client.post(f"/v1/predict?fx={row['fx']}", files=photo).json(),
+            "true fx": client.post(f"/v1/predict?fx={fx}", files=photo).json(),
         }
         others = [rows[(i + k) % len(rows)] for k in range(1, min(LEARN_FROM, len(rows) - 1) + 1)]
-        learned = client.post("/v1/cameras", files=[_photo(folder, r) for r in others])
+        learned = client.post("/v1/cameras", files=[_photo(folder, r, width) for r in others])
         if learned.status_code == 201:
             camera = learned.json()
             query = f"/v1/predict?camera={camera['id']}"
             answers["learned"] = client.post(query, files=photo).json()
             client.delete(f"/v1/cameras/{camera['id']}")
             tallies["learned"].learned += 1
-            fx_true = float(row["fx"])  # px of the photo, the size the camera was learned at
-            tallies["learned"].fx_error.append(abs(camera["fx"] - fx_true) / fx_true)
+            # px of the photo as sent, the size the camera was learned at
+            tallies["learned"].fx_error.append(abs(camera["fx"] - fx) / fx)
         else:
             answers["learned"] = answers["estimated"]
         for way, answer in answers.items():
@@ -110,9 +135,10 @@ def measure(client: TestClient, folder: Path) -> dict[str, Tally]:
     return tallies
 
 
-def stream(client: TestClient, folder: Path, frames: int = 30) -> list[str]:
-    """One source's photos on one stream without fx -> the row: photos sent, the first frame
-    (1-based) answered with the stream's camera, its fx error % on the last frame."""
+def stream(client: TestClient, folder: Path, width: int | None, frames: int = 30) -> list[str]:
+    """One source's photos (sent `width` px wide) on one stream without fx -> the row:
+    photos sent, the first frame (1-based) answered with the stream's camera, its fx error %
+    on the last frame."""
     with (folder / "labels.csv").open(newline="", encoding="utf-8") as handle:
         rows = [r for r in csv.DictReader(handle) if int(r["class"]) != 0 and r.get("fx")]
     rows = rows[:frames]
@@ -120,16 +146,13 @@ def stream(client: TestClient, folder: Path, frames: int = 30) -> list[str]:
     with client.websocket_connect("/v1/stream") as ws:
         ws.receive_json()
         for i, row in enumerate(rows):
-            ws.send_bytes((folder / row["file"]).read_bytes())
+            ws.send_bytes(_bytes(folder, row, width))
             answer = ws.receive_json()
             if answer.get("fx_source") == "stream":
                 first = first or i + 1
-                fx = (
-                    answer["fx"]
-                    * max(int(row["width"]), int(row["height"]))
-                    / max(answer["image_size"])
-                )
-    fx_true = float(rows[-1]["fx"])
+                sent = _scale(row, width) * max(int(row["width"]), int(row["height"]))
+                fx = answer["fx"] * sent / max(answer["image_size"])
+    fx_true = float(rows[-1]["fx"]) * _scale(rows[-1], width)
     error = "" if fx is None else f"{100 * abs(fx - fx_true) / fx_true:.1f}"
     return [str(len(rows)), "never" if first is None else str(first), error]
 
@@ -137,7 +160,10 @@ def stream(client: TestClient, folder: Path, frames: int = 30) -> list[str]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", type=Path, default=REPO_ROOT / "docs/pose_accuracy.md")
+    parser.add_argument("--width", type=int, help="send the photos reduced to this width, px")
     args = parser.parse_args()
+    if args.width is not None and args.width < 16:
+        parser.error(f"--width {args.width}: 16 px or more")
     splits = read_splits(CORPUS / "splits.toml")
     sources = [p for p in corpus_sources(CORPUS) if p.parent.name == "boards"]
     db = Path(tempfile.mkdtemp(prefix="pose-accuracy-")) / "cameras.db"
@@ -151,8 +177,8 @@ def main() -> None:
             split = splits.get(folder.name)
             if split not in ("val", "test"):
                 continue
-            tallies = measure(client, folder)
-            streams.append([split, folder.name, *stream(client, folder)])
+            tallies = measure(client, folder, args.width)
+            streams.append([split, folder.name, *stream(client, folder, args.width)])
             for way, tally in tallies.items():
                 rows.append([split, folder.name, way, len(tally.right), *tally.row()])
                 total = totals[split, way]
@@ -165,8 +191,9 @@ def main() -> None:
     lines = [
         "# The pose and the learned camera on real photos",
         "",
-        written_by("python scripts/pose_accuracy.py")
+        written_by(" ".join(["python scripts/pose_accuracy.py", *sys.argv[1:]]))
         + " Board photos of the corpus's val and test sources (one source = one camera) "
+        f"{'as stored' if args.width is None else f'reduced to {args.width} px wide'} "
         "through the service's HTTP app, whole mode, default settings and model; `learned`: "
         f"a camera learned from up to {LEARN_FROM} other photos of the source "
         "(`POST /v1/cameras`), the photo answered never among them. Centre error: |c - "
