@@ -388,14 +388,25 @@ def graph_predictor(raw: bytes, card: dict[str, Any], images: int) -> Any:
     return model_predictor(model)
 
 
-def regraph(onnx_path: Path) -> bytes:
+def with_current_prior(profile: dict[str, Any]) -> dict[str, Any]:
+    """A card's profile entry with the focal prior its profile file states now (a prior
+    chosen after training reaches a regraphed model and its card); as it was where the
+    profile cannot be loaded."""
+    try:
+        return profile | {"focal_prior": load_profile(profile["name"]).focal_prior}
+    except (KeyError, FileNotFoundError, ValueError):  # ProfileError is a ValueError
+        return profile
+
+
+def regraph(onnx_path: Path, profile: dict[str, Any] | None = None) -> bytes:
     """A shipped corner graph exported again from its own weights
     (`train.network.onnx_weights`) in this version's form (`onnx_bytes`: the inputs and
-    outputs of the zoom pass)."""
+    outputs of the zoom pass), its camera model that of `profile` (a card's profile entry;
+    None: its own card's)."""
     from train.network.model import export_form
     from train.network.onnx_weights import corner_net_from_onnx
 
-    net, _ = corner_net_from_onnx(onnx_path)
+    net, _ = corner_net_from_onnx(onnx_path, profile)
     return onnx_bytes(export_form(net))
 
 
@@ -448,7 +459,9 @@ def recard(
     `val_datasets`, `export`) and write it with its card's accuracies replaced (training
     provenance unchanged; val figures it is not measured on again are dropped) as
     out_dir/<name>.onnx + .json. With a `version`, a corner graph is first exported again
-    from its weights in this version's form (`regraph`) and its card says so. Without
+    from its weights in this version's form (`regraph`, the focal prior its profile states
+    now: `with_current_prior`) and its card says so, the command among its rebuild steps.
+    Without
     `eval_datasets` (and no `version`) the model is only renamed: graph, accuracies and
     dates unchanged, `renamed_from` in the card."""
     import onnx
@@ -460,9 +473,16 @@ def recard(
     card = json.loads(cards[0])
     raw = onnx_path.read_bytes()
     if version is not None:
-        raw = regraph(onnx_path)
+        profile = with_current_prior(card.get("profile", {}))
+        raw = regraph(onnx_path, profile)
         regraphed = {"version": version, "regraphed_from": card.get("version")}
-        card |= regraphed | _io_card(True, card.get("profile", {}))
+        card |= regraphed | {"profile": profile} | _io_card(True, profile)
+        sets = [f"--eval {repo_path(p)}" for p in eval_datasets]
+        sets += [f"--eval-val {repo_path(p)}" for p in val_datasets or []]
+        command = f"planar-pose export {repo_path(onnx_path)} --name {name} --regraph"
+        training = card.setdefault("training", {})
+        rebuild = training.get("rebuild") or []
+        training["rebuild"] = [*rebuild, " ".join([command, f"--version {version}", *sets])]
     if eval_datasets:
         card |= {"name": name}
         images = image_count(eval_datasets, split) + image_count(val_datasets or [], "val")

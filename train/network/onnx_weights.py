@@ -57,10 +57,13 @@ def _graph(path: Path) -> tuple[dict[str, torch.Tensor], dict[str, list[str]], d
     return inits, convs, json.loads(cards[0])
 
 
-def corner_net_from_onnx(path: Path) -> tuple[NormalisedNet, dict[str, Any]]:
+def corner_net_from_onnx(
+    path: Path, profile: dict[str, Any] | None = None
+) -> tuple[NormalisedNet, dict[str, Any]]:
     """A planar-pose corner ONNX graph -> (the network with its weights, batch norms as
     the module doc says, and a parent record like a checkpoint's: data, config and best
-    epoch from the model card)."""
+    epoch from the model card); its geometry and camera model those of `profile` (a card's
+    profile entry; None: the graph's own card's)."""
     path = Path(path)
     if not path.is_file():
         raise OnnxWeightsError(f"ONNX model not found: {path}")
@@ -69,7 +72,7 @@ def corner_net_from_onnx(path: Path) -> tuple[NormalisedNet, dict[str, Any]]:
         raise OnnxWeightsError(f"{path} is not a planar-pose corner network")
     arch = "corners" if "up0.0" in convs else "corners-coarse"
     size = (int(card["input"][0]), int(card["input"][1]))
-    net = build_network(arch, size, profile=card.get("profile"))
+    net = build_network(arch, size, profile=card.get("profile") if profile is None else profile)
     state = net.state_dict()
     read = set()
     for name, module in net.named_modules():

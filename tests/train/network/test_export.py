@@ -193,6 +193,28 @@ def test_a_card_gets_its_recipe_rebuild_commands_and_role_in_both_copies(tmp_pat
     assert result.exit_code == 1 and "recipe not found" in result.output
 
 
+def test_a_regraphed_graph_takes_the_focal_prior_its_profile_states_now():
+    """A prior chosen after training (the ChArUco profile's 0.53 x) reaches a regraphed
+    model's graph and card; a profile that cannot be loaded keeps the card's own."""
+    from service.core.profile import load_profile
+    from train.network.export import _camera_card, with_current_prior
+    from train.network.model import build_network
+
+    stated = load_profile("charuco").focal_prior
+    assert stated != 0.8
+    entry = load_profile("charuco").manifest_entry() | {"focal_prior": 0.8}  # as trained
+    profile = with_current_prior(entry)
+    assert profile == entry | {"focal_prior": stated}
+    assert _camera_card(profile)["focal_prior_x_spec"] == stated
+    from service.core.geometry import intrinsics
+
+    net = build_network("corners", (160, 120), profile=profile)
+    spec_fx = float(intrinsics((160, 120))[0, 0])
+    assert float(net.focal) == pytest.approx(stated * spec_fx)  # the graph's prior camera
+    unknown = {"name": "no-such-object", "focal_prior": 0.8}
+    assert with_current_prior(unknown) == unknown and with_current_prior({}) == {}
+
+
 def test_a_corner_graph_is_regraphed_with_the_zoom_inputs(tmp_path):
     """`export --regraph`: a shipped corner graph of an older form (no `view`, no `pattern`)
     comes back from its own weights with both, answering as before with the default view."""
@@ -210,7 +232,12 @@ def test_a_corner_graph_is_regraphed_with_the_zoom_inputs(tmp_path):
     path, card = recard(old, "re", tmp_path, [real], split="all", version="9.9.9")
     before = json.loads(old.with_suffix(".json").read_text())
     assert card["version"] == "9.9.9" and card["regraphed_from"] == before["version"]
-    assert card["training"] == before["training"] and "view" in card["input_format"]
+    rebuild = card["training"].pop("rebuild")  # the regraph is its last step
+    assert rebuild[:-1] == before["training"].get("rebuild", [])
+    assert rebuild[-1].startswith(f"planar-pose export {old.relative_to(REPO_ROOT)} --name re")
+    assert "--regraph --version 9.9.9 --eval" in rebuild[-1]
+    assert card["training"] == {k: v for k, v in before["training"].items() if k != "rebuild"}
+    assert "view" in card["input_format"]
     session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
     outputs = ["probabilities", "corners", "pattern", "undistorted"]
     assert [o.name for o in session.get_outputs()] == outputs
