@@ -175,7 +175,7 @@ def set_rows(
             others = [photos[i] for i in rest]
             cells = score(predictor, others, [camera] * len(others))
             rows.append([name, "learned" if camera else "not learned", condition, *cells])
-        print("\n".join(" | ".join(r) for r in rows[-3 if real else -1:]), flush=True)
+        print("\n".join(" | ".join(r) for r in rows[-3 if real else -1 :]), flush=True)
     return rows
 
 
