@@ -86,6 +86,11 @@ MIN_EXTENT_PX = 16
 GAUSS_TAPS = 5
 #: A refinement that moves a corner by more than this share of the extent is refused.
 MAX_SHIFT = 0.25
+#: A coarse level that moves a corner further than this share of the object's extent ends
+#: the alignment: the finer levels refine where it went, and it would be refused (`MAX_SHIFT`)
+#: (a photo without the object pays one level; at `MAX_SHIFT` itself a val book render at
+#: blur 3 was lost that the finer levels bring back; docs/decisions.md).
+GIVE_UP_SHIFT = 2 * MAX_SHIFT
 #: ECC's iterations per level and its convergence threshold on the correlation's increment.
 ITERATIONS, EPSILON = 20, 1e-4
 #: ECC's iterations where the start is already close (the alignment through a fitted lens).
@@ -451,8 +456,10 @@ def _align(
     the crop's own level alone with at most `iterations`, for a start already close) -> the
     refined corners [4, 2] px
     of the crop and the final correlation. A coarse level where ECC fails is skipped (the
-    next starts where it would have); cv2.error where the finest fails, _OverBudget where
-    `deadline` (`time.perf_counter()`) passes between two levels."""
+    next starts where it would have); one that moves a corner further than `GIVE_UP_SHIFT`
+    of `extent_px` ends the alignment there (the caller refuses it); cv2.error where the
+    finest fails, _OverBudget where `deadline` (`time.perf_counter()`) passes between two
+    levels."""
     levels = (
         1 if finest_only else max(1, min(5, 1 + int(math.log2(max(extent_px / COARSE_PX, 1.0)))))
     )
@@ -481,6 +488,8 @@ def _align(
             continue  # a coarse level that loses the detail (a chessboard's squares): skipped
         moved = cv2.perspectiveTransform(tex.reshape(-1, 1, 2), np.asarray(H, np.float64))
         corners = (moved.reshape(4, 2) + 0.5) * factor - 0.5
+        if level and np.linalg.norm(corners - start, axis=1).max() > GIVE_UP_SHIFT * extent_px:
+            break
     return corners, float(score)
 
 

@@ -127,6 +127,28 @@ def test_a_coarse_level_where_ecc_fails_is_skipped(monkeypatch: pytest.MonkeyPat
     assert ref.refined and error(ref.corners) < 0.5
 
 
+def test_a_coarse_level_that_moves_the_corners_too_far_ends_the_alignment(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """ECC at the coarsest level went far off (as on a photo without the object): the finer
+    levels, which only refine where it went, are not run, and the start stands."""
+    ecc, calls = cv2.findTransformECC, []
+
+    def far_first(template: Any, image: Any, H0: Any, *rest: Any) -> Any:
+        calls.append(image.shape)
+        if len(calls) == 1:  # the level's width to the right
+            shift = np.array([[1, 0, image.shape[1]], [0, 1, 0], [0, 0, 1]], np.float32)
+            return 0.5, shift @ H0
+        return ecc(template, image, H0, *rest)
+
+    monkeypatch.setattr(cv2, "findTransformECC", far_first)
+    tex = texture("charuco")
+    ref = refine_corners(photo(tex), START, tex, features="off")
+    assert len(calls) == 1
+    assert not ref.refined and ref.reason == "the alignment moved the corners too far"
+    assert np.array_equal(ref.corners, START)
+
+
 def test_blur_a_hand_over_the_object_and_the_frames_edge_are_held() -> None:
     tex = texture("charuco")
     blurred = cv2.GaussianBlur(photo(tex), (0, 0), 2.5)
