@@ -454,12 +454,11 @@ def _align(
 ) -> tuple[np.ndarray, float]:
     """ECC from the corners [4, 2] px of the crop `start`, coarse to fine (`finest_only`:
     the crop's own level alone with at most `iterations`, for a start already close) -> the
-    refined corners [4, 2] px
-    of the crop and the final correlation. A coarse level where ECC fails is skipped (the
-    next starts where it would have); one that moves a corner further than `GIVE_UP_SHIFT`
-    of `extent_px` ends the alignment there (the caller refuses it); cv2.error where the
-    finest fails, _OverBudget where `deadline` (`time.perf_counter()`) passes between two
-    levels."""
+    refined corners [4, 2] px of the crop and the final correlation. A coarse level where
+    ECC fails is skipped (the next starts where it would have); one that moves a corner
+    further than `GIVE_UP_SHIFT` of `extent_px` ends the alignment there (the caller
+    refuses it); cv2.error where the finest fails, _OverBudget where `deadline`
+    (`time.perf_counter()`) passes between two levels."""
     levels = (
         1 if finest_only else max(1, min(5, 1 + int(math.log2(max(extent_px / COARSE_PX, 1.0)))))
     )

@@ -461,9 +461,8 @@ def recard(
     out_dir/<name>.onnx + .json. With a `version`, a corner graph is first exported again
     from its weights in this version's form (`regraph`, the focal prior its profile states
     now: `with_current_prior`) and its card says so, the command among its rebuild steps.
-    Without
-    `eval_datasets` (and no `version`) the model is only renamed: graph, accuracies and
-    dates unchanged, `renamed_from` in the card."""
+    Without `eval_datasets` (and no `version`) the model is only renamed: graph, accuracies
+    and dates unchanged, `renamed_from` in the card."""
     import onnx
 
     model = onnx.load(str(onnx_path))
