@@ -30,6 +30,7 @@ import sys
 import tempfile
 import time
 from dataclasses import dataclass, field
+from functools import cache
 from pathlib import Path
 
 import cv2
@@ -84,14 +85,15 @@ def _scale(row: dict[str, str], width: int | None) -> float:
     return 1.0 if width is None else width / int(row["width"])
 
 
-def _bytes(folder: Path, row: dict[str, str], width: int | None) -> bytes:
+@cache  # a photo is sent again with each camera learned from it
+def _bytes(path: Path, width: int | None) -> bytes:
     """The photo's file as sent: as stored (`width` None), or reduced to `width` px wide."""
-    data = (folder / row["file"]).read_bytes()
+    data = path.read_bytes()
     if width is None:
         return data
     bgr = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
     if bgr is None:
-        sys.exit(f"error: cannot decode {folder / row['file']}")
+        sys.exit(f"error: cannot decode {path}")
     height = max(1, round(bgr.shape[0] * width / bgr.shape[1]))
     small = cv2.resize(bgr, (width, height), interpolation=cv2.INTER_AREA)
     return cv2.imencode(".jpg", small, [cv2.IMWRITE_JPEG_QUALITY, 95])[1].tobytes()
@@ -100,7 +102,7 @@ def _bytes(folder: Path, row: dict[str, str], width: int | None) -> bytes:
 def _photo(
     folder: Path, row: dict[str, str], width: int | None
 ) -> tuple[str, tuple[str, bytes, str]]:
-    return ("image", (row["file"], _bytes(folder, row, width), "image/jpeg"))
+    return ("image", (row["file"], _bytes(folder / row["file"], width), "image/jpeg"))
 
 
 def measure(client: TestClient, folder: Path, width: int | None) -> dict[str, Tally]:
@@ -146,7 +148,7 @@ def stream(client: TestClient, folder: Path, width: int | None, frames: int = 30
     with client.websocket_connect("/v1/stream") as ws:
         ws.receive_json()
         for i, row in enumerate(rows):
-            ws.send_bytes(_bytes(folder, row, width))
+            ws.send_bytes(_bytes(folder / row["file"], width))
             answer = ws.receive_json()
             if answer.get("fx_source") == "stream":
                 first = first or i + 1
